@@ -1,0 +1,1 @@
+"""Device drivers of the station; drivers/sim holds the protocol-level emulators."""

@@ -1,0 +1,1 @@
+"""Calibration analysis: window means, regressors, least squares, evaluation."""

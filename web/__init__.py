@@ -1,0 +1,1 @@
+"""FastAPI web panel: live monitoring, history and authenticated control."""
