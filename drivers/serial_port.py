@@ -378,19 +378,21 @@ class TickUnwrapper:
         """Forget the history (next stamp is anchored afresh)."""
         self._last_ticks = None
 
-    def unwrap_ticks(self, raw: int) -> int:
-        """Unwrapped tick count of a raw counter value."""
-        host_s = self.clock.now_s()
+    def unwrap_ticks(self, raw: int, host_s: float | None = None) -> int:
+        """Unwrapped tick count of a raw counter value.
+
+        `host_s`: the clock reading when the stamp arrived (pass one reading
+        per received chunk to save a clock call per stamp); read now if None.
+        """
+        if host_s is None:
+            host_s = self.clock.now_s()
         mod = self.modulus
         if self._last_ticks is None:
-            if self.absolute:
-                k = round((host_s / self.tick_s - raw) / mod)
-            else:
-                k = 0
+            k = round((host_s / self.tick_s - raw) / mod) if self.absolute else 0
             full = k * mod + raw
         else:
-            expected = (host_s - self._last_host_s) / self.tick_s
             delta = (raw - self._last_ticks) % mod
+            expected = (host_s - self._last_host_s) / self.tick_s
             k = round((expected - delta) / mod)
             full = self._last_ticks + delta + k * mod
         self._last_ticks = full

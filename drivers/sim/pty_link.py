@@ -253,7 +253,8 @@ class PtyEmulator:
                     except BlockingIOError:
                         data = b""
                     except OSError:
-                        # EIO: nobody holds the slave open right now; keep serving.
+                        # EIO should not happen while we hold the slave; back off, keep serving.
+                        time.sleep(self.poll_wall_s)
                         data = b""
                     if data:
                         self.on_bytes(data)

@@ -277,3 +277,11 @@ def _build(klass: type, data: Any, where: str) -> Any:
         if not ok or not math.isfinite(value):
             raise TwinConfigError(f"{where}: {key} = {value!r}: expected a finite number")
     return klass(**{k: (int(v) if names[k].type == "int" else float(v)) for k, v in data.items()})
+
+
+def default_twin() -> TwinConfig:
+    """The embedded default station (station/data/default_twin.toml)."""
+    from importlib.resources import files
+
+    text = files("station").joinpath("data/default_twin.toml").read_text()
+    return TwinConfig.from_dict(tomllib.loads(text), source="embedded default twin")

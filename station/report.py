@@ -1,0 +1,133 @@
+"""Self-contained HTML report of a calibration session (plots as inline SVG, no external assets).
+
+Coefficients with uncertainties, evaluation (sigma, mu vs mu_c), residual and
+proportional-residual plots in the manner of seed 000 Figs. 10-11, the timing
+capture table in the manner of Table 8, and the station and instrument configuration.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+import json
+from collections.abc import Mapping
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from station.analysis.identify import Identification  # noqa: E402
+from station.analysis.regressors import COEFFICIENTS  # noqa: E402
+from station.session import Session  # noqa: E402
+
+_UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g²", "ky": "rad/s/g²", "k3": "rad/s/g³"}
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}
+th{background:#eee}td.l,th.l{text-align:left}.ok{color:#070}.bad{color:#b00}h2{border-bottom:1px solid #ccc}
+"""
+
+
+def _svg(fig) -> str:
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg", bbox_inches="tight")
+    plt.close(fig)
+    text = buf.getvalue()
+    return text[text.index("<svg") :]
+
+
+def _esc(x) -> str:
+    return html.escape(str(x))
+
+
+def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float] | None) -> str:
+    head = "<tr><th class=l>coefficient</th><th class=l>unit</th>"
+    for m in results:
+        head += f"<th>{_esc(m)} value</th><th>{_esc(m)} σ</th>"
+        if truth:
+            head += f"<th>{_esc(m)} error</th>"
+    if truth:
+        head += "<th>true (twin)</th>"
+    rows = [head + "</tr>"]
+    for name in COEFFICIENTS:
+        row = f"<tr><td class=l>{name}</td><td class=l>{_UNITS[name]}</td>"
+        for r in results.values():
+            if name in r.names:
+                v, s = r.coefficient(name)
+                row += f"<td>{v:.6e}</td><td>{s:.2e}</td>"
+                if truth:
+                    row += f"<td>{v - truth[name]:+.2e}</td>"
+            else:
+                row += "<td>—</td><td>—</td>" + ("<td>—</td>" if truth else "")
+        if truth:
+            row += f"<td>{truth[name]:.6e}</td>"
+        rows.append(row + "</tr>")
+    ev = "<tr><td class=l>σ residual</td><td class=l>rad/s</td>"
+    mu = "<tr><td class=l>μ vs μc (eq. 28)</td><td class=l></td>"
+    span = 3 if truth else 2
+    for r in results.values():
+        ev += f"<td colspan={span}>{r.sigma_residual:.3e} (dof {r.dof})</td>"
+        cls = "ok" if r.mu < r.mu_c else "bad"
+        verdict = "accepted" if r.mu < r.mu_c else "possible outlier"
+        mu += f"<td colspan={span} class={cls}>{r.mu:.3f} vs {r.mu_c:.3f}: {verdict}</td>"
+    tail = "<td></td>" if truth else ""
+    rows += [ev + tail + "</tr>", mu + tail + "</tr>"]
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _residual_plots(results: Mapping[str, Identification]) -> str:
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    for (m, r), marker in zip(results.items(), "os^", strict=False):
+        x = np.arange(1, r.Y_residuals.size + 1)
+        axes[0].plot(x, r.Y_residuals, marker=marker, ls="-", lw=0.8, label=m)
+        axes[1].plot(x, np.abs(r.proportional_residuals), marker=marker, ls="-", lw=0.8, label=m)
+    axes[0].set(title="Residuals e (Fig. 10a/11a)", xlabel="vibration point", ylabel="rad/s")
+    axes[1].set(title="Proportional residuals |e / (a cos θ)| (eq. 29)", xlabel="vibration point", ylabel="rad/s/g", yscale="log")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend()
+    return _svg(fig)
+
+
+def _timing_table(session: Session) -> str:
+    static = {round(p.position_deg, 9): p for p in session.points if p.kind == "static"}
+    rows = ["<tr><th>position (deg)</th><th>f (Hz)</th><th>Np</th><th>t1 (s)</th><th>Tm (s)</th><th>t2 (s)</th><th>static Tm (s)</th></tr>"]
+    for p in session.points:
+        if p.kind != "vibration":
+            continue
+        st = static.get(round(p.position_deg, 9))
+        rows.append(
+            f"<tr><td>{p.position_deg:g}</td><td>{p.freq_hz:g}</td><td>{p.Np}</td><td>{p.t1_s:.7f}</td>"
+            f"<td>{p.Tm_s:.6f}</td><td>{p.t2_s:.7f}</td><td>{st.Tm_s if st else float('nan'):.6f}</td></tr>"
+        )
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def render_report(
+    session: Session,
+    results: Mapping[str, Identification],
+    *,
+    title: str = "Calibration session",
+    config: Mapping | None = None,
+    truth: Mapping[str, float] | None = None,
+) -> str:
+    """The whole report as one HTML string."""
+    st = session.station
+    station_rows = "".join(f"<tr><td class=l>{k}</td><td>{_esc(v)}</td></tr>" for k, v in vars(st).items())
+    parts = [
+        f"<!doctype html><html><head><meta charset=utf-8><title>{_esc(title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{_esc(title)}</h1><p>{len(session.points)} points; {_esc(session.notes)}</p>",
+        "<h2>Coefficients (integral precession, seed 000 eqs. 19-22)</h2>",
+        _coef_table(results, truth),
+        "<h2>Residuals</h2>",
+        _residual_plots(results),
+        "<h2>Timing capture (as seed 000 Table 8)</h2>",
+        _timing_table(session),
+        "<h2>Station</h2><table>" + station_rows + "</table>",
+    ]
+    if config:
+        parts.append("<h2>Configuration</h2><pre>" + _esc(json.dumps(config, indent=2, default=str)) + "</pre>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
