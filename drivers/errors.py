@@ -36,7 +36,7 @@ class DriverError(Exception):
         super().__init__("".join(parts))
 
 
-class DeviceTimeout(DriverError):
+class DeviceTimeout(DriverError):  # noqa: N818 (names fixed by the project)
     """The device did not answer within a bounded time."""
 
 
@@ -48,11 +48,11 @@ class ChecksumError(FrameError):
     """A reply's checksum or CRC did not match."""
 
 
-class Disconnected(DriverError):
+class Disconnected(DriverError):  # noqa: N818
     """The transport went away (port closed, cable pulled, bus gone)."""
 
 
-class DeviceFault(DriverError):
+class DeviceFault(DriverError):  # noqa: N818
     """The device reported a fault of its own (error code, alarm bit, EMCY)."""
 
 

@@ -36,6 +36,7 @@ Disconnected. START/STOP/STATUS are idempotent, so they are retried.
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import time
 from collections.abc import Iterator
@@ -51,15 +52,7 @@ from drivers.errors import (
     FrameError,
     LimitError,
 )
-from drivers.serial_port import (
-    TICK_S,
-    Frame,
-    FrameParser,
-    SerialLink,
-    TickUnwrapper,
-    encode_frame,
-    with_retries,
-)
+from drivers.serial_port import TICK_S, Frame, FramedPort, TickUnwrapper
 from station.clock import Clock
 
 DEVICE = "grating read head"
@@ -117,9 +110,11 @@ def biss_word(position: int, n_error: int = 1, n_warning: int = 1) -> int:
 
 def biss_words_np(position: np.ndarray, n_error: np.ndarray, n_warning: np.ndarray) -> np.ndarray:
     """Vectorised biss_word for the emulator (uint64 array)."""
-    data = ((position.astype(np.int64) & ((1 << POSITION_BITS) - 1)).astype(np.uint64) << 2) | (
-        n_error.astype(np.uint64) << 1
-    ) | n_warning.astype(np.uint64)
+    data = (
+        ((position.astype(np.int64) & ((1 << POSITION_BITS) - 1)).astype(np.uint64) << 2)
+        | (n_error.astype(np.uint64) << 1)
+        | n_warning.astype(np.uint64)
+    )
     reg = np.zeros(data.shape, dtype=np.uint8)
     for shift in (32, 24, 16, 8, 0):  # 5 bytes, MSB first
         reg = CRC6_TABLE_NP[reg ^ ((data >> np.uint64(shift)) & np.uint64(0xFF)).astype(np.uint8)]
@@ -195,8 +190,7 @@ class GratingReadHead:
         self.retries = retries
         self.max_divider = max_divider
         self._clock = clock
-        self._link: SerialLink | None = None
-        self._parser = FrameParser(DEVICE)
+        self._port: FramedPort | None = None
         self._unwrap = TickUnwrapper(clock, absolute=clock is not None)
         self._pending: DriverError | None = None
         self._divider = 1
@@ -210,22 +204,20 @@ class GratingReadHead:
     # ---- port
 
     def open(self) -> GratingReadHead:
-        if self._link is None:
-            self._link = SerialLink(DEVICE, self.port, self.baud)
+        if self._port is None:
+            self._port = FramedPort(DEVICE, self.port, self.baud)
         return self
 
     def close(self) -> None:
         """Stop streaming if possible, then close; never raises."""
-        if self._link is None:
+        if self._port is None:
             return
         if self.streaming:
-            try:
+            with contextlib.suppress(DriverError):
                 self._command(STOP, b"", retries=0, timeout_s=min(self.timeout_s, 0.2))
-            except DriverError:
-                pass
         self.streaming = False
-        self._link.close()
-        self._link = None
+        self._port.close()
+        self._port = None
 
     def __enter__(self) -> GratingReadHead:
         return self.open()
@@ -234,54 +226,37 @@ class GratingReadHead:
         self.close()
 
     @property
-    def link(self) -> SerialLink:
-        if self._link is None:
+    def framed(self) -> FramedPort:
+        if self._port is None:
             raise DriverError(DEVICE, f"port {self.port} is not open")
-        return self._link
+        return self._port
 
     # ---- commands
 
-    def _await_reply(self, want_type: int, cmd: int, timeout_s: float) -> Frame:
-        """Wait for the reply to `cmd`, discarding stream frames; bounded by timeout_s."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            item = self._parser.next_item()
-            if item is None:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise DeviceTimeout(
-                        DEVICE, f"no reply to command 0x{cmd:02X} within {timeout_s:g} s"
-                    )
-                self._parser.feed(self.link.read_some(left))
-                continue
-            if isinstance(item, FrameError):
-                continue  # stream debris while waiting for the reply
-            if item.type == want_type and (want_type != ACK or item.payload[:1] == bytes([cmd])):
-                return item
-
     def _command(self, cmd: int, payload: bytes, *, retries: int, timeout_s: float) -> Frame:
-        want = STATUS if cmd == STATUS_Q else ACK
+        def is_reply(f: Frame) -> bool:
+            if cmd == STATUS_Q:
+                return f.type == STATUS and len(f.payload) == STATUS_PAYLOAD.size
+            return f.type == ACK and f.payload[:1] == bytes([cmd])
 
-        def once() -> Frame:
-            self.link.write(encode_frame(cmd, payload))
-            reply = self._await_reply(want, cmd, timeout_s)
-            if want == ACK:
-                _, result = ACK_PAYLOAD.unpack(reply.payload)
-                if result != 0:
-                    raise DeviceFault(DEVICE, f"command 0x{cmd:02X} rejected (result {result})")
-            return reply
-
-        return with_retries(once, retries)
+        reply = self.framed.request(cmd, payload, is_reply, timeout_s=timeout_s, retries=retries)
+        if reply.type == ACK:
+            _, result = ACK_PAYLOAD.unpack(reply.payload)
+            if result != 0:
+                raise DeviceFault(DEVICE, f"command 0x{cmd:02X} rejected (result {result})")
+        return reply
 
     def start_streaming(self, divider: int = 1) -> None:
-        """Start the sample stream at 5 kHz / divider."""
+        """Start the sample stream at 5 kHz / divider (retried: idempotent)."""
         if not 1 <= divider <= self.max_divider:
             raise LimitError(
-                DEVICE, "bad rate divider", field="divider", value=divider,
+                DEVICE,
+                "bad rate divider",
+                field="divider",
+                value=divider,
                 allowed=f"1 .. {self.max_divider}",
             )
-        self.link.discard_input()
-        self._parser.reset()
+        self.framed.reset()
         self._pending = None
         self._command(
             START, START_PAYLOAD.pack(divider), retries=self.retries, timeout_s=self.timeout_s
@@ -294,9 +269,10 @@ class GratingReadHead:
         self.streaming = True
 
     def stop_streaming(self) -> None:
+        """Stop the stream (retried: idempotent); unread samples are discarded."""
         self._command(STOP, b"", retries=self.retries, timeout_s=self.timeout_s)
         self.streaming = False
-        self._parser.reset()
+        self.framed.reset()
         self._pending = None
 
     def status(self) -> dict[str, object]:
@@ -314,12 +290,12 @@ class GratingReadHead:
     @property
     def crc_errors(self) -> int:
         """Frames dropped for a bad CRC-16 or BiSS CRC-6."""
-        return self._parser.crc_errors + self.stats.biss_crc_errors
+        return self.framed.parser.crc_errors + self.stats.biss_crc_errors
 
     @property
     def frame_errors(self) -> int:
         """Truncated, garbled or unexpected frames (and garbage stretches)."""
-        return self._parser.frame_errors
+        return self.framed.parser.frame_errors
 
     @property
     def rate_hz(self) -> float:
@@ -354,7 +330,7 @@ class GratingReadHead:
         warns: list[bool] = []
         lost_here = 0
         stats = self.stats
-        parser = self._parser
+        fp = self.framed
         unpack = SAMPLE_PAYLOAD.unpack
         host_s = self._unwrap.clock.now_s()
 
@@ -368,7 +344,7 @@ class GratingReadHead:
             )
 
         while len(seqs) < max_samples:
-            item = parser.next_item()
+            item = fp.poll_item()
             if item is None:
                 if seqs:
                     break
@@ -377,7 +353,7 @@ class GratingReadHead:
                     if self._in_signal_loss:
                         raise self._signal_fault()
                     raise DeviceTimeout(DEVICE, f"no sample within {timeout_s:g} s")
-                parser.feed(self.link.read_some(left))
+                fp.fill(left)
                 host_s = self._unwrap.clock.now_s()
                 continue
             err: DriverError | None = None
@@ -450,7 +426,9 @@ class GratingReadHead:
         while True:
             b = self.read_block(timeout_s=timeout_s)
             for i in range(len(b)):
-                yield GratingSample(int(b.seq[i]), float(b.t_s[i]), float(b.z_m[i]), bool(b.warning[i]))
+                yield GratingSample(
+                    int(b.seq[i]), float(b.t_s[i]), float(b.z_m[i]), bool(b.warning[i])
+                )
 
     def read_for(self, n_samples: int, timeout_s: float | None = None) -> SampleBlock:
         """Exactly n_samples samples concatenated (errors propagate)."""

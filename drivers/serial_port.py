@@ -31,13 +31,16 @@ stamps come from the device or from the station `Clock`.
 from __future__ import annotations
 
 import binascii
+import contextlib
 import errno
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
+import numpy as np
 import serial
 
 from drivers.errors import (
@@ -130,10 +133,8 @@ class SerialLink:
 
     def close(self) -> None:
         """Close the port; never raises (closing a vanished port is fine)."""
-        try:
+        with contextlib.suppress(serial.SerialException, OSError, TypeError):
             self._ser.close()
-        except (serial.SerialException, OSError, TypeError):
-            pass
 
 
 # ---------------------------------------------------------------- ASCII lines
@@ -284,7 +285,9 @@ class FrameParser:
             if buf[start] != 0xA5 or buf[start + 1] != 0x5A:
                 i = self._skip_to_sync(start + 1)
                 err = self._bad(
-                    FrameError(self.device, "garbage between frames; resynchronising on the next sync")
+                    FrameError(
+                        self.device, "garbage between frames; resynchronising on the next sync"
+                    )
                 )
                 if err is not None:
                     return err
@@ -336,6 +339,81 @@ class FrameParser:
                 )
             if err is not None:
                 return err
+
+
+class FramedPort:
+    """A serial link speaking the binary framing: request/reply plus a frame stream.
+
+    Frames that arrive while a request waits for its reply (stream samples,
+    events) are kept in a backlog and handed out by `poll_item` afterwards,
+    so a status query in the middle of a stream loses nothing.
+    """
+
+    def __init__(self, device: str, port: str, baud: int) -> None:
+        self.device = device
+        self.link = SerialLink(device, port, baud)
+        self.parser = FrameParser(device)
+        self._backlog: deque[Frame] = deque()
+
+    def close(self) -> None:
+        self.link.close()
+
+    def reset(self) -> None:
+        """Forget everything received so far (before starting a new stream)."""
+        self.link.discard_input()
+        self.parser.reset()
+        self._backlog.clear()
+
+    def poll_item(self) -> Frame | FrameError | None:
+        """The next frame or framing error already received; None if none (no I/O)."""
+        if self._backlog:
+            return self._backlog.popleft()
+        return self.parser.next_item()
+
+    def fill(self, wait_s: float) -> None:
+        """Receive what arrives within wait_s (at least waits for one byte)."""
+        self.parser.feed(self.link.read_some(wait_s))
+
+    def request(
+        self,
+        frame_type: int,
+        payload: bytes,
+        is_reply: Callable[[Frame], bool],
+        *,
+        timeout_s: float,
+        retries: int = 0,
+        what: str = "",
+    ) -> Frame:
+        """Send a frame and return the first frame `is_reply` accepts.
+
+        Retries (only pass retries > 0 for queries and idempotent commands) on
+        no reply within timeout_s or a garbled reply.
+        """
+        label = what or f"command 0x{frame_type:02X}"
+
+        def once() -> Frame:
+            self.link.write(encode_frame(frame_type, payload))
+            deadline = time.monotonic() + timeout_s
+            bad: FrameError | None = None
+            while True:
+                item = self.parser.next_item()
+                if item is None:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        if bad is not None:
+                            raise type(bad)(self.device, f"{label}: reply damaged ({bad})")
+                        raise DeviceTimeout(
+                            self.device, f"no reply to {label} within {timeout_s:g} s"
+                        )
+                    self.fill(left)
+                elif isinstance(item, FrameError):
+                    bad = item  # maybe our reply, maybe stream debris: keep waiting
+                elif is_reply(item):
+                    return item
+                else:
+                    self._backlog.append(item)
+
+        return with_retries(once, retries)
 
 
 # ---------------------------------------------------------------- time stamps
@@ -401,6 +479,21 @@ class TickUnwrapper:
 
     def unwrap_s(self, raw: int) -> float:
         return self.unwrap_ticks(raw) * self.tick_s
+
+    def unwrap_array(self, raw: np.ndarray, host_s: float | None = None) -> np.ndarray:
+        """Unwrapped ticks (int64) of stamps that arrived together, in time order.
+
+        The first is unwrapped like `unwrap_ticks`; each following one lies
+        less than a wrap after its predecessor.
+        """
+        raw = np.asarray(raw, dtype=np.int64)
+        if raw.size == 0:
+            return raw
+        first = self.unwrap_ticks(int(raw[0]), host_s)
+        steps = np.diff(raw) % self.modulus
+        full = first + np.concatenate(([0], np.cumsum(steps)))
+        self._last_ticks = int(full[-1])
+        return full
 
 
 def ticks_of(t_s: float, *, tick_s: float = TICK_S, bits: int = TICK_BITS) -> int:

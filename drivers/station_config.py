@@ -13,7 +13,7 @@ import dataclasses
 import math
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, get_type_hints
 
@@ -42,8 +42,12 @@ def _range(lo: float, hi: float, *, lo_open: bool = False) -> Check:
     )
 
 
+def _meta(check: Check | None = None, *, optional: bool = False) -> dict[str, Any]:
+    return {"check": check, "optional": optional}
+
+
 def _spec(check: Check | None = None, *, optional: bool = False) -> Any:
-    return dataclasses.field(metadata={"check": check, "optional": optional})
+    return field(metadata=_meta(check, optional=optional))
 
 
 @dataclass(frozen=True)
@@ -73,7 +77,7 @@ class ServoSection:
     interface: str = _spec((bool, "a python-can interface name, e.g. socketcan or virtual"))
     channel: str = _spec((bool, "a non-empty channel name, e.g. can0"))
     node_id: int = _spec(_range(1, 127))
-    eds: Path = _spec()
+    eds: Path = field(metadata=_meta())
     heartbeat_ms: int = _spec(_range(10, 10_000))
     timeout_s: float = _spec(_range(0.0, 10.0, lo_open=True))
 
@@ -185,7 +189,8 @@ def _section(path: Path, name: str, table: Any, simulated: bool) -> Any:
     if name == "servo":
         eds = (path.parent / values["eds"]).resolve()
         if not eds.is_file():
-            raise ConfigError(path, "[servo] eds", values["eds"], "an existing file relative to config/")
+            allowed = "an existing file, relative to the config file's directory"
+            raise ConfigError(path, "[servo] eds", values["eds"], allowed)
         values["eds"] = eds
     return cls(**values)
 
@@ -194,25 +199,21 @@ def _cross_check(cfg: StationConfig) -> None:
     """Relations between keys: ranges ordered, payload within limits, sim on a virtual bus."""
     lim, p = cfg.limits, cfg.path
     if lim.freq_min_hz >= lim.freq_max_hz:
-        raise ConfigError(p, "[limits] freq_min_hz", lim.freq_min_hz, f"< freq_max_hz = {lim.freq_max_hz:g}")
+        raise ConfigError(p, "[limits] freq_min_hz", lim.freq_min_hz, f"< {lim.freq_max_hz:g}")
     if lim.accel_min_g >= lim.accel_max_g:
-        raise ConfigError(p, "[limits] accel_min_g", lim.accel_min_g, f"< accel_max_g = {lim.accel_max_g:g}")
+        raise ConfigError(p, "[limits] accel_min_g", lim.accel_min_g, f"< {lim.accel_max_g:g}")
     if cfg.station.A0_m > lim.displacement_max_m:
-        raise ConfigError(
-            p, "[station] A0_m", cfg.station.A0_m, f"<= displacement_max_m = {lim.displacement_max_m:g}"
-        )
+        allowed = f"<= [limits] displacement_max_m = {lim.displacement_max_m:g}"
+        raise ConfigError(p, "[station] A0_m", cfg.station.A0_m, allowed)
     if cfg.payload.mass_kg > lim.payload_max_kg:
-        raise ConfigError(
-            p, "[payload] mass_kg", cfg.payload.mass_kg, f"<= payload_max_kg = {lim.payload_max_kg:g}"
-        )
+        allowed = f"<= [limits] payload_max_kg = {lim.payload_max_kg:g}"
+        raise ConfigError(p, "[payload] mass_kg", cfg.payload.mass_kg, allowed)
     if any(s > m for s, m in zip(cfg.payload.size_mm, lim.payload_size_mm, strict=True)):
-        raise ConfigError(
-            p, "[payload] size_mm", list(cfg.payload.size_mm), f"each <= {list(lim.payload_size_mm)}"
-        )
+        allowed = f"each <= [limits] payload_size_mm = {list(lim.payload_size_mm)}"
+        raise ConfigError(p, "[payload] size_mm", list(cfg.payload.size_mm), allowed)
     if cfg.simulated and cfg.servo.interface != "virtual":
-        raise ConfigError(
-            p, "[servo] interface", cfg.servo.interface, "'virtual' when simulated = true"
-        )
+        allowed = "'virtual' when simulated = true"
+        raise ConfigError(p, "[servo] interface", cfg.servo.interface, allowed)
 
 
 def load_station_config(path: str | Path) -> StationConfig:

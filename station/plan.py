@@ -9,7 +9,25 @@ import numpy as np
 from station.twin.measurement import PointSpec
 
 SEED000_FREQS_HZ = (8.0, 9.0, 10.0)
-SEED000_PRESET_PULSES = 819_200  # 50 precession revolutions, Tm about 560 s
+SEED000_WINDOW_S = 560.0  # seed 000: P = 50 revolutions at 0 deg gives Tm about 560 s
+NOMINAL_KZ_RADPS_PER_G = 0.56
+PULSES_PER_REV = 16384
+
+
+def preset_pulses(
+    position_deg: float,
+    window_s: float = SEED000_WINDOW_S,
+    kz_nominal: float = NOMINAL_KZ_RADPS_PER_G,
+    k0_nominal: float = 1.5e-4,
+) -> int:
+    """Whole precession revolutions that take about window_s at this position (seed 000 5.1.4).
+
+    The rate is about k0 + kz cos(theta); at least one revolution, so positions
+    near 90 and 270 deg still cost hours.
+    """
+    rate = abs(k0_nominal + kz_nominal * np.cos(np.radians(position_deg)))
+    revolutions = max(1, round(rate * window_s / (2 * np.pi)))
+    return int(revolutions * PULSES_PER_REV)
 
 
 def equal_angle_positions_deg(n: int) -> list[float]:
@@ -20,16 +38,17 @@ def equal_angle_positions_deg(n: int) -> list[float]:
 def multiposition_plan(
     positions_deg: Sequence[float],
     freqs_hz: Sequence[float] = SEED000_FREQS_HZ,
-    preset_pulses: int = SEED000_PRESET_PULSES,
+    window_s: float = SEED000_WINDOW_S,
 ) -> list[PointSpec]:
     """At each position the vibration tests, then the static test (seed 000 5.2)."""
     plan: list[PointSpec] = []
     for pos in positions_deg:
-        plan += [PointSpec(pos, f, preset_pulses) for f in freqs_hz]
-        plan.append(PointSpec(pos, 0.0, preset_pulses))
+        preset = preset_pulses(pos, window_s)
+        plan += [PointSpec(float(pos), float(f), preset) for f in freqs_hz]
+        plan.append(PointSpec(float(pos), 0.0, preset))
     return plan
 
 
 def seed000_plan() -> list[PointSpec]:
-    """The embedded default: 10 positions x (8, 9, 10 Hz + static), 40 points, about 6.3 h."""
+    """The embedded default: 10 positions x (8, 9, 10 Hz + static), 40 points, about 7 h."""
     return multiposition_plan(equal_angle_positions_deg(10))

@@ -180,4 +180,3 @@ class GratingEmulator(PtyEmulator):
             b[-1] ^= 0x5A
             return bytes(b)
         return frame
-

@@ -25,6 +25,7 @@ driver sees as an I/O error on its port, like a pulled USB cable.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import os
 import select
@@ -197,10 +198,8 @@ class PtyEmulator:
             fd = getattr(self, attr)
             if fd is not None:
                 setattr(self, attr, None)
-                try:
+                with contextlib.suppress(OSError):
                     os.close(fd)
-                except OSError:
-                    pass
         self.connected = False
 
     # ---- output
@@ -264,7 +263,8 @@ class PtyEmulator:
                 else:
                     self._tokens = min(
                         self._burst_bytes,
-                        self._tokens + (time.monotonic() - self._last_wall) * self._bytes_per_wall_s,
+                        self._tokens
+                        + (time.monotonic() - self._last_wall) * self._bytes_per_wall_s,
                     )
                     self._last_wall = time.monotonic()
         except BaseException as exc:  # keep the cause for tests; the driver sees a dead link

@@ -1,0 +1,160 @@
+"""The gap measured on data the fit did not see.
+
+Held-out units are vibration points (their rate and their period identity);
+static points always stay in the training set, since with one free static
+level per position a held-out static point could not be predicted at all.
+Three schemes: leave one position out, leave one frequency out, leave one
+block of the run order out (BLOCKS contiguous blocks of vibration points).
+
+For a fitted model with whitened Jacobian J and residual r (station.gap.fit),
+each fold refits the model linearised at the full-data estimate on the
+training rows (one Gauss-Newton step: exact for the static levels and K,
+and for effects that are linear in their parameters) and predicts the
+held-out rows. A held-out residual is standardised by its predictive
+variance, z^2 = e^2 / (sigma_i^2 + x_i^T Cov x_i), with sigma_i the honest
+noise (station.gap.noise): in whitened units z^2 = e^2 / (1 + h_i),
+h_i = x_i^T (J_T^T J_T)^-1 x_i.
+
+Metric: G = mean over held-out rows of z^2, minus 1 (0 when the model is
+right; averaged over the three schemes). In rate units: the excess RMS
+sqrt(max(0, mean(e^2 - var))) of the held-out rates, referred to a window of
+T_ref seconds (rad/s); in timing units the same for the period identities (s).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.gap.design import PointDesign
+
+BLOCKS = 4
+
+
+@dataclass(frozen=True)
+class Folds:
+    """Held-out vibration-point sets of each scheme (indices into the points)."""
+
+    schemes: dict[str, list[np.ndarray]]
+
+    @classmethod
+    def of(cls, design: PointDesign) -> Folds:
+        vib = np.flatnonzero(design.vib)
+        schemes: dict[str, list[np.ndarray]] = {}
+        pos = [vib[design.pos_index[vib] == j] for j in np.unique(design.pos_index[vib])]
+        if len(pos) >= 2:
+            schemes["leave_position_out"] = pos
+        freqs = np.unique(design.freq_hz[vib])
+        if freqs.size >= 2:
+            schemes["leave_frequency_out"] = [vib[design.freq_hz[vib] == f] for f in freqs]
+        if vib.size >= 2 * BLOCKS:
+            order = vib[np.argsort(design.sequence[vib], kind="stable")]
+            schemes["leave_time_block_out"] = [b for b in np.array_split(order, BLOCKS) if b.size]
+        return cls(schemes)
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Held-out gap of one model."""
+
+    G: float  # mean z^2 - 1 over the schemes
+    by_scheme: dict[str, float]
+    se: float  # standard error of G under a right model (chi-square_1 rows)
+    rate_excess_rms_radps: float
+    timing_excess_rms_s: float
+    n_rows: int
+    z2_rate: np.ndarray  # per point (NaN where never held out), mean over schemes
+
+    def to_json(self) -> dict:
+        return {
+            "metric": "held-out mean z^2 - 1, z = held-out residual / sqrt(sigma^2 + x^T Cov x)",
+            "value": _r(self.G),
+            "standard_error_if_no_gap": _r(self.se),
+            "by_scheme": {k: _r(v) for k, v in self.by_scheme.items()},
+            "rate_excess_rms_radps": _r(self.rate_excess_rms_radps),
+            "rate_units_note": "sqrt(max(0, mean(e^2 - predictive variance))) of held-out rates, "
+            "referred to a window of T_ref (the twin's rate_noise_ref_s)",
+            "timing_excess_rms_s": _r(self.timing_excess_rms_s),
+            "n_heldout_rows": self.n_rows,
+        }
+
+
+def _r(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def heldout(
+    J: np.ndarray,
+    r: np.ndarray,
+    design: PointDesign,
+    folds: Folds,
+    rate_sigma_ratio: float,
+    sigma0_radps: float,
+    sigma_tau_s: float,
+) -> HeldOut:
+    """Held-out gap of the model with whitened Jacobian J and residual r.
+
+    rate_sigma_ratio = honest sigma0 / the sigma0 that whitened J and r: the rate
+    rows are re-whitened by the honest noise before anything else.
+    """
+    n = design.n_points
+    vib_idx = np.flatnonzero(design.vib)
+    tau_row = {int(i): n + k for k, i in enumerate(vib_idx)}
+    Jw, rw = J.copy(), r.copy()
+    Jw[:n] /= rate_sigma_ratio
+    rw[:n] /= rate_sigma_ratio
+    by_scheme: dict[str, float] = {}
+    z2_rate_sum = np.zeros(n)
+    z2_rate_cnt = np.zeros(n)
+    ex_rate, ex_tau, rows_total = [], [], 0
+    for scheme, fold_list in folds.schemes.items():
+        z2_all = []
+        for held in fold_list:
+            rows = np.concatenate([held, [tau_row[int(i)] for i in held]]).astype(int)
+            train = np.ones(rw.size, dtype=bool)
+            train[rows] = False
+            JT = Jw[train]
+            keep = np.linalg.norm(JT, axis=0) > 0
+            JT, JH = JT[:, keep], Jw[rows][:, keep]
+            pinv = np.linalg.pinv(JT, rcond=1e-11)
+            delta = pinv @ rw[train]
+            e = rw[rows] - JH @ delta
+            h = np.sum((JH @ pinv) ** 2, axis=1)  # x (J^T J)^-1 x^T
+            z2 = e * e / (1.0 + h)
+            z2_all.append(z2)
+            k = held.size
+            z2_rate_sum[held] += z2[:k]
+            z2_rate_cnt[held] += 1
+            # Back to physical units: rate rows referred to T_ref, timing rows in seconds.
+            ex_rate.append((z2[:k] - 1.0) * (1.0 + h[:k]) * sigma0_radps**2)
+            ex_tau.append((z2[k:] - 1.0) * (1.0 + h[k:]) * sigma_tau_s**2)
+        allz = np.concatenate(z2_all)
+        rows_total += allz.size
+        by_scheme[scheme] = float(np.mean(allz) - 1.0)
+    if not by_scheme:
+        return HeldOut(math.nan, {}, math.nan, math.nan, math.nan, 0, np.full(n, np.nan))
+    G = float(np.mean(list(by_scheme.values())))
+    n_unique = 2 * vib_idx.size
+    se = math.sqrt(2.0 / max(n_unique, 1))
+    er = np.concatenate(ex_rate)
+    et = np.concatenate(ex_tau)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z2_rate = np.where(z2_rate_cnt > 0, z2_rate_sum / np.maximum(z2_rate_cnt, 1), np.nan)
+    return HeldOut(
+        G=G,
+        by_scheme=by_scheme,
+        se=se,
+        rate_excess_rms_radps=math.sqrt(max(0.0, float(np.mean(er)))),
+        timing_excess_rms_s=math.sqrt(max(0.0, float(np.mean(et)))),
+        n_rows=rows_total,
+        z2_rate=z2_rate,
+    )
+
+
+def shrink(before: HeldOut, after: HeldOut) -> float | None:
+    """Fraction of the held-out gap that a model removes (1 = all of it); None without a gap."""
+    if not math.isfinite(before.G) or before.G < 2.0 * before.se:
+        return None
+    return float((before.G - after.G) / before.G)

@@ -1,0 +1,156 @@
+"""What the raw streams say: the grating's harmonics and the pulse-rate spectrum (physics.md raw/).
+
+Per vibration point with raw/<point_id>.npz, with the apparent crank phase
+psi_a(t) = w_m (t - t1) (w_m = 2 pi Np / (t2 + Tm - t1), from the record's own
+timing capture, so the reduction needs no model):
+- grating: least squares of z(t) on 1, sin j psi_a, cos j psi_a (j = 1..3)
+  gives (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) as the read head sees them; the
+  twin predicts the same numbers from table_position_m at psi = psi_a + w delta
+  (latency shifts the reference); the differences, with standard errors from
+  the fit's residual scatter, are the waveform gap.
+- pulses: the precession angle at every pulse edge (cumulative up/down
+  count times the pulse angle) fitted by phi0 + c0 t + sum_j (A_j sin j psi_a +
+  B_j cos j psi_a) gives the rate's harmonics r_j = j w (A_j, B_j); the twin
+  predicts them from periodic_rate (rotated by the latency phase).
+At most MAX_SAMPLES samples per stream are used (evenly strided).
+Across points, the grating differences are summarised as the waveform
+parameters they imply: dZs1 = dz0 + dz1 w, and the mean of each other harmonic.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from station.gap.design import PointDesign
+from station.session import Session
+from station.twin.config import TwinConfig
+from station.twin.inputs import table_position_m
+from station.twin.precession import N_PHASES, periodic_rate
+
+MAX_SAMPLES = 200_000
+HARMONICS = (1, 2, 3)
+_GRATING_NAMES = ("Zs1+A0", "Zc1", "Zs2", "Zc2", "Zs3", "Zc3")
+
+
+def _design(psi: np.ndarray, with_line: np.ndarray | None = None) -> np.ndarray:
+    cols = [np.ones_like(psi)]
+    if with_line is not None:
+        cols.append(with_line)
+    for j in HARMONICS:
+        cols += [np.sin(j * psi), np.cos(j * psi)]
+    return np.column_stack(cols)
+
+
+def _lsq(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    res = y - A @ coef
+    dof = max(y.size - A.shape[1], 1)
+    s2 = float(res @ res) / dof
+    cov = np.linalg.pinv(A.T @ A) * s2
+    return coef, np.sqrt(np.diag(cov))
+
+
+def _stride(n: int) -> slice:
+    return slice(None, None, max(1, math.ceil(n / MAX_SAMPLES)))
+
+
+def _twin_grating(w: float, delta: float, cfg: TwinConfig) -> np.ndarray:
+    """(Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) the read head sees, from the twin's table motion."""
+    psi_a = 2 * math.pi * np.arange(N_PHASES) / N_PHASES
+    z = table_position_m(psi_a + w * delta, w, cfg)
+    spec = np.fft.rfft(z) / N_PHASES
+    out = []
+    for j in HARMONICS:
+        out += [-2.0 * spec[j].imag, 2.0 * spec[j].real]
+    return np.array(out)
+
+
+def _twin_rate_harmonics(theta: float, f_true: float, delta: float, cfg: TwinConfig) -> np.ndarray:
+    """Rate harmonics (sin, cos) per j in the apparent phase, from periodic_rate."""
+    pr = periodic_rate(theta, f_true, cfg)
+    w = 2 * math.pi * f_true
+    out = []
+    for j in HARMONICS:
+        idx = np.flatnonzero(pr.k == j)
+        a, b = (float(pr.alpha[idx[0]]), float(pr.beta[idx[0]])) if idx.size else (0.0, 0.0)
+        # r = a cos j psi + b sin j psi, psi = psi_a + w delta: rotate into psi_a.
+        ph = j * w * delta
+        out += [b * math.cos(ph) - a * math.sin(ph), a * math.cos(ph) + b * math.sin(ph)]
+    return np.array(out)
+
+
+def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dict:
+    """Grating and pulse-rate harmonics of every vibration point with raw streams ({} if none)."""
+    cfg = twin
+    if not session.raw:
+        return {}
+    points = []
+    rows_w, rows_d, rows_s = [], [], []
+    delta = cfg.param("readhead_latency", "delta")
+    for i, pid in enumerate(design.point_ids):
+        raw = session.raw.get(pid)
+        if raw is None or not design.vib[i]:
+            continue
+        t1, t2, tm, n_p = design.t1_s[i], design.t2_s[i], design.Tm_s[i], int(design.Np[i])
+        w = 2 * math.pi * n_p / (t2 + tm - t1)
+        entry: dict = {"point_id": pid, "position_deg": float(design.position_deg[i]),
+                       "freq_hz": float(design.freq_hz[i]), "measured_freq_hz": w / (2 * math.pi)}
+        if raw.grating_t.size > 20:
+            s = _stride(raw.grating_t.size)
+            t, z = raw.grating_t[s], raw.grating_z[s]
+            coef, se = _lsq(_design(w * (t - t1)), z)
+            meas, se = coef[1:], se[1:]
+            pred = _twin_grating(w, delta, twin)
+            diff = meas - pred
+            entry["grating"] = {n: {"measured_m": float(m), "twin_m": float(p), "difference_m": float(dd),
+                                    "se_m": float(e)} for n, m, p, dd, e in zip(_GRATING_NAMES, meas, pred, diff, se, strict=True)}
+            rows_w.append(w)
+            rows_d.append(diff)
+            rows_s.append(se)
+        if raw.pulse_t.size > 20:
+            direction = raw.pulse_dir if raw.pulse_dir is not None else np.ones(raw.pulse_t.size)
+            phi = np.cumsum(direction) * (2 * math.pi / session.station.pulses_per_rev)
+            s = _stride(raw.pulse_t.size)
+            t, ph = raw.pulse_t[s], phi[s]
+            A = _design(w * (t - t1), with_line=t)
+            coef, se = _lsq(A, ph)
+            meas = []
+            for k, j in enumerate(HARMONICS):
+                a_s, a_c = coef[2 + 2 * k], coef[3 + 2 * k]
+                # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
+                meas += [-j * w * a_c, j * w * a_s]
+            f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+            pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, delta, cfg)
+            entry["pulse_rate_harmonics"] = [
+                {"harmonic": j, "measured_radps": float(math.hypot(meas[2 * k], meas[2 * k + 1])),
+                 "twin_radps": float(math.hypot(pred[2 * k], pred[2 * k + 1])),
+                 "difference_radps": float(math.hypot(meas[2 * k] - pred[2 * k], meas[2 * k + 1] - pred[2 * k + 1]))}
+                for k, j in enumerate(HARMONICS)
+            ]
+        points.append(entry)
+    out: dict = {"points": points, "n_points": len(points)}
+    if rows_d:
+        out["grating_summary"] = _grating_summary(np.array(rows_w), np.array(rows_d), np.array(rows_s))
+    return out
+
+
+def _grating_summary(w: np.ndarray, d: np.ndarray, s: np.ndarray) -> dict:
+    """Waveform parameters implied by the grating differences (weighted least squares)."""
+    out: dict = {}
+    s = np.maximum(s, 1e-12)
+    wt = 1.0 / s[:, 0] ** 2
+    if np.unique(np.round(w, 6)).size >= 2:
+        A = np.column_stack([np.ones_like(w), w])
+        cov = np.linalg.inv(A.T @ (A * wt[:, None]))
+        coef = cov @ (A.T @ (wt * d[:, 0]))
+        out["z0_m"] = {"value": float(coef[0]), "se": float(math.sqrt(cov[0, 0]))}
+        out["z1_m_s_per_rad"] = {"value": float(coef[1]), "se": float(math.sqrt(cov[1, 1]))}
+    else:
+        out["Zs1_m"] = {"value": float(np.average(d[:, 0], weights=wt)), "se": float(1 / math.sqrt(wt.sum()))}
+    for k, name in enumerate(_GRATING_NAMES[1:], start=1):
+        wk = 1.0 / s[:, k] ** 2
+        out[f"{name}_m"] = {"value": float(np.average(d[:, k], weights=wk)), "se": float(1 / math.sqrt(wk.sum())),
+                            "note": "Zc1 includes the read-head latency phase A0 w delta" if name == "Zc1" else ""}
+    return out
