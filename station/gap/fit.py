@@ -35,7 +35,8 @@ from station.twin.config import TwinConfig
 # Gauss-Newton is accepted when the exact residual sum of squares (whitened) is within
 # this of the linear prediction: far below the 1-unit scale of one noise standard deviation.
 _LINEARITY_TOL = 0.05
-_MAX_RELINEARISE = 4
+_CONVERGED_GAIN = 0.01  # a Gauss-Newton step that gains less (whitened RSS) has converged
+_MAX_RELINEARISE = 6
 
 
 @dataclass(frozen=True)
@@ -225,7 +226,7 @@ def fit_model(
            if free else np.zeros((state.r_white.size, 0)))
     if np.any(u):
         J_u = _columns_at(ch, state, cfg_at, u, free, scale)
-    converged = True
+    converged = not free
     for _ in range(_MAX_RELINEARISE + 1):
         if not free:
             break
@@ -234,13 +235,15 @@ def fit_model(
         du, *_ = np.linalg.lstsq(A, state.r_white, rcond=1e-10)
         predicted = float(np.sum((state.r_white - A @ du) ** 2))
         new = evaluate(ch, cfg_at(u + du))
-        u = u + du
-        if abs(new.rss_white - predicted) <= _LINEARITY_TOL + 1e-6 * predicted:
-            state = new
+        if new.rss_white > state.rss_white + _LINEARITY_TOL:
+            break  # the linear step overshoots: hand over to least_squares
+        gain = state.rss_white - new.rss_white
+        u, state = u + du, new
+        if abs(new.rss_white - predicted) <= _LINEARITY_TOL + 1e-6 * predicted or gain < _CONVERGED_GAIN:
+            converged = True
             break
-        state = new
         J_u = _columns_at(ch, state, cfg_at, u, free, scale)
-    else:
+    if not converged:
         u, state, converged = _least_squares(ch, cfg_at, u, free, scale)
         J_u = _columns_at(ch, state, cfg_at, u, free, scale)
     return _finish(ch, tuple(names), free, p0, scale, u, state, J_u, converged)
@@ -266,25 +269,26 @@ def _columns_at(ch, state, cfg_at, u, free, scale) -> np.ndarray:
 
 
 def _least_squares(ch, cfg_at, u0, free, scale):
-    """Fallback for strongly nonlinear cases: scipy least_squares on the projected residual."""
-    steps = np.array([fp.fd_step for fp in free]) / scale
+    """Fallback for strongly nonlinear cases: scipy least_squares ("lm") on the projected residual.
+
+    Its Jacobian is the projected model columns (variable projection with
+    Kaufman's approximation), one twin evaluation per parameter.
+    """
+    cache: dict[str, State] = {}
 
     def fun(u: np.ndarray) -> np.ndarray:
-        return evaluate(ch, cfg_at(u)).r_white
+        st = evaluate(ch, cfg_at(u))
+        cache["u"], cache["s"] = u.copy(), st
+        return st.r_white
 
-    res = least_squares(fun, u0, method="lm", diff_step=None, x_scale=1.0, max_nfev=40,
-                        jac=lambda u: _fd(fun, u, steps))
+    def jac(u: np.ndarray) -> np.ndarray:
+        st = cache["s"] if "u" in cache and np.array_equal(cache["u"], u) else evaluate(ch, cfg_at(u))
+        J = _columns_at(ch, st, cfg_at, u, free, scale)
+        P = _projector(st)
+        return -(J - P @ (P.T @ J))
+
+    res = least_squares(fun, u0, jac=jac, method="lm", x_scale=1.0, max_nfev=60)
     return res.x, evaluate(ch, cfg_at(res.x)), bool(res.success)
-
-
-def _fd(fun, u: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    r0 = fun(u)
-    J = np.empty((r0.size, u.size))
-    for j in range(u.size):
-        du = np.zeros_like(u)
-        du[j] = steps[j]
-        J[:, j] = (fun(u + du) - r0) / steps[j]
-    return J
 
 
 def _finish(ch, names, free, p0, scale, u, state: State, J_u, converged) -> ModelFit:

@@ -15,7 +15,7 @@ Out of library (OUT_OF_LIBRARY), injected by adding a term to the simulated
 rate that no library effect has:
 - quartic_term: an instrument term k4 aI^4;
 - ap_cubic: an instrument term kp3 aP^3;
-- bias_step: a bias step between the two halves of the session.
+- bias_step: a bias step in the middle of the session (between two points of one position).
 With --leave-one-out, each library effect is also injected while being left
 out of the diagnosing library (the strictest reading: an in-library
 look-alike then takes the blame).
@@ -110,6 +110,11 @@ def _extra_samples(kind: str, theta: float, freq_hz: float, cfg: TwinConfig, val
     raise ValueError(kind)
 
 
+def step_index(n_points: int) -> int:
+    """First point after the bias step: mid-session, inside a position's block of points."""
+    return n_points // 2 + 1
+
+
 @contextlib.contextmanager
 def injected_term(kind: str, value: float, n_points: int) -> Iterator[None]:
     """Add an out-of-library term to the rate the twin simulates (patches the simulator only)."""
@@ -122,7 +127,7 @@ def injected_term(kind: str, value: float, n_points: int) -> Iterator[None]:
         i = calls["n"]
         calls["n"] += 1
         if kind == "bias_step":
-            return replace(base, c0_radps=base.c0_radps + (value if i >= n_points // 2 else 0.0))
+            return replace(base, c0_radps=base.c0_radps + (value if i >= step_index(n_points) else 0.0))
         extra = _extra_samples(kind, theta_rad, freq_hz, cfg, value)
         if freq_hz == 0.0:
             return PeriodicRate.constant(base.c0_radps + float(extra[0]))
@@ -144,7 +149,7 @@ def _extra_signal(kind: str, value: float, d: PointDesign, cfg: TwinConfig) -> n
     rank[order] = np.arange(order.size)
     for i in range(d.n_points):
         if kind == "bias_step":
-            out[i] = value if rank[i] >= d.n_points // 2 else 0.0
+            out[i] = value if rank[i] >= step_index(d.n_points) else 0.0
             continue
         f = float(d.freq_hz[i])
         s = _extra_samples(kind, float(d.theta_rad[i]), f, cfg, value)

@@ -13,6 +13,8 @@ import math
 import threading
 from dataclasses import dataclass
 
+import numpy as np
+
 TWO_PI = 2.0 * math.pi
 
 
@@ -80,6 +82,53 @@ class CrankModel:
         """Unwrapped crank phase psi(t_s) in rad."""
         with self._lock:
             return self._segment_at(t_s).phase_rad(t_s)
+
+    def phases_rad(self, t_s: np.ndarray) -> np.ndarray:
+        """Vectorised psi(t) for an array of times (any order)."""
+        t = np.asarray(t_s, dtype=float)
+        with self._lock:
+            idx = np.clip(np.searchsorted(self._starts, t, side="right") - 1, 0, None)
+            segs = self._segments
+            out = np.empty_like(t)
+            for i in np.unique(idx):
+                sel = idx == i
+                seg = segs[i]
+                tau = np.minimum(t[sel], seg.t_ramp_end_s) - seg.t_start_s
+                psi = seg.psi_start_rad + seg.w_start_radps * tau + 0.5 * seg.accel_radps2 * tau * tau
+                out[sel] = psi + seg.w_end_radps * np.maximum(t[sel] - seg.t_ramp_end_s, 0.0)
+            return out
+
+    def times_at_phases(self, psi_levels: np.ndarray, t0_s: float, t1_s: float) -> np.ndarray:
+        """Times in (t0, t1] at which psi passes each level (the crank turning forwards); exact per segment."""
+        levels = np.sort(np.asarray(psi_levels, dtype=float))
+        with self._lock:
+            bounds = [*self._starts[1:], math.inf]
+            pieces = list(zip(self._segments, bounds, strict=True))
+        out = []
+        for seg, seg_end in pieces:
+            a, b = max(t0_s, seg.t_start_s), min(t1_s, seg_end)
+            if a >= b:
+                continue
+            # ramp part [a, min(b, ramp end)]: psi = p0 + w0 tau + accel tau^2 / 2, increasing where speed > 0
+            ramp_b = min(b, seg.t_ramp_end_s)
+            if ramp_b > a:
+                lv = levels[(levels > seg.phase_rad(a)) & (levels <= seg.phase_rad(ramp_b))]
+                c = seg.psi_start_rad - lv
+                if seg.accel_radps2 == 0.0:
+                    tau = -c / seg.w_start_radps if seg.w_start_radps > 0 else np.full(lv.size, np.nan)
+                else:
+                    disc = np.sqrt(np.maximum(seg.w_start_radps**2 - 2 * seg.accel_radps2 * c, 0.0))
+                    tau = (-seg.w_start_radps + disc) / seg.accel_radps2
+                out.append(seg.t_start_s + tau)
+            lin_a = max(a, seg.t_ramp_end_s)
+            if b > lin_a and seg.w_end_radps > 0:
+                p_a = seg.phase_rad(lin_a)
+                lv = levels[(levels > p_a) & (levels <= seg.phase_rad(b))]
+                out.append(lin_a + (lv - p_a) / seg.w_end_radps)
+        if not out:
+            return np.zeros(0)
+        t = np.concatenate(out)
+        return np.sort(t[np.isfinite(t)])
 
     def at_speed(self, t_s: float) -> bool:
         """True once the current ramp has finished."""

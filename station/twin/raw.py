@@ -123,23 +123,33 @@ def _extremum_fraction(p0, p1, r0, r1, h):
     return np.clip(np.where(inside.any(axis=0), pick, 0.5), 1e-12, 1 - 1e-12)
 
 
-def pulse_edges(window: PrecessionWindow, t_end_s: float, pulse_angle_rad: float) -> tuple[np.ndarray, np.ndarray]:
-    """Every edge (time, direction +1/-1) of the output pulses in [0, t_end]; t = 0 is the opening edge."""
+def pulse_edges(
+    window: PrecessionWindow, t_end_s: float, pulse_angle_rad: float, phase_offset_rad: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every edge (time, direction +1/-1) of the output pulses in [0, t_end].
+
+    Edges are where phi(t) + offset crosses a multiple of the pulse angle; with
+    no offset, t = 0 is itself an edge (the window's opening edge) and is included.
+    """
     if window.w_radps:
         h = 2.0 * math.pi / window.w_radps / GRID_PER_PERIOD
     else:
         h = _STATIC_STEP_S
     n_cells = int(math.ceil(t_end_s / h))
-    times = [np.zeros(1)]
-    dirs = [np.ones(1, dtype=np.int8)]
+    opening = phase_offset_rad is None
+    offset = 0.0 if opening else phase_offset_rad
+    times = [np.zeros(1)] if opening else []
+    dirs = [np.ones(1, dtype=np.int8)] if opening else []
     for n0 in range(0, n_cells, _BLOCK_CELLS):
         n1 = min(n0 + _BLOCK_CELLS, n_cells)
         t = np.arange(n0, n1 + 1) * h
         phi, rate = _grid_values(window, t, n0)
-        et, ed = _edges_in_cells(t, phi, rate, h, pulse_angle_rad)
+        et, ed = _edges_in_cells(t, phi + offset, rate, h, pulse_angle_rad)
         keep = (et > 0) & (et <= t_end_s)
         times.append(et[keep])
         dirs.append(ed[keep])
+    if not times:
+        return np.zeros(0), np.zeros(0, dtype=np.int8)
     return np.concatenate(times), np.concatenate(dirs)
 
 
