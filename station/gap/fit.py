@@ -37,6 +37,7 @@ from station.twin.config import TwinConfig
 _LINEARITY_TOL = 0.05
 _CONVERGED_GAIN = 0.01  # a Gauss-Newton step that gains less (whitened RSS) has converged
 _MAX_RELINEARISE = 6
+_RCOND = 1e-3  # relative singular value below which a combination of parameters is not moved
 
 
 @dataclass(frozen=True)
@@ -232,7 +233,7 @@ def fit_model(
             break
         P = _projector(state)
         A = J_u - P @ (P.T @ J_u)
-        du, *_ = np.linalg.lstsq(A, state.r_white, rcond=1e-10)
+        du = _solve(A, state.r_white)
         predicted = float(np.sum((state.r_white - A @ du) ** 2))
         new = evaluate(ch, cfg_at(u + du))
         if new.rss_white > state.rss_white + _LINEARITY_TOL:
@@ -247,6 +248,14 @@ def fit_model(
         u, state, converged = _least_squares(ch, cfg_at, u, free, scale)
         J_u = _columns_at(ch, state, cfg_at, u, free, scale)
     return _finish(ch, tuple(names), free, p0, scale, u, state, J_u, converged)
+
+
+def _solve(A: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Least-squares step, columns scaled to unit norm; directions the data cannot see are not moved."""
+    norms = np.linalg.norm(A, axis=0)
+    norms = np.where(norms > 0, norms, 1.0)
+    x, *_ = np.linalg.lstsq(A / norms, r, rcond=_RCOND)
+    return x / norms
 
 
 def _projector(state: State) -> np.ndarray:
@@ -287,7 +296,7 @@ def _least_squares(ch, cfg_at, u0, free, scale):
         P = _projector(st)
         return -(J - P @ (P.T @ J))
 
-    res = least_squares(fun, u0, jac=jac, method="lm", x_scale=1.0, max_nfev=60)
+    res = least_squares(fun, u0, jac=jac, method="lm", x_scale=1.0, max_nfev=30)
     return res.x, evaluate(ch, cfg_at(res.x)), bool(res.success)
 
 

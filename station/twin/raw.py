@@ -50,74 +50,88 @@ def grating_samples(
     return t, np.round(z / GRATING_RESOLUTION_M) * GRATING_RESOLUTION_M
 
 
-def _grid_values(window: PrecessionWindow, t: np.ndarray, n0: int) -> tuple[np.ndarray, np.ndarray]:
-    """phi and rate on grid points t = (n0 + i) h, reusing one period of the periodic part."""
-    if not window.w_radps or window.rate.k.size == 0:
-        return window.phi_rad(t), window.rate_radps(t)
-    period = 2.0 * math.pi / window.w_radps
-    one = np.arange(GRID_PER_PERIOD) * (period / GRID_PER_PERIOD)
-    base = PrecessionWindow(window.rate, window.w_radps, window.gamma0_rad)  # no offset, no drift
-    per_phi = base.phi_rad(one) - base.rate.c0_radps * one
-    per_rate = base.rate_radps(one) - base.rate.c0_radps
-    idx = (n0 + np.arange(t.size)) % GRID_PER_PERIOD
-    mean_phi = window.mean_rate_radps * t + 0.5 * window.drift_radps2 * t * t
-    mean_rate = window.mean_rate_radps + window.drift_radps2 * t
-    return mean_phi + per_phi[idx], mean_rate + per_rate[idx]
+class _GridModel:
+    """phi and rate on the grid t = n h; for vibration the periodic part is computed for one period."""
 
+    def __init__(self, window: PrecessionWindow, h: float) -> None:
+        self.window, self.h = window, h
+        self.periodic = bool(window.w_radps) and window.rate.k.size > 0
+        if self.periodic:
+            one = np.arange(GRID_PER_PERIOD) * h
+            base = PrecessionWindow(window.rate, window.w_radps, window.gamma0_rad)  # no offset, no drift
+            self.per_phi = base.phi_rad(one) - base.rate.c0_radps * one
+            self.per_rate = base.rate_radps(one) - base.rate.c0_radps
 
-def _hermite(p0, p1, r0, r1, h, s):
-    """Cubic Hermite value and derivative (per unit time) at fraction s of a cell."""
-    s2, s3 = s * s, s * s * s
-    val = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * r0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * h * r1
-    der = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * h * r0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * h * r1) / h
-    return val, der
+    def values(self, n0: int, n1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = np.arange(n0, n1 + 1)
+        t = n * self.h
+        w = self.window
+        if not self.periodic:
+            return t, w.phi_rad(t), w.rate_radps(t)
+        idx = n % GRID_PER_PERIOD
+        phi = w.mean_rate_radps * t + 0.5 * w.drift_radps2 * t * t + self.per_phi[idx]
+        rate = w.mean_rate_radps + w.drift_radps2 * t + self.per_rate[idx]
+        return t, phi, rate
 
 
 def _edges_in_cells(t, phi, rate, h, q):
-    """Pulse edges inside the cells [t_i, t_i+1] of one block."""
-    p0, p1, r0, r1 = phi[:-1], phi[1:], rate[:-1], rate[1:]
+    """Pulse edges inside the cells [t_i, t_i+1] of one block, in time order.
+
+    On each cell phi is the cubic Hermite interpolant c0 + c1 s + c2 s^2 + c3 s^3
+    of (phi, rate) at its ends, s in [0, 1]. Cells where the rate changes sign
+    are split at the cubic's extremum into two monotone pieces.
+    """
+    p0, p1, r0, r1 = phi[:-1], phi[1:], h * rate[:-1], h * rate[1:]
+    c0, c1 = p0, r0
+    c2 = 3.0 * (p1 - p0) - 2.0 * r0 - r1
+    c3 = 2.0 * (p0 - p1) + r0 + r1
     n = p0.size
-    # Split cells where the rate changes sign at the Hermite cubic's extremum.
-    s_split = np.full(n, np.nan)
-    turning = np.flatnonzero(np.sign(r0) * np.sign(r1) < 0)
-    if turning.size:
-        s_split[turning] = _extremum_fraction(p0[turning], p1[turning], r0[turning], r1[turning], h)
-    cell = np.concatenate([np.arange(n), turning])
-    s_a = np.concatenate([np.zeros(n), s_split[turning]])
-    s_b = np.concatenate([np.where(np.isnan(s_split), 1.0, s_split), np.ones(turning.size)])
-    va, _ = _hermite(p0[cell], p1[cell], r0[cell], r1[cell], h, s_a)
-    vb, _ = _hermite(p0[cell], p1[cell], r0[cell], r1[cell], h, s_b)
+    turning = np.sign(r0) * np.sign(r1) < 0
+    s_ext = np.full(n, 1.0)
+    if turning.any():
+        s_ext[turning] = _extremum_fraction(c1[turning], c2[turning], c3[turning])
+    # Pieces in time order: every cell gives [0, s_ext]; a turning cell also [s_ext, 1] right after it.
+    n_pieces = 1 + turning.astype(np.int64)
+    cell = np.repeat(np.arange(n), n_pieces)
+    second = np.zeros(cell.size, dtype=bool)
+    second[np.cumsum(n_pieces)[turning] - 1] = True
+    s_a = np.where(second, s_ext[cell], 0.0)
+    s_b = np.where(second, 1.0, s_ext[cell])
+    va = _cubic(c0[cell], c1[cell], c2[cell], c3[cell], s_a)
+    vb = _cubic(c0[cell], c1[cell], c2[cell], c3[cell], s_b)
     up = vb >= va
     lo_level = np.where(up, np.floor(va / q) + 1, np.ceil(vb / q))
     hi_level = np.where(up, np.floor(vb / q), np.ceil(va / q) - 1)
     count = np.maximum(hi_level - lo_level + 1, 0).astype(np.int64)
     piece = np.repeat(np.arange(cell.size), count)
     offsets = np.arange(piece.size) - np.repeat(np.cumsum(count) - count, count)
-    level = (lo_level[piece] + offsets) * q
-    c, a, b = cell[piece], s_a[piece], s_b[piece]
-    fa, fb = va[piece], vb[piece]
-    s = a + (b - a) * np.where(fb != fa, (level - fa) / np.where(fb != fa, fb - fa, 1.0), 0.5)
-    for _ in range(4):
-        val, der = _hermite(p0[c], p1[c], r0[c], r1[c], h, s)
-        step = np.where(der != 0, (val - level) / np.where(der != 0, der, 1.0) / h, 0.0)
-        s = np.clip(s - step, a, b)
-    direction = np.where(up[piece], 1, -1).astype(np.int8)
-    times = t[c] + s * h
-    order = np.argsort(times, kind="stable")
-    return times[order], direction[order]
+    up_e = up[piece]
+    # Rising pieces cross their levels upwards in time, falling pieces downwards.
+    level = np.where(up_e, lo_level[piece] + offsets, hi_level[piece] - offsets) * q
+    c = cell[piece]
+    e0, e1, e2, e3 = c0[c], c1[c], c2[c], c3[c]
+    a, b, fa, fb = s_a[piece], s_b[piece], va[piece], vb[piece]
+    df = fb - fa
+    s = a + (b - a) * np.where(df != 0, (level - fa) / np.where(df != 0, df, 1.0), 0.5)
+    for _ in range(3):  # Newton: quadratic convergence from the secant start, ~1e-13 s after 2 steps
+        val = ((e3 * s + e2) * s + e1) * s + e0
+        der = (3.0 * e3 * s + 2.0 * e2) * s + e1
+        s = np.clip(s - (val - level) / np.where(der != 0, der, np.inf), a, b)
+    return t[c] + s * h, np.where(up_e, 1, -1).astype(np.int8)
 
 
-def _extremum_fraction(p0, p1, r0, r1, h):
-    """Fraction s in (0, 1) where the Hermite cubic's derivative vanishes (rate changes sign)."""
-    # derivative * h = A s^2 + B s + C
-    A = 6 * p0 + 3 * h * r0 - 6 * p1 + 3 * h * r1
-    B = -6 * p0 - 4 * h * r0 + 6 * p1 - 2 * h * r1
-    C = h * r0
+def _cubic(c0, c1, c2, c3, s):
+    return ((c3 * s + c2) * s + c1) * s + c0
+
+
+def _extremum_fraction(c1, c2, c3):
+    """Fraction s in (0, 1) where c1 + 2 c2 s + 3 c3 s^2 = 0 (the rate changes sign)."""
+    A, B, C = 3.0 * c3, 2.0 * c2, c1
     disc = np.sqrt(np.maximum(B * B - 4 * A * C, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        roots = np.stack([(-B - disc) / (2 * A), (-B + disc) / (2 * A)])
-        linear = -C / B
-    roots = np.where(np.abs(A) > 1e-300, roots, linear)
+        # Stable quadratic roots: q = -(B + sign(B) disc) / 2, roots q / A and C / q.
+        qq = -0.5 * (B + np.copysign(disc, B))
+        roots = np.stack([qq / A, C / qq])
     inside = (roots > 0) & (roots < 1)
     pick = np.where(inside[0], roots[0], roots[1])
     return np.clip(np.where(inside.any(axis=0), pick, 0.5), 1e-12, 1 - 1e-12)
@@ -138,12 +152,11 @@ def pulse_edges(
     n_cells = int(math.ceil(t_end_s / h))
     opening = phase_offset_rad is None
     offset = 0.0 if opening else phase_offset_rad
+    grid = _GridModel(window, h)
     times = [np.zeros(1)] if opening else []
     dirs = [np.ones(1, dtype=np.int8)] if opening else []
     for n0 in range(0, n_cells, _BLOCK_CELLS):
-        n1 = min(n0 + _BLOCK_CELLS, n_cells)
-        t = np.arange(n0, n1 + 1) * h
-        phi, rate = _grid_values(window, t, n0)
+        t, phi, rate = grid.values(n0, min(n0 + _BLOCK_CELLS, n_cells))
         et, ed = _edges_in_cells(t, phi + offset, rate, h, pulse_angle_rad)
         keep = (et > 0) & (et <= t_end_s)
         times.append(et[keep])
