@@ -50,33 +50,50 @@ def _raw_point_child(freq_hz: float) -> None:
     sp = simulate_point(PointSpec(0.0, freq_hz), cfg, np.random.default_rng(1), raw=True)
     wall = time.perf_counter() - t
     r = sp.raw
-    print(json.dumps({
-        "freq_hz": freq_hz, "wall_s": wall, "station_s": sp.true_Tm_s, "speed": sp.true_Tm_s / wall,
-        "edges": int(r.pulse_t.size), "grating": int(r.grating_t.size),
-        "crossings": int(0 if r.reference_t is None else r.reference_t.size),
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "warm_rss_mb": rss0 / 1024,
-    }))
+    print(
+        json.dumps(
+            {
+                "freq_hz": freq_hz,
+                "wall_s": wall,
+                "station_s": sp.true_Tm_s,
+                "speed": sp.true_Tm_s / wall,
+                "edges": int(r.pulse_t.size),
+                "grating": int(r.grating_t.size),
+                "crossings": int(0 if r.reference_t is None else r.reference_t.size),
+                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                "warm_rss_mb": rss0 / 1024,
+            }
+        )
+    )
 
 
 def raw_point(freq_hz: float) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--child", str(freq_hz)], capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, __file__, "--child", str(freq_hz)], capture_output=True, text=True, check=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
     a = session_speed()
-    print(f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}"
+    )
     print("\n| (a) 40-point seed-000 session, no raw | value |\n|---|---|")
     print(f"| wall time (median of 7) | {a['wall_s']:.3f} s |")
     print(f"| station time | {a['station_s']:.0f} s |")
     print(f"| speed | {a['speed']:.3g} station-s per wall-s |")
-    print("\n| (b) one point with raw streams | wall (s) | station (s) | x real time | pulse edges | edges/s | grating samples | peak RSS (MB) | RSS before the point (MB) |")
+    print(
+        "\n| (b) one point with raw streams | wall (s) | station (s) | x real time | pulse edges | edges/s | grating samples | peak RSS (MB) | RSS before the point (MB) |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for f in (0.0, 8.0, 10.0):
         r = raw_point(f)
         label = "static" if f == 0 else f"{f:g} Hz"
-        print(f"| {label} | {r['wall_s']:.3f} | {r['station_s']:.1f} | {r['speed']:.0f} | {r['edges']} | "
-              f"{r['edges'] / r['station_s']:.0f} | {r['grating']} | {r['peak_rss_mb']:.0f} | {r['warm_rss_mb']:.0f} |")
+        print(
+            f"| {label} | {r['wall_s']:.3f} | {r['station_s']:.1f} | {r['speed']:.0f} | {r['edges']} | "
+            f"{r['edges'] / r['station_s']:.0f} | {r['grating']} | {r['peak_rss_mb']:.0f} | {r['warm_rss_mb']:.0f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -28,7 +28,9 @@ def _print_identification(r: Identification, out=sys.stdout) -> None:
     for name, v, s in zip(r.names, r.values, r.sigmas, strict=True):
         print(f"  {name:4s} = {v: .6e} ± {s:.2e}", file=out)
     verdict = "accepted" if r.mu < r.mu_c else "possible outlier (mu >= mu_c)"
-    print(f"  sigma residual = {r.sigma_residual:.3e} rad/s;  mu = {r.mu:.3f} vs mu_c = {r.mu_c:.3f}: {verdict}", file=out)
+    print(
+        f"  sigma residual = {r.sigma_residual:.3e} rad/s;  mu = {r.mu:.3f} vs mu_c = {r.mu_c:.3f}: {verdict}", file=out
+    )
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -38,8 +40,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     store = SessionStore(args.db or out / "station.sqlite")
-    uid = store.create_session(station_info(cfg), "seed000_integral_precession", instrument_serial=args.serial,
-                               config={"twin": cfg.to_dict(), "seed": args.seed, "plan": [asdict(p) for p in plan]})
+    uid = store.create_session(
+        station_info(cfg),
+        "seed000_integral_precession",
+        instrument_serial=args.serial,
+        config={"twin": cfg.to_dict(), "seed": args.seed, "plan": [asdict(p) for p in plan]},
+    )
     print(f"session {uid}: {len(plan)} points on the simulated station (seed {args.seed}); store {store.path}")
     t_wall = time.perf_counter()
     station_s = 0.0
@@ -58,7 +64,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     k = cfg.instrument
     truth = {"kz": k.kz, "kzz": k.kzz, "ky": k.ky, "k3": k.k3}
     report = out / f"report-{uid}.html"
-    report.write_text(render_report(session, results, title=f"Session {uid} (simulated seed 000)", config=cfg.to_dict(), truth=truth))
+    report.write_text(
+        render_report(session, results, title=f"Session {uid} (simulated seed 000)", config=cfg.to_dict(), truth=truth)
+    )
     result_json = out / f"result-{uid}.json"
     result_json.write_text(json.dumps({m: r.to_json() for m, r in results.items()}, indent=2))
     write_session(store.load_session(uid), out / f"session-{uid}", overwrite=True)
@@ -165,8 +173,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--db", default="out/station.sqlite")
     p.set_defaults(func=cmd_import)
 
-    for name, func, text in (("gap", cmd_gap, "sim-to-real gap diagnosis of a session"),
-                             ("gap-validate", cmd_gap_validate, "blind validation of the gap diagnosis")):
+    for name, func, text in (
+        ("gap", cmd_gap, "sim-to-real gap diagnosis of a session"),
+        ("gap-validate", cmd_gap_validate, "blind validation of the gap diagnosis"),
+    ):
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=func)

@@ -88,7 +88,9 @@ def _read_station(path: Path) -> tuple[StationInfo, str, dict]:
             raise SessionFormatError(name, "expected a positive finite number", column=f"station.{key}", value=v)
         values[key] = v
     if values["pulses_per_rev"] != int(values["pulses_per_rev"]):
-        raise SessionFormatError(name, "expected a whole number", column="station.pulses_per_rev", value=values["pulses_per_rev"])
+        raise SessionFormatError(
+            name, "expected a whole number", column="station.pulses_per_rev", value=values["pulses_per_rev"]
+        )
     values["pulses_per_rev"] = int(values["pulses_per_rev"])
     notes = data.get("notes", "")
     meta = {k: v for k, v in data.items() if k not in ("format", "station", "notes")}
@@ -162,14 +164,18 @@ def _read_points(path: Path) -> list[PointRecord]:
             header = reader.fieldnames or []
             missing = [c for c in COLUMNS if c not in header]
             if missing:
-                raise SessionFormatError(name, f"missing column(s) {', '.join(missing)}; header must include {','.join(COLUMNS)}", 1)
+                raise SessionFormatError(
+                    name, f"missing column(s) {', '.join(missing)}; header must include {','.join(COLUMNS)}", 1
+                )
             points, seen = [], {}
             for n, row in enumerate(reader, start=2):
                 if None in row or any(v is None for v in row.values()):
                     raise SessionFormatError(name, f"expected {len(header)} fields", n)
                 p = _parse_row(row, name, n)
                 if p.point_id in seen:
-                    raise SessionFormatError(name, f"duplicate point_id (first on row {seen[p.point_id]})", n, "point_id", p.point_id)
+                    raise SessionFormatError(
+                        name, f"duplicate point_id (first on row {seen[p.point_id]})", n, "point_id", p.point_id
+                    )
                 seen[p.point_id] = n
                 points.append(p)
     except UnicodeDecodeError as exc:
@@ -200,11 +206,17 @@ def _read_raw(raw_dir: Path, ids: set[str]) -> dict[str, RawStreams]:
                 raise SessionFormatError(name, f"missing array (needs {', '.join(RAW_ARRAYS)})", column=key)
             a = arrays[key]
             if a.ndim != 1 or not np.issubdtype(a.dtype, np.number):
-                raise SessionFormatError(name, f"expected a 1-D numeric array, got shape {a.shape} dtype {a.dtype}", column=key)
+                raise SessionFormatError(
+                    name, f"expected a 1-D numeric array, got shape {a.shape} dtype {a.dtype}", column=key
+                )
             if not np.all(np.isfinite(a)):
                 raise SessionFormatError(name, "contains NaN or inf", column=key, value=int(np.sum(~np.isfinite(a))))
         if arrays["grating_t"].size != arrays["grating_z"].size:
-            raise SessionFormatError(name, f"grating_t has {arrays['grating_t'].size} samples but grating_z {arrays['grating_z'].size}", column="grating_z")
+            raise SessionFormatError(
+                name,
+                f"grating_t has {arrays['grating_t'].size} samples but grating_z {arrays['grating_z'].size}",
+                column="grating_z",
+            )
         for key in ("grating_t", "pulse_t"):
             if np.any(np.diff(arrays[key]) < 0):
                 raise SessionFormatError(name, "times must not decrease", column=key)
@@ -254,8 +266,19 @@ def write_session(session: Session, directory: str | os.PathLike, *, overwrite: 
             w.writerow([*COLUMNS, *extras])
             for p in session.points:
                 w.writerow(
-                    [p.point_id, p.sequence, _fmt(p.start_s), _fmt(p.position_deg), _fmt(p.freq_hz), p.kind,
-                     p.pulses, _fmt(p.Tm_s), _fmt(p.t1_s), _fmt(p.t2_s), _fmt(p.Np)]
+                    [
+                        p.point_id,
+                        p.sequence,
+                        _fmt(p.start_s),
+                        _fmt(p.position_deg),
+                        _fmt(p.freq_hz),
+                        p.kind,
+                        p.pulses,
+                        _fmt(p.Tm_s),
+                        _fmt(p.t1_s),
+                        _fmt(p.t2_s),
+                        _fmt(p.Np),
+                    ]
                     + [p.extra.get(k, "") for k in extras]
                 )
         if session.raw:

@@ -15,12 +15,12 @@ from collections.abc import Mapping
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from station.analysis.identify import Identification  # noqa: E402
-from station.analysis.regressors import COEFFICIENTS  # noqa: E402
-from station.session import Session  # noqa: E402
+from station.analysis.identify import Identification
+from station.analysis.regressors import COEFFICIENTS
+from station.session import Session
 
 _UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g²", "ky": "rad/s/g²", "k3": "rad/s/g³"}
 _CSS = """
@@ -84,7 +84,12 @@ def _residual_plots(results: Mapping[str, Identification]) -> str:
         axes[0].plot(x, r.Y_residuals, marker=marker, ls="-", lw=0.8, label=m)
         axes[1].plot(x, np.abs(r.proportional_residuals), marker=marker, ls="-", lw=0.8, label=m)
     axes[0].set(title="Residuals e (Fig. 10a/11a)", xlabel="vibration point", ylabel="rad/s")
-    axes[1].set(title="Proportional residuals |e / (a cos θ)| (eq. 29)", xlabel="vibration point", ylabel="rad/s/g", yscale="log")
+    axes[1].set(
+        title="Proportional residuals |e / (a cos θ)| (eq. 29)",
+        xlabel="vibration point",
+        ylabel="rad/s/g",
+        yscale="log",
+    )
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend()
@@ -93,7 +98,13 @@ def _residual_plots(results: Mapping[str, Identification]) -> str:
 
 def _timing_table(session: Session) -> str:
     static = {round(p.position_deg, 9): p for p in session.points if p.kind == "static"}
-    rows = ["<tr><th>position (deg)</th><th>f (Hz)</th><th>Np</th><th>t1 (s)</th><th>Tm (s)</th><th>t2 (s)</th><th>static Tm (s)</th></tr>"]
+    rows = [
+        "<tr>"
+        + "".join(
+            f"<th>{h}</th>" for h in ("position (deg)", "f (Hz)", "Np", "t1 (s)", "Tm (s)", "t2 (s)", "static Tm (s)")
+        )
+        + "</tr>"
+    ]
     for p in session.points:
         if p.kind != "vibration":
             continue
@@ -117,7 +128,8 @@ def render_report(
     st = session.station
     station_rows = "".join(f"<tr><td class=l>{k}</td><td>{_esc(v)}</td></tr>" for k, v in vars(st).items())
     parts = [
-        f"<!doctype html><html><head><meta charset=utf-8><title>{_esc(title)}</title><style>{_CSS}</style></head><body>",
+        f"<!doctype html><html><head><meta charset=utf-8><title>{_esc(title)}</title>"
+        f"<style>{_CSS}</style></head><body>",
         f"<h1>{_esc(title)}</h1><p>{len(session.points)} points; {_esc(session.notes)}</p>",
         "<h2>Coefficients (integral precession, seed 000 eqs. 19-22)</h2>",
         _coef_table(results, truth),

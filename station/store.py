@@ -157,9 +157,19 @@ class SessionStore:
         uid = datetime.now(UTC).strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:8]
         with self._tx() as db:
             db.execute(
-                "INSERT INTO sessions (uid, created_utc, procedure, instrument_serial, status, station_json, config_json, notes)"
+                "INSERT INTO sessions (uid, created_utc, procedure, instrument_serial, status, station_json,"
+                " config_json, notes)"
                 " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (uid, _now(), procedure, instrument_serial, status, json.dumps(asdict(station)), json.dumps(config or {}), notes),
+                (
+                    uid,
+                    _now(),
+                    procedure,
+                    instrument_serial,
+                    status,
+                    json.dumps(asdict(station)),
+                    json.dumps(config or {}),
+                    notes,
+                ),
             )
         return uid
 
@@ -170,9 +180,24 @@ class SessionStore:
             with self._tx() as db:
                 cur = db.execute(
                     "INSERT INTO points (session_id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses,"
-                    " Tm_s, t1_s, t2_s, Np, extra_json, recorded_utc) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                    (sid, point.point_id, point.sequence, point.start_s, point.position_deg, point.freq_hz, point.kind,
-                     point.pulses, point.Tm_s, point.t1_s, point.t2_s, point.Np, json.dumps(point.extra), _now()),
+                    " Tm_s, t1_s, t2_s, Np, extra_json, recorded_utc)"
+                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        sid,
+                        point.point_id,
+                        point.sequence,
+                        point.start_s,
+                        point.position_deg,
+                        point.freq_hz,
+                        point.kind,
+                        point.pulses,
+                        point.Tm_s,
+                        point.t1_s,
+                        point.t2_s,
+                        point.Np,
+                        json.dumps(point.extra),
+                        _now(),
+                    ),
                 )
                 if raw is not None:
                     for name in _RAW_FIELDS:
@@ -180,19 +205,25 @@ class SessionStore:
                         if arr is not None:
                             db.execute("INSERT INTO raw VALUES (?, ?, ?)", (cur.lastrowid, name, _to_blob(arr)))
         except sqlite3.IntegrityError as exc:
-            raise StoreError(f"session {uid}: point {point.point_id!r} (sequence {point.sequence}) is already stored") from exc
+            raise StoreError(
+                f"session {uid}: point {point.point_id!r} (sequence {point.sequence}) is already stored"
+            ) from exc
 
     def add_event(self, uid: str, kind: str, message: str, level: str = "info") -> None:
         sid = self._session_row(uid)
         with self._tx() as db:
-            db.execute("INSERT INTO events (session_id, t_utc, level, kind, message) VALUES (?, ?, ?, ?, ?)",
-                       (sid, _now(), level, kind, message))
+            db.execute(
+                "INSERT INTO events (session_id, t_utc, level, kind, message) VALUES (?, ?, ?, ?, ?)",
+                (sid, _now(), level, kind, message),
+            )
 
     def add_result(self, uid: str, method: str, result: dict) -> None:
         sid = self._session_row(uid)
         with self._tx() as db:
-            db.execute("INSERT INTO results (session_id, method, created_utc, result_json) VALUES (?, ?, ?, ?)",
-                       (sid, method, _now(), json.dumps(result)))
+            db.execute(
+                "INSERT INTO results (session_id, method, created_utc, result_json) VALUES (?, ?, ?, ?)",
+                (sid, method, _now(), json.dumps(result)),
+            )
 
     def set_status(self, uid: str, status: str) -> None:
         sid = self._session_row(uid)
@@ -209,27 +240,39 @@ class SessionStore:
 
     def results(self, uid: str) -> list[dict]:
         sid = self._session_row(uid)
-        rows = self._db.execute("SELECT method, created_utc, result_json FROM results WHERE session_id = ? ORDER BY id", (sid,))
+        rows = self._db.execute(
+            "SELECT method, created_utc, result_json FROM results WHERE session_id = ? ORDER BY id", (sid,)
+        )
         return [{"method": m, "created_utc": c, "result": json.loads(j)} for m, c, j in rows]
 
     def events(self, uid: str) -> list[dict]:
         sid = self._session_row(uid)
-        rows = self._db.execute("SELECT t_utc, level, kind, message FROM events WHERE session_id = ? ORDER BY id", (sid,))
+        rows = self._db.execute(
+            "SELECT t_utc, level, kind, message FROM events WHERE session_id = ? ORDER BY id", (sid,)
+        )
         return [dict(zip(("t_utc", "level", "kind", "message"), r, strict=True)) for r in rows]
 
     def load_session(self, uid: str, *, with_raw: bool = True) -> Session:
         sid = self._session_row(uid)
-        station_json, notes = self._db.execute("SELECT station_json, notes FROM sessions WHERE id = ?", (sid,)).fetchone()
+        station_json, notes = self._db.execute(
+            "SELECT station_json, notes FROM sessions WHERE id = ?", (sid,)
+        ).fetchone()
         rows = self._db.execute(
-            "SELECT id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses, Tm_s, t1_s, t2_s, Np, extra_json"
+            "SELECT id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses, Tm_s, t1_s, t2_s, Np,"
+            " extra_json"
             " FROM points WHERE session_id = ? ORDER BY sequence",
             (sid,),
         ).fetchall()
         points, raws = [], {}
         for r in rows:
-            points.append(PointRecord(r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], json.loads(r[12])))
+            points.append(
+                PointRecord(r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], json.loads(r[12]))
+            )
             if with_raw:
-                arrays = {n: _from_blob(b) for n, b in self._db.execute("SELECT name, data FROM raw WHERE point_row = ?", (r[0],))}
+                arrays = {
+                    n: _from_blob(b)
+                    for n, b in self._db.execute("SELECT name, data FROM raw WHERE point_row = ?", (r[0],))
+                }
                 if arrays:
                     raws[r[1]] = RawStreams(**{n: arrays.get(n) for n in _RAW_FIELDS})
         return Session(StationInfo(**json.loads(station_json)), points, notes=notes, raw=raws, meta={"store_uid": uid})

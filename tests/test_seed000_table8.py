@@ -58,7 +58,7 @@ def test_seed_columns_obey_the_period_identity(key):
 @pytest.mark.parametrize("key", list(SEED_VIB))
 def test_vibration_tm_np_t2_inside_the_twin_bands(key):
     theta_deg, f = key
-    Np, t1, tm, t2 = SEED_VIB[key]
+    Np, _t1, tm, t2 = SEED_VIB[key]
     cfg = TwinConfig(earth_rate_on=False)
     rate = periodic_rate(math.radians(theta_deg), f, cfg)
     w = 2 * math.pi * f
@@ -75,13 +75,13 @@ def test_vibration_tm_np_t2_inside_the_twin_bands(key):
     assert min(roots) <= tm <= max(roots)
     assert min(nps) <= Np <= max(nps)
     assert min(t2s) <= t2 <= max(t2s)
-    assert 0 <= min(t2s) and max(t2s) < 1 / f
+    assert min(t2s) >= 0 and max(t2s) < 1 / f
 
 
 @pytest.mark.parametrize("key", list(SEED_VIB))
 def test_vibration_tm_is_a_root_at_the_seed_phase(key):
     theta_deg, f = key
-    Np, t1, tm, t2 = SEED_VIB[key]
+    _Np, t1, tm, _t2 = SEED_VIB[key]
     w = 2 * math.pi * f
     gamma0 = (math.pi - w * t1) % (2 * math.pi)  # psi(t1) = pi: the seed's down-going crossing
     window = PrecessionWindow(periodic_rate(math.radians(theta_deg), f, TwinConfig(earth_rate_on=False)), w, gamma0)

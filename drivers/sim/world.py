@@ -162,7 +162,9 @@ class SimStation:
             offset_kept = a.window.offset_radps if a is not None and not draw_noise else 0.0
             win = self._make_window(t_s, draw_noise)
             if not draw_noise and offset_kept:
-                win = PrecessionWindow(win.rate, win.w_radps, win.gamma0_rad, offset_kept, win.drift_radps2, win.t0_session_s)
+                win = PrecessionWindow(
+                    win.rate, win.w_radps, win.gamma0_rad, offset_kept, win.drift_radps2, win.t0_session_s
+                )
             self._anchor = _Anchor(t_s, win, phi, self._version)
             return self._anchor
 

@@ -76,8 +76,13 @@ class Identification:
             "reliable": self.mu < self.mu_c,
             "n_points": self.n_points,
             "dof": self.dof,
-            "units": {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3",
-                      "sigma_residual": "rad/s"},
+            "units": {
+                "kz": "rad/s/g",
+                "kzz": "rad/s/g^2",
+                "ky": "rad/s/g^2",
+                "k3": "rad/s/g^3",
+                "sigma_residual": "rad/s",
+            },
         }
 
 
@@ -97,7 +102,7 @@ def design(session: Session, method: Method = "integral", compensation: Compensa
         raise FitError("the session has no points")
     rates = session.rates_radps()
     pos_deg = np.array([p.position_deg for p in pts])
-    uniq, index = _position_indices(pos_deg)
+    _uniq, index = _position_indices(pos_deg)
     vib = np.array([p.kind == "vibration" for p in pts])
     has_static = {int(i) for i, v in zip(index, vib, strict=True) if not v}
     for p, i, v in zip(pts, index, vib, strict=True):

@@ -20,9 +20,7 @@ def integral_regressors(theta_rad, a, s1, s2, s3, axs1_rad: float = 0.0) -> np.n
     c, s = np.cos(theta), np.sin(theta)
     quad = -2 * a * s1 + a * a * s2
     kz = -a * s1 * c + axs1_rad * s * (a * s2 - s1)
-    return np.column_stack(
-        [kz, quad * c * c, quad * s * s, (-3 * a * s1 + 3 * a * a * s2 - a**3 * s3) * c**3]
-    )
+    return np.column_stack([kz, quad * c * c, quad * s * s, (-3 * a * s1 + 3 * a * a * s2 - a**3 * s3) * c**3])
 
 
 def baseline_regressors(theta_rad, a) -> np.ndarray:

@@ -154,18 +154,12 @@ def effect_params(name: str, given: Mapping[str, float] | None = None) -> Mappin
     params = dict(spec.defaults)
     for key, value in (given or {}).items():
         if key not in spec.parameters:
-            raise TwinConfigError(
-                f"effect {name!r} has no parameter {key!r}; allowed: {', '.join(spec.parameters)}"
-            )
+            raise TwinConfigError(f"effect {name!r} has no parameter {key!r}; allowed: {', '.join(spec.parameters)}")
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise TwinConfigError(
-                f"effect {name!r} parameter {key!r} = {value!r}: expected a finite number"
-            )
+            raise TwinConfigError(f"effect {name!r} parameter {key!r} = {value!r}: expected a finite number")
         params[key] = float(value)
     if name == "lateral_resonance" and (params["fr"] <= 0 or params["Q"] <= 0):
-        raise TwinConfigError(
-            f"effect 'lateral_resonance': fr = {params['fr']!r} and Q = {params['Q']!r} must be > 0"
-        )
+        raise TwinConfigError(f"effect 'lateral_resonance': fr = {params['fr']!r} and Q = {params['Q']!r} must be > 0")
     return MappingProxyType(params)
 
 
@@ -175,9 +169,7 @@ class TwinConfig:
 
     station: StationGeometry = field(default_factory=StationGeometry)
     instrument: InstrumentCoefficients = field(default_factory=InstrumentCoefficients)
-    effects: Mapping[str, Mapping[str, float]] = field(
-        default_factory=lambda: MappingProxyType({})
-    )
+    effects: Mapping[str, Mapping[str, float]] = field(default_factory=lambda: MappingProxyType({}))
     noise: NoiseModel = field(default_factory=NoiseModel)
     earth_rate_on: bool = True
 
@@ -211,9 +203,7 @@ class TwinConfig:
         allowed = {"station", "instrument", "noise", "earth_rate_on", "effects"}
         unknown = set(data) - allowed
         if unknown:
-            raise TwinConfigError(
-                f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}"
-            )
+            raise TwinConfigError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
         kwargs: dict[str, Any] = {}
         for key, klass in (
             ("station", StationGeometry),
@@ -224,9 +214,7 @@ class TwinConfig:
                 kwargs[key] = _build(klass, data[key], f"{source} [{key}]")
         if "earth_rate_on" in data:
             if not isinstance(data["earth_rate_on"], bool):
-                raise TwinConfigError(
-                    f"{source}: earth_rate_on = {data['earth_rate_on']!r}: expected true or false"
-                )
+                raise TwinConfigError(f"{source}: earth_rate_on = {data['earth_rate_on']!r}: expected true or false")
             kwargs["earth_rate_on"] = data["earth_rate_on"]
         if "effects" in data:
             try:

@@ -21,9 +21,7 @@ def waveform_terms(w_radps: float, cfg: TwinConfig) -> list[tuple[int, float, fl
     zs1 = cfg.param("waveform_fundamental", "z0") + cfg.param("waveform_fundamental", "z1") * w_radps
     terms = [(1, zs1, cfg.param("waveform_fundamental", "Zc1"))]
     for j in (2, 3):
-        terms.append(
-            (j, cfg.param("waveform_harmonics", f"Zs{j}"), cfg.param("waveform_harmonics", f"Zc{j}"))
-        )
+        terms.append((j, cfg.param("waveform_harmonics", f"Zs{j}"), cfg.param("waveform_harmonics", f"Zc{j}")))
     return terms
 
 
@@ -70,9 +68,7 @@ def effective_angle_rad(theta_rad: float, psi: ArrayLike, cfg: TwinConfig):
         + cfg.param("parasitic_rotation", "axs1") * np.sin(psi)
         + cfg.param("parasitic_rotation", "axc1") * np.cos(psi)
     )
-    static = theta_rad + float(index_error_rad(theta_rad, cfg)) + cfg.param(
-        "mount_misalignment", "dtheta_mount"
-    )
+    static = theta_rad + float(index_error_rad(theta_rad, cfg)) + cfg.param("mount_misalignment", "dtheta_mount")
     return static + alpha
 
 

@@ -93,9 +93,7 @@ def simulate_point(
         sd = cfg.noise.rate_noise_radps * math.sqrt(cfg.noise.rate_noise_ref_s / tm_est)
         offset = rng.normal(0.0, sd)
     gamma0 = rng.uniform(0.0, 2.0 * math.pi) if vib else 0.0
-    window = PrecessionWindow(
-        rate, w_true, gamma0, offset, cfg.param("bias_drift", "d"), start_s
-    )
+    window = PrecessionWindow(rate, w_true, gamma0, offset, cfg.param("bias_drift", "d"), start_s)
     tm_true = window.first_passage_s(target)
     sign = 1 if window.mean_rate_radps >= 0 else -1
     stamper = _Stamper(cfg, start_s, rng)

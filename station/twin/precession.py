@@ -37,7 +37,7 @@ _CELLS_PER_PERIOD = 64
 _RTOL = 4.0 * np.finfo(float).eps  # the smallest relative tolerance brentq accepts
 
 
-class WindowNeverCloses(RuntimeError):
+class WindowNeverClosesError(RuntimeError):
     """The mean precession rate is too small (or reverses) for the window ever to close."""
 
 
@@ -95,9 +95,7 @@ class PrecessionWindow:
         """B >= |phi(t) - mean part| for all t."""
         if self.w_radps == 0.0 or self.rate.k.size == 0:
             return 0.0
-        return float(
-            np.sum((np.abs(self.rate.alpha) + np.abs(self.rate.beta)) * 2.0 / (self.rate.k * self.w_radps))
-        )
+        return float(np.sum((np.abs(self.rate.alpha) + np.abs(self.rate.beta)) * 2.0 / (self.rate.k * self.w_radps)))
 
     def _mean_angle(self, t):
         return self.mean_rate_radps * t + 0.5 * self.drift_radps2 * t * t
@@ -147,9 +145,8 @@ class PrecessionWindow:
         t_lo = self._mean_time(target_rad - bound, sign)
         t_hi = self._mean_time(target_rad + bound, sign)
         if not math.isfinite(t_hi):
-            raise WindowNeverCloses(
-                f"mean precession rate {self.mean_rate_radps:.3e} rad/s never reaches "
-                f"{target_rad:.6g} rad"
+            raise WindowNeverClosesError(
+                f"mean precession rate {self.mean_rate_radps:.3e} rad/s never reaches {target_rad:.6g} rad"
             )
         return sign, t_lo, t_hi
 
@@ -164,7 +161,7 @@ class PrecessionWindow:
             # No swing: the mean line (linear, or quadratic with drift) is the whole angle.
             return [self._polish(t_hi, f)]
         period = 2.0 * math.pi / abs(self.w_radps)
-        n_cells = max(int(math.ceil((t_hi - t_lo) / period * _CELLS_PER_PERIOD)), 8)
+        n_cells = max(math.ceil((t_hi - t_lo) / period * _CELLS_PER_PERIOD), 8)
         grid = np.linspace(max(t_lo - period / _CELLS_PER_PERIOD, 0.0), t_hi + period / _CELLS_PER_PERIOD, n_cells + 3)
         fv = sign * self.phi_rad(grid) - target_rad
         rv = sign * self.rate_radps(grid)
@@ -187,7 +184,7 @@ class PrecessionWindow:
                 if first_only and roots:
                     return roots[:1]
         if not roots:
-            raise WindowNeverCloses(f"no passage of |phi| = {target_rad:.6g} rad found in [{t_lo}, {t_hi}] s")
+            raise WindowNeverClosesError(f"no passage of |phi| = {target_rad:.6g} rad found in [{t_lo}, {t_hi}] s")
         return roots
 
     def first_passage_s(self, target_rad: float) -> float:

@@ -42,7 +42,7 @@ def grating_samples(
     """5 kHz absolute positions z (m) at the read head's sample times in [0, t_end]."""
     dt = 1.0 / GRATING_RATE_HZ
     first = math.ceil(start_s / dt) * dt - start_s  # the read head samples on its own 0.2 ms grid
-    t = first + dt * np.arange(int(math.floor((t_end_s - first) / dt)) + 1)
+    t = first + dt * np.arange(math.floor((t_end_s - first) / dt) + 1)
     psi = window.w_radps * t + window.gamma0_rad if window.w_radps else np.zeros_like(t)
     z = table_position_m(psi, window.w_radps, cfg)
     if cfg.noise.grating_noise_m > 0:
@@ -145,11 +145,8 @@ def pulse_edges(
     Edges are where phi(t) + offset crosses a multiple of the pulse angle; with
     no offset, t = 0 is itself an edge (the window's opening edge) and is included.
     """
-    if window.w_radps:
-        h = 2.0 * math.pi / window.w_radps / GRID_PER_PERIOD
-    else:
-        h = _STATIC_STEP_S
-    n_cells = int(math.ceil(t_end_s / h))
+    h = 2.0 * math.pi / window.w_radps / GRID_PER_PERIOD if window.w_radps else _STATIC_STEP_S
+    n_cells = math.ceil(t_end_s / h)
     opening = phase_offset_rad is None
     offset = 0.0 if opening else phase_offset_rad
     grid = _GridModel(window, h)

@@ -18,6 +18,7 @@ from station.twin.inputs import instrument_inputs, instrument_rate_radps
 from station.twin.measurement import PointSpec, simulate_point
 from station.twin.precession import PrecessionWindow, periodic_rate
 
+
 def brute_force_first_passage(theta, f, gamma0, cfg, target):
     """First passage by adaptive quadrature of the rate model, split where aI changes sign.
 
@@ -33,12 +34,16 @@ def brute_force_first_passage(theta, f, gamma0, cfg, target):
     probe = np.linspace(0.0, T, 4097)
     a_i = instrument_inputs(theta, w * probe + gamma0, w, cfg)[0]
     flips = np.flatnonzero(np.sign(a_i[:-1]) != np.sign(a_i[1:]))
-    kinks = [brentq(lambda t: float(instrument_inputs(theta, w * t + gamma0, w, cfg)[0]), probe[i], probe[i + 1],
-                    xtol=1e-16) for i in flips]
+    kinks = [
+        brentq(lambda t: float(instrument_inputs(theta, w * t + gamma0, w, cfg)[0]), probe[i], probe[i + 1], xtol=1e-16)
+        for i in flips
+    ]
 
     def integral(a, b):  # a, b within one period shifted by k T; break at the kinks
         k = math.floor(a / T)
-        pts = [x + k * T for x in kinks if a < x + k * T < b] + [x + (k + 1) * T for x in kinks if a < x + (k + 1) * T < b]
+        pts = [x + k * T for x in kinks if a < x + k * T < b] + [
+            x + (k + 1) * T for x in kinks if a < x + (k + 1) * T < b
+        ]
         val, _ = quad(rate, a, b, points=pts or None, epsabs=1e-15, epsrel=1e-14, limit=200)
         return val
 
@@ -108,6 +113,9 @@ def test_static_tm_is_closed_form():
     cfg = TwinConfig(earth_rate_on=False)
     k = cfg.instrument
     rate = k.k0 + k.kz + k.kzz + k.ky * 0 + k.k3
-    sp = simulate_point(PointSpec(0.0, 0.0), cfg.__class__(earth_rate_on=False, noise=NoiseModel(timer_tick_s=0)),
-                        np.random.default_rng(0))
+    sp = simulate_point(
+        PointSpec(0.0, 0.0),
+        cfg.__class__(earth_rate_on=False, noise=NoiseModel(timer_tick_s=0)),
+        np.random.default_rng(0),
+    )
     assert sp.record.Tm_s == pytest.approx(2 * math.pi * 50 / rate, rel=1e-14)

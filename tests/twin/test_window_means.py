@@ -21,7 +21,9 @@ def test_closed_forms_match_quadrature(seed):
     Tm = t1 + Np * T - t2  # the identity that holds for a perfect frequency
     got = window_means(w, Tm, t1, t2)
     for power, value in zip((1, 2, 3), got, strict=True):
-        integral, err = quad(lambda t, p=power: math.sin(w * (t - t1)) ** p, 0, Tm, limit=2000, epsabs=1e-14, epsrel=1e-13)
+        integral, err = quad(
+            lambda t, p=power: math.sin(w * (t - t1)) ** p, 0, Tm, limit=2000, epsabs=1e-14, epsrel=1e-13
+        )
         # quad's own error estimate bounds the comparison; the closed form is exact to rounding.
         assert value == pytest.approx(integral / Tm, abs=max(10 * err / Tm, 1e-13))
 
