@@ -28,6 +28,7 @@ from drivers.serial_port import FrameParser, encode_frame, ticks_of
 from drivers.sim.pty_link import Fault, PtyEmulator, garble, truncate
 
 IDLE, ARMED, COUNTING, CLOSING, DONE_STATE, FAULTED = range(6)
+SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary edges are those
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
 
 
@@ -136,11 +137,15 @@ class CounterEmulator(PtyEmulator):
                 self.state, self.fault_code = FAULTED, 1
                 self._frame(c.FAULT, c.FAULT_PAYLOAD.pack(1, ticks_of(now_s)))
                 return
-            t_hi = min(now_s, w.close_s)
+            t_hi = min(now_s, w.close_s + SNAP_S)
             if t_hi > self._last_s:
                 self._refs(self.world.reference_crossings_s(self._last_s, t_hi))
                 if self.stream_edges:
-                    self._edges(*self.world.pulse_edges_s(self._last_s, t_hi))
+                    t, d = self.world.pulse_edges_s(self._last_s, t_hi)
+                    # The window's own edges, recomputed, may land a rounding error on either
+                    # side of open_s/close_s: count (open_s, close_s] to within half a tick.
+                    keep = (t > w.open_s + SNAP_S) & (t <= w.close_s + SNAP_S)
+                    self._edges(t[keep], d[keep])
                 self._last_s = t_hi
             if now_s >= w.close_s:
                 self._frame(c.CLOSE, c.CLOSE_PAYLOAD.pack(ticks_of(w.close_s), int(w.pulses)))

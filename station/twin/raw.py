@@ -30,6 +30,7 @@ GRID_PER_PERIOD = 512
 _STATIC_STEP_S = 0.01
 _BLOCK_CELLS = 50_000
 GRATING_RESOLUTION_M = 1e-9
+_LEVEL_TOL_RAD = 1e-12  # an edge's angle off its level; rounding of phi ~ 314 rad is 6e-14
 
 
 def grating_samples(
@@ -111,13 +112,44 @@ def _edges_in_cells(t, phi, rate, h, q):
     c = cell[piece]
     e0, e1, e2, e3 = c0[c], c1[c], c2[c], c3[c]
     a, b, fa, fb = s_a[piece], s_b[piece], va[piece], vb[piece]
+    s = _solve_levels(e0, e1, e2, e3, level, s_a[piece], s_b[piece], va[piece], vb[piece])
+    return t[c] + s * h, np.where(up_e, 1, -1).astype(np.int8)
+
+
+def _solve_levels(e0, e1, e2, e3, level, a, b, fa, fb):
+    """Root s in [a, b] of cubic(s) = level on monotone pieces.
+
+    Two Newton steps from the secant start reach ~1e-13 s for almost every edge
+    (quadratic convergence). Near a turning point the slope vanishes and Newton
+    slows, so the few edges still off their level by more than 1e-12 rad go on
+    with Newton safeguarded by bisection inside their bracket.
+    """
     df = fb - fa
     s = a + (b - a) * np.where(df != 0, (level - fa) / np.where(df != 0, df, 1.0), 0.5)
-    for _ in range(3):  # Newton: quadratic convergence from the secant start, ~1e-13 s after 2 steps
-        val = ((e3 * s + e2) * s + e1) * s + e0
+    for _ in range(2):
         der = (3.0 * e3 * s + 2.0 * e2) * s + e1
-        s = np.clip(s - (val - level) / np.where(der != 0, der, np.inf), a, b)
-    return t[c] + s * h, np.where(up_e, 1, -1).astype(np.int8)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.clip(s - (_cubic(e0, e1, e2, e3, s) - level) / der, a, b)
+    s = np.where(np.isfinite(s), s, 0.5 * (a + b))
+    slow = np.flatnonzero(np.abs(_cubic(e0, e1, e2, e3, s) - level) > _LEVEL_TOL_RAD)
+    if slow.size:
+        s[slow] = _bracketed(e0[slow], e1[slow], e2[slow], e3[slow], level[slow], a[slow], b[slow], fb[slow] >= fa[slow])
+    return s
+
+
+def _bracketed(e0, e1, e2, e3, level, lo, hi, rising):
+    s = 0.5 * (lo + hi)
+    for _ in range(100):
+        val = _cubic(e0, e1, e2, e3, s) - level
+        if np.all(np.abs(val) <= _LEVEL_TOL_RAD):
+            break
+        below = np.where(rising, val < 0, val > 0)
+        lo, hi = np.where(below, s, lo), np.where(below, hi, s)
+        der = (3.0 * e3 * s + 2.0 * e2) * s + e1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            new = s - val / der
+        s = np.where((new > lo) & (new < hi), new, 0.5 * (lo + hi))
+    return s
 
 
 def _cubic(c0, c1, c2, c3, s):

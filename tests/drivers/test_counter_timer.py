@@ -129,18 +129,25 @@ def _pulse_rate(world) -> float:
     return max(len(edges), 1) / 1.0
 
 
-def test_edge_stream(counter_rig) -> None:
-    world, emu, board = counter_rig(speed=2.0, vibrate_hz=2.0)
-    preset = 4000
+@pytest.mark.parametrize(
+    ("vibrate_hz", "speed", "preset"),
+    [(2.0, 2.0, 4000), (10.0, 1.0, 2000)],  # at 10 Hz (a = 12) the output reverses each period
+)
+def test_edge_stream(counter_rig, vibrate_hz, speed, preset) -> None:
+    world, emu, board = counter_rig(speed=speed, vibrate_hz=vibrate_hz)
     r = board.measure(preset, stream_edges=True)
     _check_against_world(emu, r)
     assert r.edges_lost == 0
-    true_t, true_d = world.pulse_edges_s(emu.window.open_s, emu.window.close_s)
+    w = emu.window
+    true_t, true_d = world.pulse_edges_s(w.open_s - 1e-3, w.close_s + 1e-3)
+    inside = (true_t > w.open_s + TICK_S / 2) & (true_t <= w.close_s + TICK_S / 2)
+    true_t, true_d = true_t[inside], true_d[inside]
     assert r.edges_t_s is not None and r.edges_dir is not None
     assert len(r.edges_t_s) == len(true_t)
     assert np.allclose(r.edges_t_s, true_t, atol=TICK_S)
     assert np.array_equal(r.edges_dir, np.asarray(true_d, dtype=np.int8))
     assert int(np.sum(r.edges_dir)) == r.pulses
+    assert np.any(r.edges_dir < 0) == (vibrate_hz == 10.0)
     assert r.edges_t_s[-1] == pytest.approx(r.close_s, abs=TICK_S)
 
 
