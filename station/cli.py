@@ -23,7 +23,8 @@ def _load_twin(path: str | None) -> TwinConfig:
     return TwinConfig.from_toml(path) if path else default_twin()
 
 
-def _print_identification(r: Identification, out=sys.stdout) -> None:
+def _print_identification(r: Identification, out=None) -> None:
+    out = out or sys.stdout
     print(f"method: {r.method}   points: {r.n_points}   dof: {r.dof}", file=out)
     for name, v, s in zip(r.names, r.values, r.sigmas, strict=True):
         print(f"  {name:4s} = {v: .6e} ± {s:.2e}", file=out)
