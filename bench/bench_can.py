@@ -84,9 +84,7 @@ def main() -> None:
             t0 = time.perf_counter()
             servo.read_error_code()
             sdo_s.append(time.perf_counter() - t0)
-        latency_s, period_s = _tpdo_timing(
-            servo_cfg.channel, 0x280 + servo_cfg.node_id, args.n_tpdo
-        )
+        latency_s, period_s = _tpdo_timing(servo_cfg.channel, 0x280 + servo_cfg.node_id, args.n_tpdo)
 
     rows = [
         ("SDO round trip (upload 0x603F)", len(sdo_s), *_ms(sdo_s)),

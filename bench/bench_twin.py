@@ -76,15 +76,15 @@ def raw_point(freq_hz: float) -> dict:
 
 def main() -> None:
     a = session_speed()
-    print(
-        f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}"
-    )
+    cpu = platform.processor() or platform.machine()
+    print(f"machine: {cpu}, {platform.python_implementation()} {platform.python_version()}")
     print("\n| (a) 40-point seed-000 session, no raw | value |\n|---|---|")
     print(f"| wall time (median of 7) | {a['wall_s']:.3f} s |")
     print(f"| station time | {a['station_s']:.0f} s |")
     print(f"| speed | {a['speed']:.3g} station-s per wall-s |")
     print(
-        "\n| (b) one point with raw streams | wall (s) | station (s) | x real time | pulse edges | edges/s | grating samples | peak RSS (MB) | RSS before the point (MB) |"
+        "\n| (b) one point with raw streams | wall (s) | station (s) | x real time | pulse edges | edges/s"
+        " | grating samples | peak RSS (MB) | RSS before the point (MB) |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for f in (0.0, 8.0, 10.0):

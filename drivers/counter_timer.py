@@ -193,9 +193,7 @@ class CounterTimer:
                 return f.type == STATUS and len(f.payload) == STATUS_PAYLOAD.size
             return f.type == ACK and f.payload[:1] == bytes([cmd])
 
-        reply = self.framed.request(
-            cmd, payload, is_reply, timeout_s=self.timeout_s, retries=retries, what=what
-        )
+        reply = self.framed.request(cmd, payload, is_reply, timeout_s=self.timeout_s, retries=retries, what=what)
         if reply.type == ACK:
             _, result = ACK_PAYLOAD.unpack(reply.payload)
             if result != 0:
@@ -255,16 +253,12 @@ class CounterTimer:
             if item is None:
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise DeviceTimeout(
-                        DEVICE, f"board silent for {self.silence_s:g} s (no heartbeat)"
-                    )
+                    raise DeviceTimeout(DEVICE, f"board silent for {self.silence_s:g} s (no heartbeat)")
                 fp.fill(left)
                 continue
             if isinstance(item, FrameError):
                 if self._window is not None and self._opened and not self._closed:
-                    raise type(item)(
-                        DEVICE, f"window event may be lost, window timing not trusted ({item})"
-                    ) from item
+                    raise type(item)(DEVICE, f"window event may be lost, window timing not trusted ({item})") from item
                 raise item
             event = self._decode(item)
             if event is not None:
@@ -283,9 +277,7 @@ class CounterTimer:
             if f.type == REF:
                 n, raw = REF_PAYLOAD.unpack(p)
                 if n != self._next_ref:
-                    raise FrameError(
-                        DEVICE, f"reference crossing {self._next_ref} missing (got {n})"
-                    )
+                    raise FrameError(DEVICE, f"reference crossing {self._next_ref} missing (got {n})")
                 self._next_ref = n + 1
                 return Event("ref", self._unwrap.unwrap_s(raw), n)
             if f.type == EDGES:
@@ -353,16 +345,12 @@ class CounterTimer:
                 w.crossings_s = np.array(self._refs)
                 if self._stream_edges:
                     w.edges_t_s = np.concatenate(self._edge_t) if self._edge_t else np.empty(0)
-                    w.edges_dir = (
-                        np.concatenate(self._edge_d) if self._edge_d else np.empty(0, np.int8)
-                    )
+                    w.edges_dir = np.concatenate(self._edge_d) if self._edge_d else np.empty(0, np.int8)
                     w.edges_lost = max(w.edges_lost, ev.value)
                 self._window = None
                 return w
 
-    def measure(
-        self, preset_pulses: int, *, stream_edges: bool = False, **kw: object
-    ) -> WindowResult:
+    def measure(self, preset_pulses: int, *, stream_edges: bool = False, **kw: object) -> WindowResult:
         """arm() then wait_window(); aborts the board if the wait fails."""
         self.arm(preset_pulses, stream_edges=stream_edges)
         try:

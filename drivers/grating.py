@@ -258,9 +258,7 @@ class GratingReadHead:
             )
         self.framed.reset()
         self._pending = None
-        self._command(
-            START, START_PAYLOAD.pack(divider), retries=self.retries, timeout_s=self.timeout_s
-        )
+        self._command(START, START_PAYLOAD.pack(divider), retries=self.retries, timeout_s=self.timeout_s)
         self._divider = divider
         self._last_ticks = None
         self._seq_full = -1
@@ -306,8 +304,7 @@ class GratingReadHead:
     def _signal_fault(self) -> DeviceFault:
         return DeviceFault(
             DEVICE,
-            f"read-head signal lost: BiSS error bit active ({self.stats.invalid_samples} "
-            "invalid samples so far)",
+            f"read-head signal lost: BiSS error bit active ({self.stats.invalid_samples} invalid samples so far)",
             field="nE",
             value=0,
         )
@@ -364,9 +361,7 @@ class GratingReadHead:
                 pos, error, warning, crc_ok = decode_biss(int.from_bytes(word_b, "big"))
                 if not crc_ok:
                     stats.biss_crc_errors += 1
-                    err = ChecksumError(
-                        DEVICE, f"BiSS CRC-6 mismatch in sample seq {seq16}; sample dropped"
-                    )
+                    err = ChecksumError(DEVICE, f"BiSS CRC-6 mismatch in sample seq {seq16}; sample dropped")
                 else:
                     ticks = self._unwrap.unwrap_ticks(raw, host_s)
                     lost, err = self._account(seq16, ticks, period_ticks)
@@ -411,8 +406,7 @@ class GratingReadHead:
             if (self._last_seq + steps - seq16) % 65536 != 0:
                 err = FrameError(
                     DEVICE,
-                    f"sequence {seq16} disagrees with its time stamp ({steps} periods after "
-                    f"seq {self._last_seq})",
+                    f"sequence {seq16} disagrees with its time stamp ({steps} periods after seq {self._last_seq})",
                 )
             lost = steps - 1
             self._seq_full += steps
@@ -426,9 +420,7 @@ class GratingReadHead:
         while True:
             b = self.read_block(timeout_s=timeout_s)
             for i in range(len(b)):
-                yield GratingSample(
-                    int(b.seq[i]), float(b.t_s[i]), float(b.z_m[i]), bool(b.warning[i])
-                )
+                yield GratingSample(int(b.seq[i]), float(b.t_s[i]), float(b.z_m[i]), bool(b.warning[i]))
 
     def read_for(self, n_samples: int, timeout_s: float | None = None) -> SampleBlock:
         """Exactly n_samples samples concatenated (errors propagate)."""

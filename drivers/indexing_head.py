@@ -87,9 +87,7 @@ def decode_reply(line: bytes) -> Reply:
     except ValueError as exc:
         raise FrameError(DEVICE, f"malformed checksum in {line!r}") from exc
     if got != lrc(body):
-        raise ChecksumError(
-            DEVICE, f"reply {line!r}: checksum {got:02X} != computed {lrc(body):02X}"
-        )
+        raise ChecksumError(DEVICE, f"reply {line!r}: checksum {got:02X} != computed {lrc(body):02X}")
     try:
         tokens = body.decode("ascii").split(" ")
         dev, axis, *rest = tokens
@@ -291,8 +289,7 @@ class IndexingHead:
         except DeviceTimeout as exc:
             raise DeviceTimeout(
                 DEVICE,
-                f"move to {target_deg} deg not acknowledged: the head may be moving; "
-                "query status() or stop()",
+                f"move to {target_deg} deg not acknowledged: the head may be moving; query status() or stop()",
             ) from exc
 
     def home(self) -> None:

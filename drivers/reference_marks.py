@@ -202,9 +202,7 @@ class ReferenceMarks:
                     line = self.lines.read_line(left)
                     fields = decode_line(line)
                 except DeviceTimeout:
-                    raise DeviceTimeout(
-                        DEVICE, f"no reply to {cmd} within {self.timeout_s:g} s"
-                    ) from None
+                    raise DeviceTimeout(DEVICE, f"no reply to {cmd} within {self.timeout_s:g} s") from None
                 except FrameError:
                     continue  # debris of the event stream; the reply may still come
                 if fields[0] == "ERR":
@@ -265,20 +263,13 @@ class ReferenceMarks:
             if left <= 0:
                 if self.alarm:
                     raise self._alarm_fault()
-                raise DeviceTimeout(
-                    DEVICE, f"no reference crossing within {timeout_s:g} s (table at rest?)"
-                )
+                raise DeviceTimeout(DEVICE, f"no reference crossing within {timeout_s:g} s (table at rest?)")
             try:
-                if self._backlog:
-                    line = self._backlog.popleft()
-                else:
-                    line = self.lines.read_line(min(left, self.silence_s))
+                line = self._backlog.popleft() if self._backlog else self.lines.read_line(min(left, self.silence_s))
             except DeviceTimeout:
                 if left <= self.silence_s:
                     continue  # the overall deadline decides
-                raise DeviceTimeout(
-                    DEVICE, f"device silent for {self.silence_s:g} s (no heartbeat)"
-                ) from None
+                raise DeviceTimeout(DEVICE, f"device silent for {self.silence_s:g} s (no heartbeat)") from None
             fields = decode_line(line)
             kind = fields[0]
             try:

@@ -84,9 +84,7 @@ class SerialLink:
             )
         except serial.SerialException as exc:
             if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY):
-                raise DriverError(
-                    device, f"serial port {port} is in use by another process ({exc})"
-                ) from exc
+                raise DriverError(device, f"serial port {port} is in use by another process ({exc})") from exc
             raise Disconnected(device, f"cannot open serial port {port}: {exc}") from exc
         except (OSError, ValueError) as exc:
             raise Disconnected(device, f"cannot open serial port {port}: {exc}") from exc
@@ -103,9 +101,7 @@ class SerialLink:
         try:
             self._ser.write(data)
         except serial.SerialTimeoutException as exc:
-            raise DeviceTimeout(
-                self.device, f"write of {len(data)} bytes to {self.port} timed out"
-            ) from exc
+            raise DeviceTimeout(self.device, f"write of {len(data)} bytes to {self.port} timed out") from exc
         except (serial.SerialException, OSError, TypeError) as exc:
             raise self._gone(exc) from exc
 
@@ -169,9 +165,7 @@ class LineReader:
             if len(self._buf) > self.max_len:
                 junk = bytes(self._buf[:64])
                 self._buf.clear()
-                raise FrameError(
-                    self.link.device, f"line longer than {self.max_len} bytes (starts {junk!r})"
-                )
+                raise FrameError(self.link.device, f"line longer than {self.max_len} bytes (starts {junk!r})")
             left = deadline - time.monotonic()
             if left <= 0:
                 if self._buf:
@@ -284,11 +278,7 @@ class FrameParser:
                 return None
             if buf[start] != 0xA5 or buf[start + 1] != 0x5A:
                 i = self._skip_to_sync(start + 1)
-                err = self._bad(
-                    FrameError(
-                        self.device, "garbage between frames; resynchronising on the next sync"
-                    )
-                )
+                err = self._bad(FrameError(self.device, "garbage between frames; resynchronising on the next sync"))
                 if err is not None:
                     return err
                 if i is None:
@@ -299,9 +289,7 @@ class FrameParser:
             _, ftype, n = HEADER.unpack_from(buf, start)
             if n > self.max_payload:
                 self._skip_to_sync(start + 1)
-                err = self._bad(
-                    FrameError(self.device, f"impossible frame length {n} (max {self.max_payload})")
-                )
+                err = self._bad(FrameError(self.device, f"impossible frame length {n} (max {self.max_payload})"))
                 if err is not None:
                     return err
                 continue
@@ -324,8 +312,7 @@ class FrameParser:
                 err = self._bad(
                     ChecksumError(
                         self.device,
-                        f"frame type 0x{ftype:02X}: CRC 0x{crc_rx:04X} != computed "
-                        f"0x{crc_calc:04X}; frame dropped",
+                        f"frame type 0x{ftype:02X}: CRC 0x{crc_rx:04X} != computed 0x{crc_calc:04X}; frame dropped",
                     )
                 )
             else:
@@ -333,8 +320,7 @@ class FrameParser:
                 err = self._bad(
                     FrameError(
                         self.device,
-                        f"truncated or garbled frame (type 0x{ftype:02X}, length {n}); "
-                        "resynchronising",
+                        f"truncated or garbled frame (type 0x{ftype:02X}, length {n}); resynchronising",
                     )
                 )
             if err is not None:
@@ -402,9 +388,7 @@ class FramedPort:
                     if left <= 0:
                         if bad is not None:
                             raise type(bad)(self.device, f"{label}: reply damaged ({bad})")
-                        raise DeviceTimeout(
-                            self.device, f"no reply to {label} within {timeout_s:g} s"
-                        )
+                        raise DeviceTimeout(self.device, f"no reply to {label} within {timeout_s:g} s")
                     self.fill(left)
                 elif isinstance(item, FrameError):
                     bad = item  # maybe our reply, maybe stream debris: keep waiting

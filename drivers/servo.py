@@ -148,8 +148,7 @@ class ServoLimits:
                 f"acceleration amplitude out of range at {freq_hz:g} Hz",
                 field="accel_g",
                 value=round(accel_g, 6),
-                allowed=f"{self.accel_min_g:g} .. {self.accel_max_g:g} g "
-                f"(A0 (2 pi f)^2 / g, A0 = {self.A0_m:g} m)",
+                allowed=f"{self.accel_min_g:g} .. {self.accel_max_g:g} g (A0 (2 pi f)^2 / g, A0 = {self.A0_m:g} m)",
             )
         self.check_ramp(device, ramp_hz_per_s)
 
@@ -216,9 +215,7 @@ class VibrationTableServo:
 
     DEVICE = "vibration table servo"
 
-    def __init__(
-        self, servo: ServoSection, limits: ServoLimits, clock: Clock | None = None
-    ) -> None:
+    def __init__(self, servo: ServoSection, limits: ServoLimits, clock: Clock | None = None) -> None:
         self._cfg = servo
         self._limits = limits
         self._clock = clock if clock is not None else WallClock()
@@ -286,9 +283,7 @@ class VibrationTableServo:
                 allowed="a drive producing its heartbeat",
             ) from e
         # our heartbeat (NMT state 0x05, OPERATIONAL), consumed by the drive through 0x1016
-        self._hb_task = self._network.send_periodic(
-            0x700 + MASTER_NODE_ID, [0x05], self._hb_period_s
-        )
+        self._hb_task = self._network.send_periodic(0x700 + MASTER_NODE_ID, [0x05], self._hb_period_s)
         consumer_ms = round(HEARTBEAT_FACTOR * self._cfg.heartbeat_ms)
         self._sdo_write(0x1016, (MASTER_NODE_ID << 16) | consumer_ms, subindex=1)
 
@@ -508,8 +503,7 @@ class VibrationTableServo:
                 code = self._sdo_read(0x603F)
                 raise DeviceFault(
                     self.DEVICE,
-                    f"fault did not clear within {timeout_s:g} s of a fault reset "
-                    f"(0x603F error code 0x{code:04X})",
+                    f"fault did not clear within {timeout_s:g} s of a fault reset (0x603F error code 0x{code:04X})",
                     field="statusword",
                     value=None if sw is None else f"0x{sw:04X}",
                     allowed="fault bit 3 clear",
@@ -599,9 +593,7 @@ class VibrationTableServo:
         timeout_s = abs(freq_hz - from_hz) / ramp_hz_per_s + RAMP_MARGIN_S
         return self._wait_speed(freq_hz, seq, timeout_s, _target_reached)
 
-    def _wait_speed(
-        self, freq_hz: float, seq: int, timeout_s: float, done: Callable[[int], bool]
-    ) -> ServoReading:
+    def _wait_speed(self, freq_hz: float, seq: int, timeout_s: float, done: Callable[[int], bool]) -> ServoReading:
         """Wait for a velocity TPDO within AT_SPEED_TOL_HZ of freq_hz with done(statusword)."""
         deadline = time.monotonic() + timeout_s
         actual_hz = None
@@ -696,9 +688,7 @@ class VibrationTableServo:
             try:
                 return var.raw
             except SdoAbortedError as e:
-                raise DeviceFault(
-                    self.DEVICE, f"SDO read refused: {e}", field=f"0x{index:04X}", value=None
-                ) from e
+                raise DeviceFault(self.DEVICE, f"SDO read refused: {e}", field=f"0x{index:04X}", value=None) from e
             except SdoCommunicationError as e:
                 log.warning("%s: SDO read 0x%04X attempt %d: %s", self.DEVICE, index, attempt, e)
                 last = e
@@ -719,9 +709,7 @@ class VibrationTableServo:
         try:
             var.raw = value
         except SdoAbortedError as e:
-            raise DeviceFault(
-                self.DEVICE, f"drive refused the write: {e}", field=f"0x{index:04X}", value=value
-            ) from e
+            raise DeviceFault(self.DEVICE, f"drive refused the write: {e}", field=f"0x{index:04X}", value=value) from e
         except SdoCommunicationError as e:
             self.check()
             raise DeviceTimeout(

@@ -49,6 +49,12 @@ def multiposition_plan(
     return plan
 
 
+def point_id(index: int, spec: PointSpec) -> str:
+    """The id of the index-th point of a plan, e.g. P007-72deg-v8 or P008-72deg-s."""
+    kind = "s" if spec.freq_hz == 0 else f"v{spec.freq_hz:g}"
+    return f"P{index + 1:03d}-{spec.position_deg:g}deg-{kind}"
+
+
 def seed000_plan() -> list[PointSpec]:
     """The embedded default: 10 positions x (8, 9, 10 Hz + static), 40 points, about 7 h."""
     return multiposition_plan(equal_angle_positions_deg(10))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import json
 import sqlite3
+import threading
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -105,6 +106,8 @@ class SessionStore:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        # One connection shared by the engine and control threads: every use holds the lock.
+        self._lock = threading.RLock()
         self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=FULL")
@@ -130,16 +133,18 @@ class SessionStore:
 
     @contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
-        self._db.execute("BEGIN IMMEDIATE")
-        try:
-            yield self._db
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
-        self._db.execute("COMMIT")
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._db
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
 
     def _session_row(self, uid: str) -> int:
-        row = self._db.execute("SELECT id FROM sessions WHERE uid = ?", (uid,)).fetchone()
+        with self._lock:
+            row = self._db.execute("SELECT id FROM sessions WHERE uid = ?", (uid,)).fetchone()
         if row is None:
             raise StoreError(f"no session {uid!r} in {self.path}")
         return int(row[0])
@@ -230,39 +235,45 @@ class SessionStore:
         with self._tx() as db:
             db.execute("UPDATE sessions SET status = ? WHERE id = ?", (status, sid))
 
+    def _query(self, sql: str, args: tuple = ()) -> list[tuple]:
+        with self._lock:
+            return self._db.execute(sql, args).fetchall()
+
     def sessions(self) -> list[dict]:
-        rows = self._db.execute(
+        rows = self._query(
             "SELECT s.uid, s.created_utc, s.procedure, s.instrument_serial, s.status, COUNT(p.id)"
             " FROM sessions s LEFT JOIN points p ON p.session_id = s.id GROUP BY s.id ORDER BY s.id"
-        ).fetchall()
+        )
         keys = ("uid", "created_utc", "procedure", "instrument_serial", "status", "n_points")
         return [dict(zip(keys, r, strict=True)) for r in rows]
 
+    def session_config(self, uid: str) -> dict:
+        """The procedure, parameters and configuration the session was started with."""
+        ((config_json,),) = self._query("SELECT config_json FROM sessions WHERE id = ?", (self._session_row(uid),))
+        return json.loads(config_json)
+
     def results(self, uid: str) -> list[dict]:
-        sid = self._session_row(uid)
-        rows = self._db.execute(
-            "SELECT method, created_utc, result_json FROM results WHERE session_id = ? ORDER BY id", (sid,)
+        rows = self._query(
+            "SELECT method, created_utc, result_json FROM results WHERE session_id = ? ORDER BY id",
+            (self._session_row(uid),),
         )
         return [{"method": m, "created_utc": c, "result": json.loads(j)} for m, c, j in rows]
 
     def events(self, uid: str) -> list[dict]:
-        sid = self._session_row(uid)
-        rows = self._db.execute(
-            "SELECT t_utc, level, kind, message FROM events WHERE session_id = ? ORDER BY id", (sid,)
+        rows = self._query(
+            "SELECT t_utc, level, kind, message FROM events WHERE session_id = ? ORDER BY id",
+            (self._session_row(uid),),
         )
         return [dict(zip(("t_utc", "level", "kind", "message"), r, strict=True)) for r in rows]
 
     def load_session(self, uid: str, *, with_raw: bool = True) -> Session:
         sid = self._session_row(uid)
-        station_json, notes = self._db.execute(
-            "SELECT station_json, notes FROM sessions WHERE id = ?", (sid,)
-        ).fetchone()
-        rows = self._db.execute(
+        ((station_json, notes),) = self._query("SELECT station_json, notes FROM sessions WHERE id = ?", (sid,))
+        rows = self._query(
             "SELECT id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses, Tm_s, t1_s, t2_s, Np,"
-            " extra_json"
-            " FROM points WHERE session_id = ? ORDER BY sequence",
+            " extra_json FROM points WHERE session_id = ? ORDER BY sequence",
             (sid,),
-        ).fetchall()
+        )
         points, raws = [], {}
         for r in rows:
             points.append(
@@ -270,8 +281,7 @@ class SessionStore:
             )
             if with_raw:
                 arrays = {
-                    n: _from_blob(b)
-                    for n, b in self._db.execute("SELECT name, data FROM raw WHERE point_row = ?", (r[0],))
+                    n: _from_blob(b) for n, b in self._query("SELECT name, data FROM raw WHERE point_row = ?", (r[0],))
                 }
                 if arrays:
                     raws[r[1]] = RawStreams(**{n: arrays.get(n) for n in _RAW_FIELDS})

@@ -22,9 +22,7 @@ WARNING_ORDER = ("FS", "NI", "WR")  # most important first
 
 class IndexingEmulator(PtyEmulator):
     name = "indexing-emulator"
-    supported_faults = frozenset(
-        {Fault.NO_ANSWER, Fault.GARBLE, Fault.TRUNCATE, Fault.CRC_ERROR, Fault.DISCONNECT}
-    )
+    supported_faults = frozenset({Fault.NO_ANSWER, Fault.GARBLE, Fault.TRUNCATE, Fault.CRC_ERROR, Fault.DISCONNECT})
 
     def __init__(
         self,

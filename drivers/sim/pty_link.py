@@ -215,9 +215,7 @@ class PtyEmulator:
 
     def _drain(self) -> None:
         now = time.monotonic()
-        self._tokens = min(
-            self._burst_bytes, self._tokens + (now - self._last_wall) * self._bytes_per_wall_s
-        )
+        self._tokens = min(self._burst_bytes, self._tokens + (now - self._last_wall) * self._bytes_per_wall_s)
         self._last_wall = now
         n = min(len(self._tx), int(self._tokens))
         if n <= 0 or self._master is None:
@@ -263,8 +261,7 @@ class PtyEmulator:
                 else:
                     self._tokens = min(
                         self._burst_bytes,
-                        self._tokens
-                        + (time.monotonic() - self._last_wall) * self._bytes_per_wall_s,
+                        self._tokens + (time.monotonic() - self._last_wall) * self._bytes_per_wall_s,
                     )
                     self._last_wall = time.monotonic()
         except BaseException as exc:  # keep the cause for tests; the driver sees a dead link

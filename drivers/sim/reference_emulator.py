@@ -100,13 +100,7 @@ class ReferenceEmulator(PtyEmulator):
         if self.faults.active(Fault.NO_ANSWER):
             self._last_s = self._last_heartbeat_s = now_s
             return
-        alarm = (
-            1
-            if self.faults.active(Fault.SIGNAL_LOSS)
-            else 2
-            if self.faults.active(Fault.OVERSPEED)
-            else 0
-        )
+        alarm = 1 if self.faults.active(Fault.SIGNAL_LOSS) else 2 if self.faults.active(Fault.OVERSPEED) else 0
         if alarm != self.alarm:
             self.alarm = alarm
             self._emit("A", alarm, f"{ticks_of(now_s):08X}")

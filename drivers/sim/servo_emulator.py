@@ -146,9 +146,7 @@ class ServoEmulator:
         self._mode_frozen = False
 
     @classmethod
-    def from_config(
-        cls, servo: ServoSection, clock: Clock, crank: CrankModel | None = None
-    ) -> ServoEmulator:
+    def from_config(cls, servo: ServoSection, clock: Clock, crank: CrankModel | None = None) -> ServoEmulator:
         return cls(
             channel=servo.channel,
             node_id=servo.node_id,

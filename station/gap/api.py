@@ -30,7 +30,7 @@ from station.gap.fit import Channels, Linearisation, ModelFit, evaluate, fit_mod
 from station.gap.forward import CALIBRATED
 from station.gap.heldout import Folds, HeldOut, heldout, shrink
 from station.gap.identifiability import IdentifiabilityReport, assess
-from station.gap.localise import Detector, detectors, maps, standardised, where_text
+from station.gap.localise import detectors, maps, standardised, where_text
 from station.gap.noise import (
     excess_scatter_pvalue,
     pure_error,
@@ -101,8 +101,7 @@ def _noise_check(fit: ModelFit, pe, twin: TwinConfig) -> NoiseCheck:
         ss_pe = pe.sigma0_radps**2 * pe.dof
         lof = max(fit.rss_rate - ss_pe, 0.0) / (fit.dof_rate - pe.dof)
         F = lof / max(pe.sigma0_radps**2, 1e-300)
-        return NoiseCheck("pure error of repeats", pe.sigma0_radps,
-                          float(stats.f.sf(F, fit.dof_rate - pe.dof, pe.dof)))
+        return NoiseCheck("pure error of repeats", pe.sigma0_radps, float(stats.f.sf(F, fit.dof_rate - pe.dof, pe.dof)))
     if twin.noise.rate_noise_radps > 0:
         p = excess_scatter_pvalue(fit.sigma0_hat_radps, fit.dof_rate, twin.noise.rate_noise_radps)
         return NoiseCheck("twin noise model", twin.noise.rate_noise_radps, p)
@@ -113,41 +112,46 @@ def _coef_json(fit: ModelFit) -> dict:
     return {c: {"value": float(v), "sigma": float(s)} for c, v, s in zip(CALIBRATED, fit.K, fit.K_sigmas, strict=True)}
 
 
-def _candidate_entry(s: Scored | None, name: str, ident: IdentifiabilityReport, chosen: set[str],
-                     final: ModelFit, twin: TwinConfig) -> dict:
+def _candidate_entry(
+    s: Scored | None, name: str, ident: IdentifiabilityReport, chosen: set[str], final: ModelFit, twin: TwinConfig
+) -> dict:
     cid = ident.candidates[name]
     cand = cl.LIBRARY[name]
     entry: dict = {
         "name": name,
         "cause": cand.cause,
         "identifiable": cid.identifiable,
-        "identifiability": {"reason": cid.reason, "fitted_parameters": cid.kept,
-                            "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with]},
+        "identifiability": {
+            "reason": cid.reason,
+            "fitted_parameters": cid.kept,
+            "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with],
+        },
         "fixed_parameters": cl.fixed_params(cand, twin),
         "notes": cand.notes,
         "accepted": name in chosen,
     }
     if s is None:
-        entry.update({"parameters": {}, "uncertainty": {}, "evidence": None, "heldout_shrink": None,
-                      "rank": None})
+        entry.update({"parameters": {}, "uncertainty": {}, "evidence": None, "heldout_shrink": None, "rank": None})
         return entry
     fit = final if name in chosen and name in final.effects else s.fit
     params = {fp.param: float(v) for fp, v in zip(fit.free, fit.values, strict=True) if fp.effect == name}
     unc = {fp.param: float(v) for fp, v in zip(fit.free, fit.sigmas, strict=True) if fp.effect == name}
-    entry.update({
-        "parameters": params,
-        "uncertainty": unc,
-        "units": {fp.param: fp.unit for fp in cand.free},
-        "evidence": {
-            "delta_bic": float(s.dbic),
-            "F_rate": None if not math.isfinite(s.F) else float(s.F),
-            "p_value": float(s.p_value),
-            "delta_rss_in_sigma2": float(s.drss_sigma2),
-            "delta_chi2_timing": float(s.dchi2_tau),
-            "heldout_gap": None if not math.isfinite(s.heldout_G) else float(s.heldout_G),
-        },
-        "heldout_shrink": s.heldout_shrink,
-    })
+    entry.update(
+        {
+            "parameters": params,
+            "uncertainty": unc,
+            "units": {fp.param: fp.unit for fp in cand.free},
+            "evidence": {
+                "delta_bic": float(s.dbic),
+                "F_rate": None if not math.isfinite(s.F) else float(s.F),
+                "p_value": float(s.p_value),
+                "delta_rss_in_sigma2": float(s.drss_sigma2),
+                "delta_chi2_timing": float(s.dchi2_tau),
+                "heldout_gap": None if not math.isfinite(s.heldout_G) else float(s.heldout_G),
+            },
+            "heldout_shrink": s.heldout_shrink,
+        }
+    )
     return entry
 
 
@@ -170,7 +174,8 @@ def diagnose(
     if design.n_points <= n_lin:
         raise GapInputError(
             f"too few points to fit: {design.n_points} points cannot fit {n_pos} static levels and "
-            f"{len(CALIBRATED)} calibrated coefficients")
+            f"{len(CALIBRATED)} calibrated coefficients"
+        )
     lib = cl.library(exclude=exclude)
     tn = timing_noise(design, twin)
     weights = rate_weights(design, twin)
@@ -240,7 +245,8 @@ def diagnose(
     where = {
         "summary": where_text(m, dets_before, ALPHA),
         "after_effects": where_text(maps(design, z_after, final.tau_resid_s / tn.sigma_tau_s), dets_after, ALPHA)
-        if selection.chosen else None,
+        if selection.chosen
+        else None,
         "maps": m,
         "structure_tests_before": [d.to_json() for d in dets_before],
         "structure_tests_after": [d.to_json() for d in dets_after],
@@ -263,7 +269,7 @@ def diagnose(
     twin_out = final.cfg if verdict.verdict == "explained" else twin
     noise = {
         "model": "sigma_i = sigma0 sqrt(T_ref / Tm_i) (white rate noise); timing stamps add "
-                 "|wbar| sqrt(2) sd_stamp / Tm",
+        "|wbar| sqrt(2) sd_stamp / Tm",
         "T_ref_s": twin.noise.rate_noise_ref_s,
         "sigma0_radps": sigma0,
         "source": "pure error of repeats" if pe_ok else "residual dof of the final model",
@@ -274,8 +280,12 @@ def diagnose(
         "twin_nominal_sigma0_radps": twin.noise.rate_noise_radps,
         "excess_scatter_before": {"reference": nc_before.reference, "p_value": nc_before.p_value},
         "excess_scatter_after": {"reference": nc_after.reference, "p_value": nc_after.p_value},
-        "timing": {"sigma_tau_s": tn.sigma_tau_s, "dof": tn.dof, "floor_s": tn.floor_s,
-                   "max_rate_sd_from_timing_radps": float(np.max(timing_rate_sd_radps(design, twin)))},
+        "timing": {
+            "sigma_tau_s": tn.sigma_tau_s,
+            "dof": tn.dof,
+            "floor_s": tn.floor_s,
+            "max_rate_sd_from_timing_radps": float(np.max(timing_rate_sd_radps(design, twin))),
+        },
     }
     info = {
         "n_points": design.n_points,
@@ -317,8 +327,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", required=True, metavar="OUT.json", help="write the diagnosis here")
     p.add_argument("--html", metavar="OUT.html", help="also write a self-contained HTML report")
     p.add_argument("--twin-out", metavar="OUT.toml", help="write the twin with the chosen effect(s) switched on")
-    p.add_argument("--exclude", action="append", default=[], metavar="EFFECT",
-                   help="leave an effect out of the candidate library (repeatable)")
+    p.add_argument(
+        "--exclude",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="leave an effect out of the candidate library (repeatable)",
+    )
     p.add_argument("--max-effects", type=int, default=MAX_EFFECTS)
     p.add_argument("--no-suggest", action="store_true", help="skip the search for separating test points")
     return p
@@ -343,8 +358,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         twin = TwinConfig.from_toml(args.twin) if args.twin else default_twin()
         session = _load_session(args)
-        report = diagnose(session, twin, exclude=args.exclude, max_effects=args.max_effects,
-                          suggest=not args.no_suggest)
+        report = diagnose(
+            session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
+        )
     except (GapInputError, SessionFormatError, TwinConfigError, ValueError, FileNotFoundError) as exc:
         print(f"station gap: error: {exc}", file=sys.stderr)
         return 2
@@ -356,8 +372,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.twin_out:
         Path(args.twin_out).write_text(report.twin_out.to_toml())
     print(f"verdict: {report.verdict.verdict}: {report.verdict.text}")
-    print(f"gap before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g} (held-out mean z^2 - 1); "
-          f"{report.elapsed_s:.1f} s")
+    print(
+        f"gap before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g} (held-out mean z^2 - 1); "
+        f"{report.elapsed_s:.1f} s"
+    )
     return 0
 
 

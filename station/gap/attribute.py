@@ -65,7 +65,8 @@ def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_tau: int) -> S
         F = (drss / m_rate) / (fit.rss_rate / fit.dof_rate)
         p_rate = float(stats.f.sf(F, m_rate, fit.dof_rate)) if F > 0 else 1.0
     acts_on_tau = any(fp.effect == "frequency_error" for fp in fit.free) and not any(
-        fp.effect == "frequency_error" for fp in ref.free)
+        fp.effect == "frequency_error" for fp in ref.free
+    )
     dchi = ref.chi2_tau - fit.chi2_tau
     p_tau = float(stats.chi2.sf(dchi, 1)) if acts_on_tau and dchi > 0 else 1.0
     if acts_on_tau and m_rate > 0:

@@ -99,8 +99,17 @@ class PointDesign:
 
 
 _ARRAYS = (
-    "theta_rad", "position_deg", "freq_hz", "vib", "Tm_s", "t1_s", "t2_s", "Np",
-    "start_s", "sequence", "rate_radps",
+    "theta_rad",
+    "position_deg",
+    "freq_hz",
+    "vib",
+    "Tm_s",
+    "t1_s",
+    "t2_s",
+    "Np",
+    "start_s",
+    "sequence",
+    "rate_radps",
 )
 
 
@@ -114,6 +123,7 @@ def check_geometry(session: Session, cfg: TwinConfig) -> None:
             diffs.append(f"{key} = {a:g} in the session but {b:g} in the twin")
     if diffs:
         raise GapInputError(
-            "the session comes from another station geometry: " + "; ".join(diffs)
+            "the session comes from another station geometry: "
+            + "; ".join(diffs)
             + ". Compare it with a twin configured for that station (--twin)."
         )

@@ -109,10 +109,12 @@ def model_columns(ch: Channels, K: np.ndarray, cfg_of, steps: Sequence[float]) -
     cols = np.empty((ch.n_rate + ch.n_tau, len(steps)))
     for j, h in enumerate(steps):
         full, tau = predict_full(d, cfg_of(j, h), K)
-        cols[:, j] = np.concatenate([
-            ch.white_rate((full - full0) / h),
-            ch.white_tau((tau[d.vib] - tau0[d.vib]) / h),
-        ])
+        cols[:, j] = np.concatenate(
+            [
+                ch.white_rate((full - full0) / h),
+                ch.white_tau((tau[d.vib] - tau0[d.vib]) / h),
+            ]
+        )
     return cols
 
 
@@ -223,8 +225,7 @@ def fit_model(
         if start and fp.key in start:
             u[j] = (start[fp.key] - p0[j]) / scale[j]
     state = lin.state if not np.any(u) else evaluate(ch, cfg_at(u))
-    J_u = (np.column_stack([lin.columns[fp.key] for fp in free]) * scale
-           if free else np.zeros((state.r_white.size, 0)))
+    J_u = np.column_stack([lin.columns[fp.key] for fp in free]) * scale if free else np.zeros((state.r_white.size, 0))
     if np.any(u):
         J_u = _columns_at(ch, state, cfg_at, u, free, scale)
     converged = not free

@@ -61,9 +61,7 @@ def unit_config(cfg: TwinConfig, coefficient: str) -> TwinConfig:
     """cfg with one calibrated coefficient = 1, every other rate term zero (geometry kept)."""
     effects = {k: v for k, v in cfg.effects.items() if k not in _INSTRUMENT_TERM_EFFECTS}
     zero = InstrumentCoefficients(k0=0.0, kz=0.0, kzz=0.0, ky=0.0, k3=0.0)
-    return replace(
-        cfg, instrument=replace(zero, **{coefficient: 1.0}), effects=effects, earth_rate_on=False
-    )
+    return replace(cfg, instrument=replace(zero, **{coefficient: 1.0}), effects=effects, earth_rate_on=False)
 
 
 def base_config(cfg: TwinConfig) -> TwinConfig:

@@ -155,6 +155,6 @@ def heldout(
 
 def shrink(before: HeldOut, after: HeldOut) -> float | None:
     """Fraction of the held-out gap that a model removes (1 = all of it); None without a gap."""
-    if not math.isfinite(before.G) or before.G < 2.0 * before.se:
+    if not math.isfinite(before.G) or 2.0 * before.se > before.G:
         return None
     return float((before.G - after.G) / before.G)

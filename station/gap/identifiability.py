@@ -172,7 +172,9 @@ def assess(lin: Linearisation, noise_ratio: float = 1.0, suggest: bool = True) -
                 else:
                     kept.append(live[j].key)
         kept = [p.key for p in params if p.key in kept]  # table order
-        spaces[name] = _subspace(np.column_stack([proj[k] for k in kept])) if kept else np.zeros((proj[cand.free[0].key].size, 0))
+        spaces[name] = (
+            _subspace(np.column_stack([proj[k] for k in kept])) if kept else np.zeros((proj[cand.free[0].key].size, 0))
+        )
         out[name] = CandidateId(name, params, kept, [], bool(kept), "")
     for name, cid in out.items():
         cos = [(other, _cos(spaces[name], spaces[o2])) for other, o2 in ((n, n) for n in out) if other != name]
@@ -181,8 +183,11 @@ def assess(lin: Linearisation, noise_ratio: float = 1.0, suggest: bool = True) -
             if p.key in cid.kept:
                 v = proj[p.key] / np.linalg.norm(proj[p.key])
                 p.collinear_with = sorted(
-                    [(n, float(np.linalg.norm(spaces[n].T @ v))) for n in out if n != name
-                     and spaces[n].shape[1] and np.linalg.norm(spaces[n].T @ v) >= COLLINEAR_COS],
+                    [
+                        (n, float(np.linalg.norm(spaces[n].T @ v)))
+                        for n in out
+                        if n != name and spaces[n].shape[1] and np.linalg.norm(spaces[n].T @ v) >= COLLINEAR_COS
+                    ],
                     key=lambda x: -x[1],
                 )
         if not cid.kept:
@@ -193,8 +198,9 @@ def assess(lin: Linearisation, noise_ratio: float = 1.0, suggest: bool = True) -
             cid.reason = "nearly collinear with " + ", ".join(f"{n} (cos {c:.3f})" for n, c in cid.collinear_with)
         else:
             weak = [p.key for p in cid.params if p.status == "weak"]
-            cid.reason = "identifiable" + (f"; an effect of typical size is below the noise for {', '.join(weak)}"
-                                           if weak else "")
+            cid.reason = "identifiable" + (
+                f"; an effect of typical size is below the noise for {', '.join(weak)}" if weak else ""
+            )
     report = IdentifiabilityReport(out, noise_ratio)
     if suggest:
         _suggest(lin, report)
@@ -222,10 +228,12 @@ def _options(design: PointDesign, pulses_per_rev: int) -> list[_Option]:
             opts.append(_Option(f"add {f:g} Hz at every position", tuple(PointSpec(p, f, preset[p]) for p in pos)))
     low = [f for f in (2.0, 4.0) if all(abs(f - g) > 0.5 for g in freqs)]
     if low:
-        opts.append(_Option(
-            f"add {low[0]:g} Hz with short windows (1 precession revolution) at every position",
-            tuple(PointSpec(p, low[0], pulses_per_rev) for p in pos),
-        ))
+        opts.append(
+            _Option(
+                f"add {low[0]:g} Hz with short windows (1 precession revolution) at every position",
+                tuple(PointSpec(p, low[0], pulses_per_rev) for p in pos),
+            )
+        )
     if len(pos) >= 2:
         step = float(np.min(np.diff(sorted(pos)))) if len(pos) > 1 else 36.0
         new = [p + step / 2 for p in pos if abs(math.cos(math.radians(p + step / 2))) > 0.2]
@@ -235,11 +243,13 @@ def _options(design: PointDesign, pulses_per_rev: int) -> list[_Option]:
             specs += [PointSpec(p, f, pp) for f in freqs] + [PointSpec(p, 0.0, pp)]
         opts.append(_Option(f"add {len(new)} positions half-way between the recorded ones", tuple(specs)))
     if freqs:
-        opts.append(_Option(
-            "repeat the vibration points with a second crank amplitude A0/2",
-            tuple(PointSpec(p, f, preset[p]) for p in pos for f in freqs),
-            A0_factor=0.5,
-        ))
+        opts.append(
+            _Option(
+                "repeat the vibration points with a second crank amplitude A0/2",
+                tuple(PointSpec(p, f, preset[p]) for p in pos for f in freqs),
+                A0_factor=0.5,
+            )
+        )
     return opts
 
 
@@ -255,8 +265,9 @@ def _preset_for(design: PointDesign, position_deg: float, pulses_per_rev: int) -
 
 def _hypothetical(design: PointDesign, twin: TwinConfig, specs: Sequence[PointSpec], seed: int = 7) -> PointDesign:
     """Records the twin would give for `specs` (noise-free), as a design."""
-    quiet = replace(twin, noise=NoiseModel(rate_noise_ref_s=twin.noise.rate_noise_ref_s,
-                                           timer_tick_s=twin.noise.timer_tick_s))
+    quiet = replace(
+        twin, noise=NoiseModel(rate_noise_ref_s=twin.noise.rate_noise_ref_s, timer_tick_s=twin.noise.timer_tick_s)
+    )
     rng = np.random.default_rng(seed)
     t0 = float(design.start_s.max() + design.Tm_s.max()) + 60.0
     recs = []
@@ -295,8 +306,12 @@ def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
         for p in cid.params:
             partners = [n for n, _ in p.collinear_with]
             if (p.key in RAW_MEASURES and p.status in ("absorbed", "degenerate", "weak")) or partners:
-                p.separating.append({"test": "raw grating and pulse streams",
-                                     "effect": RAW_MEASURES.get(p.key, "no direct measurement")})
+                p.separating.append(
+                    {
+                        "test": "raw grating and pulse streams",
+                        "effect": RAW_MEASURES.get(p.key, "no direct measurement"),
+                    }
+                )
             if p.status in ("absorbed", "degenerate") or partners:
                 flagged[p.key] = [k for n in partners for k in report.candidates[n].kept]
     if not flagged:
@@ -308,8 +323,11 @@ def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
     n_pos0 = d.positions_deg.size
     for opt in _options(d, twin.station.pulses_per_rev):
         try:
-            tw = twin if opt.A0_factor == 1.0 else replace(
-                twin, station=replace(twin.station, A0_m=twin.station.A0_m * opt.A0_factor))
+            tw = (
+                twin
+                if opt.A0_factor == 1.0
+                else replace(twin, station=replace(twin.station, A0_m=twin.station.A0_m * opt.A0_factor))
+            )
             hd = _hypothetical(d, tw, opt.specs)
             Xh, Ch = _columns_for(hd, tw, lin, keys)
         except Exception:  # an option the twin cannot simulate (a window that never closes)
@@ -331,18 +349,21 @@ def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
                 cos = float(np.linalg.norm(B.T @ (P[:, col[key]] / max(pr, 1e-300))))
             ok = rho >= ABSORBED_RHO and cos < COLLINEAR_COS
             pid = next(p for c in report.candidates.values() for p in c.params if p.key == key)
-            pid.separating.append({
-                "test": opt.label,
-                "points_added": len(opt.specs),
-                "fraction_not_absorbed": round(float(rho), 6),
-                "cos_with_collinear_partners": round(cos, 4) if partners else None,
-                "snr_after_projection_at_typical_magnitude": float(pr * pid.scale * report.noise_ratio),
-                "separates": bool(ok),
-            })
+            pid.separating.append(
+                {
+                    "test": opt.label,
+                    "points_added": len(opt.specs),
+                    "fraction_not_absorbed": round(float(rho), 6),
+                    "cos_with_collinear_partners": round(cos, 4) if partners else None,
+                    "snr_after_projection_at_typical_magnitude": float(pr * pid.scale * report.noise_ratio),
+                    "separates": bool(ok),
+                }
+            )
 
 
-def _stack_levels(X0: np.ndarray, n_pos0: int, pos0: np.ndarray, Xh: np.ndarray,
-                  hd: PointDesign) -> tuple[np.ndarray, int]:
+def _stack_levels(
+    X0: np.ndarray, n_pos0: int, pos0: np.ndarray, Xh: np.ndarray, hd: PointDesign
+) -> tuple[np.ndarray, int]:
     """Join two whitened linear designs, sharing the static level of positions they have in common."""
     allpos = list(np.round(pos0, 9))
     for p in np.round(hd.positions_deg, 9):

@@ -38,8 +38,13 @@ class Detector:
     what: str
 
     def to_json(self) -> dict:
-        return {"name": self.name, "F": _r(self.F), "dof": list(self.dof), "p_value": _r(self.p_value),
-                "tests": self.what}
+        return {
+            "name": self.name,
+            "F": _r(self.F),
+            "dof": list(self.dof),
+            "p_value": _r(self.p_value),
+            "tests": self.what,
+        }
 
 
 def _r(x: float) -> float | None:
@@ -54,8 +59,10 @@ def _blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
     out: dict[str, tuple[np.ndarray, str]] = {}
     freqs = np.unique(d.freq_hz[d.vib])
     if freqs.size:
-        out["frequency_offsets"] = (np.column_stack([vib * (d.freq_hz == f) for f in freqs]),
-                                    "one offset per vibration frequency")
+        out["frequency_offsets"] = (
+            np.column_stack([vib * (d.freq_hz == f) for f in freqs]),
+            "one offset per vibration frequency",
+        )
     a2 = np.zeros(n)
     a2[d.vib] = (d.freq_hz[d.vib] / max(float(d.freq_hz.max()), 1e-9)) ** 4
     cols = []
@@ -66,8 +73,10 @@ def _blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
     span = float(t.max() - t.min())
     if span > 0:
         x = 2.0 * (t - t.min()) / span - 1.0
-        out["time_trend"] = (np.column_stack([legendre.legval(x, np.eye(4)[k]) for k in (1, 2, 3)]),
-                             "cubic trend in session time")
+        out["time_trend"] = (
+            np.column_stack([legendre.legval(x, np.eye(4)[k]) for k in (1, 2, 3)]),
+            "cubic trend in session time",
+        )
     vidx = np.flatnonzero(d.vib)
     if vidx.size >= 2 * BLOCKS:
         order = vidx[np.argsort(d.sequence[vidx], kind="stable")]
@@ -111,8 +120,15 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
         rss = float(e @ e)
         dof2 = ch.n_tau - 1
         F = (drss / 1) / max((rss - drss) / dof2, 1e-300)
-        out.append(Detector("period_identity_slope", F, (1, dof2), float(stats.f.sf(F, 1, dof2)),
-                            "slope of t2 - t1 + Tm - Np T against Np T (a frequency error)"))
+        out.append(
+            Detector(
+                "period_identity_slope",
+                F,
+                (1, dof2),
+                float(stats.f.sf(F, 1, dof2)),
+                "slope of t2 - t1 + Tm - Np T against Np T (a frequency error)",
+            )
+        )
     return out
 
 
@@ -130,8 +146,13 @@ def _group(z: np.ndarray, mask: np.ndarray) -> dict:
     if zz.size == 0:
         return {"n": 0}
     chi2 = float(np.sum(zz**2))
-    return {"n": int(zz.size), "mean_z": float(zz.mean()), "rms_z": float(np.sqrt(np.mean(zz**2))),
-            "chi2": chi2, "p_value": float(stats.chi2.sf(chi2, zz.size))}
+    return {
+        "n": int(zz.size),
+        "mean_z": float(zz.mean()),
+        "rms_z": float(np.sqrt(np.mean(zz**2))),
+        "chi2": chi2,
+        "p_value": float(stats.chi2.sf(chi2, zz.size)),
+    }
 
 
 def maps(design: PointDesign, z: np.ndarray, tau_z: np.ndarray) -> dict:
@@ -148,14 +169,31 @@ def maps(design: PointDesign, z: np.ndarray, tau_z: np.ndarray) -> dict:
     for j, blk in enumerate(np.array_split(order, min(BLOCKS, max(1, d.n_points // 4)))):
         m = np.zeros(d.n_points, dtype=bool)
         m[blk] = True
-        out["by_time_block"].append({"block": j, "start_s": float(d.start_s[blk].min()),
-                                     "end_s": float((d.start_s + d.Tm_s)[blk].max()), **_group(z, m)})
+        out["by_time_block"].append(
+            {
+                "block": j,
+                "start_s": float(d.start_s[blk].min()),
+                "end_s": float((d.start_s + d.Tm_s)[blk].max()),
+                **_group(z, m),
+            }
+        )
     for i in range(d.n_points):
-        out["grid"].append({"point_id": d.point_ids[i], "position_deg": float(d.position_deg[i]),
-                            "freq_hz": float(d.freq_hz[i]), "sequence": int(d.sequence[i]), "z": float(z[i])})
+        out["grid"].append(
+            {
+                "point_id": d.point_ids[i],
+                "position_deg": float(d.position_deg[i]),
+                "freq_hz": float(d.freq_hz[i]),
+                "sequence": int(d.sequence[i]),
+                "z": float(z[i]),
+            }
+        )
     if tau_z.size:
-        out["timing"] = {"n": int(tau_z.size), "rms_z": float(np.sqrt(np.mean(tau_z**2))),
-                         "chi2": float(np.sum(tau_z**2)), "p_value": float(stats.chi2.sf(np.sum(tau_z**2), tau_z.size))}
+        out["timing"] = {
+            "n": int(tau_z.size),
+            "rms_z": float(np.sqrt(np.mean(tau_z**2))),
+            "chi2": float(np.sum(tau_z**2)),
+            "p_value": float(stats.chi2.sf(np.sum(tau_z**2), tau_z.size)),
+        }
     return out
 
 
@@ -164,12 +202,15 @@ def where_text(m: dict, dets: list[Detector], alpha: float) -> str:
     parts = []
     k = m["by_kind"]
     if k.get("static", {}).get("n") and k.get("vibration", {}).get("n"):
-        parts.append(f"static points rms z {k['static']['rms_z']:.2f}, vibration points rms z "
-                     f"{k['vibration']['rms_z']:.2f}")
+        parts.append(
+            f"static points rms z {k['static']['rms_z']:.2f}, vibration points rms z {k['vibration']['rms_z']:.2f}"
+        )
     worst = sorted([g for g in m["by_frequency"] if g.get("n")], key=lambda g: -g["rms_z"])[:1]
     for g in worst:
-        parts.append(f"largest at {g['freq_hz']}{' Hz' if g['freq_hz'] != 'static' else ''} "
-                     f"(rms z {g['rms_z']:.2f}, mean z {g['mean_z']:+.2f})")
+        parts.append(
+            f"largest at {g['freq_hz']}{' Hz' if g['freq_hz'] != 'static' else ''} "
+            f"(rms z {g['rms_z']:.2f}, mean z {g['mean_z']:+.2f})"
+        )
     pos = sorted([g for g in m["by_position"] if g.get("n")], key=lambda g: -g["rms_z"])[:2]
     if pos:
         parts.append("positions " + ", ".join(f"{g['position_deg']:g} deg (rms z {g['rms_z']:.2f})" for g in pos))
@@ -182,6 +223,5 @@ def where_text(m: dict, dets: list[Detector], alpha: float) -> str:
     if sig:
         parts.append("structure: " + "; ".join(f"{dt.name} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig))
     else:
-        parts.append("no structure test significant at the "
-                     f"{alpha:g} level (Bonferroni over {len(dets)} tests)")
+        parts.append(f"no structure test significant at the {alpha:g} level (Bonferroni over {len(dets)} tests)")
     return "; ".join(parts) + "."

@@ -81,8 +81,10 @@ class PureError:
 
 def pure_error(design: PointDesign, residuals_radps: np.ndarray, weights: np.ndarray) -> PureError | None:
     """sigma0 from repeats: weighted spread of residuals within (position, frequency, kind) groups."""
-    keys = [(round(float(p), 6), round(float(f), 6), bool(v)) for p, f, v in
-            zip(design.position_deg, design.freq_hz, design.vib, strict=True)]
+    keys = [
+        (round(float(p), 6), round(float(f), 6), bool(v))
+        for p, f, v in zip(design.position_deg, design.freq_hz, design.vib, strict=True)
+    ]
     groups: dict[tuple, list[int]] = {}
     for i, k in enumerate(keys):
         groups.setdefault(k, []).append(i)

@@ -95,8 +95,12 @@ def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dic
             continue
         t1, t2, tm, n_p = design.t1_s[i], design.t2_s[i], design.Tm_s[i], int(design.Np[i])
         w = 2 * math.pi * n_p / (t2 + tm - t1)
-        entry: dict = {"point_id": pid, "position_deg": float(design.position_deg[i]),
-                       "freq_hz": float(design.freq_hz[i]), "measured_freq_hz": w / (2 * math.pi)}
+        entry: dict = {
+            "point_id": pid,
+            "position_deg": float(design.position_deg[i]),
+            "freq_hz": float(design.freq_hz[i]),
+            "measured_freq_hz": w / (2 * math.pi),
+        }
         if raw.grating_t.size > 20:
             s = _stride(raw.grating_t.size)
             t, z = raw.grating_t[s], raw.grating_z[s]
@@ -104,8 +108,10 @@ def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dic
             meas, se = coef[1:], se[1:]
             pred = _twin_grating(w, delta, twin)
             diff = meas - pred
-            entry["grating"] = {n: {"measured_m": float(m), "twin_m": float(p), "difference_m": float(dd),
-                                    "se_m": float(e)} for n, m, p, dd, e in zip(_GRATING_NAMES, meas, pred, diff, se, strict=True)}
+            entry["grating"] = {
+                n: {"measured_m": float(m), "twin_m": float(p), "difference_m": float(dd), "se_m": float(e)}
+                for n, m, p, dd, e in zip(_GRATING_NAMES, meas, pred, diff, se, strict=True)
+            }
             rows_w.append(w)
             rows_d.append(diff)
             rows_s.append(se)
@@ -124,9 +130,12 @@ def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dic
             f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
             pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, delta, cfg)
             entry["pulse_rate_harmonics"] = [
-                {"harmonic": j, "measured_radps": float(math.hypot(meas[2 * k], meas[2 * k + 1])),
-                 "twin_radps": float(math.hypot(pred[2 * k], pred[2 * k + 1])),
-                 "difference_radps": float(math.hypot(meas[2 * k] - pred[2 * k], meas[2 * k + 1] - pred[2 * k + 1]))}
+                {
+                    "harmonic": j,
+                    "measured_radps": float(math.hypot(meas[2 * k], meas[2 * k + 1])),
+                    "twin_radps": float(math.hypot(pred[2 * k], pred[2 * k + 1])),
+                    "difference_radps": float(math.hypot(meas[2 * k] - pred[2 * k], meas[2 * k + 1] - pred[2 * k + 1])),
+                }
                 for k, j in enumerate(HARMONICS)
             ]
         points.append(entry)
@@ -151,6 +160,9 @@ def _grating_summary(w: np.ndarray, d: np.ndarray, s: np.ndarray) -> dict:
         out["Zs1_m"] = {"value": float(np.average(d[:, 0], weights=wt)), "se": float(1 / math.sqrt(wt.sum()))}
     for k, name in enumerate(_GRATING_NAMES[1:], start=1):
         wk = 1.0 / s[:, k] ** 2
-        out[f"{name}_m"] = {"value": float(np.average(d[:, k], weights=wk)), "se": float(1 / math.sqrt(wk.sum())),
-                            "note": "Zc1 includes the read-head latency phase A0 w delta" if name == "Zc1" else ""}
+        out[f"{name}_m"] = {
+            "value": float(np.average(d[:, k], weights=wk)),
+            "se": float(1 / math.sqrt(wk.sum())),
+            "note": "Zc1 includes the read-head latency phase A0 w delta" if name == "Zc1" else "",
+        }
     return out

@@ -62,8 +62,16 @@ INJECTIONS: dict[str, dict[str, float]] = {
     "lateral_resonance": {"kx": 1e-5},  # with L0 = 0.01, fr, Q at the twin's defaults
     "odd_quadratic": {"koq": 1e-6},
     "cross_coupling": {"kip": 1e-6},
-    "index_harmonics": {"c1": 5e-6, "s1": -3e-6, "c2": 2e-6, "s2": 4e-6, "c3": -1e-6, "s3": 1e-6,
-                        "c4": 1e-6, "s4": -5e-7},
+    "index_harmonics": {
+        "c1": 5e-6,
+        "s1": -3e-6,
+        "c2": 2e-6,
+        "s2": 4e-6,
+        "c3": -1e-6,
+        "s3": 1e-6,
+        "c4": 1e-6,
+        "s4": -5e-7,
+    },
     "mount_misalignment": {"dtheta_mount": 1e-3},
     "bias_drift": {"d": 4e-11},
     "readhead_latency": {"delta": 1e-5},
@@ -71,8 +79,12 @@ INJECTIONS: dict[str, dict[str, float]] = {
 }
 FIXED_INJECTION = {"lateral_resonance": {"L0": 0.01}}
 OUT_OF_LIBRARY = ("quartic_term", "ap_cubic", "bias_step")
-TARGETS = {"top1_at_snr10": 0.95, "null_false_attribution": 0.05, "out_of_library_explained": 0.10,
-           "median_heldout_shrink": 0.8}
+TARGETS = {
+    "top1_at_snr10": 0.95,
+    "null_false_attribution": 0.05,
+    "out_of_library_explained": 0.10,
+    "median_heldout_shrink": 0.8,
+}
 
 
 def separating_plan() -> list[PointSpec]:
@@ -242,14 +254,25 @@ def run_case(case: Case, twin: TwinConfig | None = None) -> dict:
     j = rep.to_json()
     truth = next((c for c in j["candidates"] if c["name"] == case.effect), None)
     top = next((c["name"] for c in j["candidates"] if c.get("rank") == 1), None)
-    return clean_json({
-        "design": case.design, "kind": case.kind, "effect": case.effect, "snr": case.snr, "seed": case.seed,
-        "injected": injected, "verdict": j["verdict"], "effects": j["effects"], "partial": j["partial_effects"],
-        "top_ranked": top, "gap_before": j["gap_before"]["value"], "gap_after": j["gap_after"]["value"],
-        "truth_shrink": truth["heldout_shrink"] if truth else None,
-        "truth_identifiable": truth["identifiable"] if truth else None,
-        "elapsed_s": elapsed,
-    })
+    return clean_json(
+        {
+            "design": case.design,
+            "kind": case.kind,
+            "effect": case.effect,
+            "snr": case.snr,
+            "seed": case.seed,
+            "injected": injected,
+            "verdict": j["verdict"],
+            "effects": j["effects"],
+            "partial": j["partial_effects"],
+            "top_ranked": top,
+            "gap_before": j["gap_before"]["value"],
+            "gap_after": j["gap_after"]["value"],
+            "truth_shrink": truth["heldout_shrink"] if truth else None,
+            "truth_identifiable": truth["identifiable"] if truth else None,
+            "elapsed_s": elapsed,
+        }
+    )
 
 
 def _cases(designs, snrs, reps, n_null, seed0, loo: bool) -> list[Case]:
@@ -282,8 +305,11 @@ def summarise(results: list[dict]) -> dict:
         loo = [r for r in rs if r["kind"] == "leave_one_out"]
 
         def top1(rows):
-            return float(np.mean([r["verdict"] == "explained" and r["effects"][:1] == [r["effect"]] for r in rows])) \
-                if rows else None
+            return (
+                float(np.mean([r["verdict"] == "explained" and r["effects"][:1] == [r["effect"]] for r in rows]))
+                if rows
+                else None
+            )
 
         per_effect = {}
         for e in INJECTIONS:
@@ -292,9 +318,12 @@ def summarise(results: list[dict]) -> dict:
                 rows = [r for r in eff if r["effect"] == e and r["snr"] == snr]
                 sh = [r["truth_shrink"] for r in rows if r["truth_shrink"] is not None]
                 per_effect[e][f"snr{snr:g}"] = {
-                    "n": len(rows), "top1": top1(rows),
-                    "verdicts": {v: sum(r["verdict"] == v for r in rows) for v in
-                                 ("explained", "unexplained", "no_gap", "cannot_tell")},
+                    "n": len(rows),
+                    "top1": top1(rows),
+                    "verdicts": {
+                        v: sum(r["verdict"] == v for r in rows)
+                        for v in ("explained", "unexplained", "no_gap", "cannot_tell")
+                    },
                     "wrong_effects": sorted({r["effects"][0] for r in rows if r["effects"] and r["effects"][0] != e}),
                     "median_shrink": float(np.median(sh)) if sh else None,
                     "identifiable": bool(all(r["truth_identifiable"] for r in rows)) if rows else None,
@@ -311,12 +340,19 @@ def summarise(results: list[dict]) -> dict:
             "n_null": len(nulls),
             "out_of_library_explained": float(np.mean([r["verdict"] == "explained" for r in ool])) if ool else None,
             "out_of_library_by_effect": {
-                e: {v: sum(r["verdict"] == v for r in ool if r["effect"] == e) for v in
-                    ("explained", "unexplained", "no_gap", "cannot_tell")} for e in OUT_OF_LIBRARY},
+                e: {
+                    v: sum(r["verdict"] == v for r in ool if r["effect"] == e)
+                    for v in ("explained", "unexplained", "no_gap", "cannot_tell")
+                }
+                for e in OUT_OF_LIBRARY
+            },
             "leave_one_out_explained": float(np.mean([r["verdict"] == "explained" for r in loo])) if loo else None,
             "leave_one_out_by_effect": {
                 e: [r["effects"][0] if r["effects"] else r["verdict"] for r in loo if r["effect"] == e]
-                for e in INJECTIONS} if loo else None,
+                for e in INJECTIONS
+            }
+            if loo
+            else None,
             "median_heldout_shrink_snr10": float(np.median(sh10)) if sh10 else None,
             "median_diagnosis_s": float(np.median([r["elapsed_s"] for r in rs])),
             "per_effect": per_effect,
@@ -324,8 +360,16 @@ def summarise(results: list[dict]) -> dict:
     return out
 
 
-def run(designs=("seed000",), snrs=(5.0, 10.0, 20.0), reps=3, n_null=20, seed=1, workers=None,
-        leave_one_out=False, progress=None) -> dict:
+def run(
+    designs=("seed000",),
+    snrs=(5.0, 10.0, 20.0),
+    reps=3,
+    n_null=20,
+    seed=1,
+    workers=None,
+    leave_one_out=False,
+    progress=None,
+) -> dict:
     cases = _cases(designs, snrs, reps, n_null, seed, leave_one_out)
     workers = workers or os.cpu_count() or 1
     t0 = time.perf_counter()
@@ -341,10 +385,21 @@ def run(designs=("seed000",), snrs=(5.0, 10.0, 20.0), reps=3, n_null=20, seed=1,
             results.append(run_case(c))
             if progress:
                 progress(k, len(cases), results[-1])
-    return {"targets": TARGETS, "summary": summarise(results), "cases": results,
-            "settings": {"designs": list(designs), "snrs": list(snrs), "reps": reps, "n_null": n_null,
-                         "seed": seed, "leave_one_out": leave_one_out, "workers": workers},
-            "wall_s": time.perf_counter() - t0}
+    return {
+        "targets": TARGETS,
+        "summary": summarise(results),
+        "cases": results,
+        "settings": {
+            "designs": list(designs),
+            "snrs": list(snrs),
+            "reps": reps,
+            "n_null": n_null,
+            "seed": seed,
+            "leave_one_out": leave_one_out,
+            "workers": workers,
+        },
+        "wall_s": time.perf_counter() - t0,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -361,15 +416,22 @@ def main(argv: list[str] | None = None) -> int:
     designs = list(DESIGNS) if args.design == "both" else [args.design]
 
     def progress(k: int, n: int, r: dict) -> None:
-        print(f"[{k}/{n}] {r['design']} {r['kind']} {r['effect'] or '-'} snr {r['snr']:g}: {r['verdict']} "
-              f"{','.join(r['effects'])} ({r['elapsed_s']:.1f} s)", file=sys.stderr)
+        print(
+            f"[{k}/{n}] {r['design']} {r['kind']} {r['effect'] or '-'} snr {r['snr']:g}: {r['verdict']} "
+            f"{','.join(r['effects'])} ({r['elapsed_s']:.1f} s)",
+            file=sys.stderr,
+        )
 
     out = run(designs, tuple(args.snr), args.reps, args.nulls, args.seed, args.workers, args.leave_one_out, progress)
     text = json.dumps(clean_json(out), indent=2, allow_nan=False)
     if args.json:
         Path(args.json).write_text(text)
-    print(json.dumps(clean_json({k: {kk: vv for kk, vv in v.items() if kk != "per_effect"}
-                                 for k, v in out["summary"].items()}), indent=2))
+    print(
+        json.dumps(
+            clean_json({k: {kk: vv for kk, vv in v.items() if kk != "per_effect"} for k, v in out["summary"].items()}),
+            indent=2,
+        )
+    )
     return 0
 
 

@@ -60,31 +60,44 @@ def decide(
     more_significant: bool,
 ) -> Verdict:
     if dof < MIN_DOF:
-        return Verdict("cannot_tell", [], f"cannot tell with this design: only {dof} residual degrees of freedom "
-                       f"remain after the static levels and the calibrated coefficients (need >= {MIN_DOF}); "
-                       "add positions or frequencies")
+        return Verdict(
+            "cannot_tell",
+            [],
+            f"cannot tell with this design: only {dof} residual degrees of freedom "
+            f"remain after the static levels and the calibrated coefficients (need >= {MIN_DOF}); "
+            "add positions or frequencies",
+        )
     effects = [s.name for s in selection.chosen]
     sig_before = _significant(dets_before)
     if not effects and not sig_before and not noise_before.excess:
-        ref = (f"; residual scatter consistent with the {noise_before.reference}"
-               if noise_before.reference != "none" else "; no independent noise reference (no repeats, no twin noise model)")
-        return Verdict("no_gap", [], "no gap beyond noise: no library effect and no structure test is significant"
-                       + ref)
+        ref = (
+            f"; residual scatter consistent with the {noise_before.reference}"
+            if noise_before.reference != "none"
+            else "; no independent noise reference (no repeats, no twin noise model)"
+        )
+        return Verdict(
+            "no_gap", [], "no gap beyond noise: no library effect and no structure test is significant" + ref
+        )
     remaining = [f"{d.name} (F = {d.F:.1f}, p = {d.p_value:.1e})" for d in _significant(dets_after)]
     if noise_after.excess:
         remaining.append(f"excess scatter against the {noise_after.reference} (p = {noise_after.p_value:.1e})")
     if more_significant:
         remaining.append("further library effects still significant beyond the maximum number added")
     if effects and not remaining and (shrink is None or shrink >= MIN_SHRINK):
-        amb = (f"; not separable in this design from {', '.join(selection.ambiguous)}" if selection.ambiguous else "")
+        amb = f"; not separable in this design from {', '.join(selection.ambiguous)}" if selection.ambiguous else ""
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
         return Verdict("explained", effects, f"explained by {', '.join(effects)} ({sh}){amb}")
     if effects:
         why = list(remaining)
         if shrink is not None and shrink < MIN_SHRINK:
             why.append(f"held-out gap shrink only {shrink:.2f} (< {MIN_SHRINK})")
-        return Verdict("unexplained", [], "not explained by the library: " + ", ".join(effects)
-                       + " account(s) for part of it, but " + "; ".join(why), partial=effects, remaining=why)
+        return Verdict(
+            "unexplained",
+            [],
+            "not explained by the library: " + ", ".join(effects) + " account(s) for part of it, but " + "; ".join(why),
+            partial=effects,
+            remaining=why,
+        )
     why = [f"{d.name} (F = {d.F:.1f}, p = {d.p_value:.1e})" for d in sig_before]
     if noise_before.excess:
         why.append(f"excess scatter against the {noise_before.reference} (p = {noise_before.p_value:.1e})")

@@ -111,7 +111,6 @@ def _edges_in_cells(t, phi, rate, h, q):
     level = np.where(up_e, lo_level[piece] + offsets, hi_level[piece] - offsets) * q
     c = cell[piece]
     e0, e1, e2, e3 = c0[c], c1[c], c2[c], c3[c]
-    a, b, fa, fb = s_a[piece], s_b[piece], va[piece], vb[piece]
     s = _solve_levels(e0, e1, e2, e3, level, s_a[piece], s_b[piece], va[piece], vb[piece])
     return t[c] + s * h, np.where(up_e, 1, -1).astype(np.int8)
 
@@ -133,7 +132,9 @@ def _solve_levels(e0, e1, e2, e3, level, a, b, fa, fb):
     s = np.where(np.isfinite(s), s, 0.5 * (a + b))
     slow = np.flatnonzero(np.abs(_cubic(e0, e1, e2, e3, s) - level) > _LEVEL_TOL_RAD)
     if slow.size:
-        s[slow] = _bracketed(e0[slow], e1[slow], e2[slow], e3[slow], level[slow], a[slow], b[slow], fb[slow] >= fa[slow])
+        s[slow] = _bracketed(
+            e0[slow], e1[slow], e2[slow], e3[slow], level[slow], a[slow], b[slow], fb[slow] >= fa[slow]
+        )
     return s
 
 

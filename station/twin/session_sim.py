@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from station.plan import point_id
 from station.session import Session, StationInfo
 from station.twin.config import TwinConfig
 from station.twin.measurement import PointSpec, SimulatedPoint, simulate_point
@@ -32,13 +33,12 @@ def simulate_points(
     t_s = 0.0
     for i, spec in enumerate(plan):
         t_s += setup_time_s
-        kind = "s" if spec.freq_hz == 0 else f"v{spec.freq_hz:g}"
         sp: SimulatedPoint = simulate_point(
             spec,
             cfg,
             rng,
             start_s=t_s,
-            point_id=f"P{i + 1:03d}-{spec.position_deg:g}deg-{kind}",
+            point_id=point_id(i, spec),
             sequence=i,
             reference_phase_rad=reference_phase_rad,
             raw=raw,

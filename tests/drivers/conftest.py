@@ -30,9 +30,7 @@ def make_world(speed: float = 1.0, vibrate_hz: float = 10.0, start_s: float = 0.
     """A simulated station on a VirtualClock; the table vibrating at vibrate_hz (0: at rest)."""
     world = SimStation(clock=VirtualClock(speed, start_s=start_s))
     if vibrate_hz > 0:
-        world.crank.command_speed(
-            2 * math.pi * vibrate_hz, CRANK_ACCEL_RADPS2, world.clock.now_s()
-        )
+        world.crank.command_speed(2 * math.pi * vibrate_hz, CRANK_ACCEL_RADPS2, world.clock.now_s())
     return world
 
 
@@ -41,9 +39,7 @@ def grating_rig_at() -> Iterator[Callable[..., tuple[Any, GratingEmulator, Grati
     """Factory: grating rig on a world whose clock runs `speed` times real time."""
     opened: list[tuple[GratingEmulator, GratingReadHead]] = []
 
-    def make(
-        speed: float = 1.0, vibrate_hz: float = 10.0
-    ) -> tuple[Any, GratingEmulator, GratingReadHead]:
+    def make(speed: float = 1.0, vibrate_hz: float = 10.0) -> tuple[Any, GratingEmulator, GratingReadHead]:
         world = make_world(speed=speed, vibrate_hz=vibrate_hz)
         emu = GratingEmulator(world)
         emu.start()
@@ -99,9 +95,7 @@ def counter_rig() -> Iterator[Callable[..., tuple[Any, CounterEmulator, CounterT
 def index_rig() -> Iterator[tuple[Any, IndexingEmulator, IndexingHead]]:
     world = make_world(speed=20.0, vibrate_hz=0.0)
     with IndexingEmulator(world) as emu:
-        head = IndexingHead(
-            emu.port, timeout_s=0.3, settle_time_s=0.2, poll_s=0.05, clock=world.clock
-        ).open()
+        head = IndexingHead(emu.port, timeout_s=0.3, settle_time_s=0.2, poll_s=0.05, clock=world.clock).open()
         try:
             yield world, emu, head
         finally:

@@ -72,15 +72,17 @@ def make_rig() -> Iterator[RigFactory]:
     opened: list[Rig] = []
 
     def make(
-        *, clock: Clock | None = None, crank: CrankModel | None = None, open_servo: bool = True
+        *,
+        clock: Clock | None = None,
+        crank: CrankModel | None = None,
+        open_servo: bool = True,
+        limits: ServoLimits = LIMITS,
     ) -> Rig:
         clock = clock or WallClock()
-        cfg = dataclasses.replace(
-            CONFIG.servo, channel=f"servo-test-{uuid.uuid4().hex[:8]}", timeout_s=TIMEOUT_S
-        )
+        cfg = dataclasses.replace(CONFIG.servo, channel=f"servo-test-{uuid.uuid4().hex[:8]}", timeout_s=TIMEOUT_S)
         emu = ServoEmulator.from_config(cfg, clock, crank)
         emu.start()
-        rig = Rig(emu, VibrationTableServo(cfg, LIMITS, clock), clock, cfg)
+        rig = Rig(emu, VibrationTableServo(cfg, limits, clock), clock, cfg)
         opened.append(rig)
         if open_servo:
             rig.servo.open()
@@ -284,15 +286,17 @@ def test_bus_off_is_detected_and_the_drive_stops_on_its_own(rig: Rig) -> None:
         (12.0, None, "freq_hz"),
         (0.05, None, "freq_hz"),
         (math.nan, None, "freq_hz"),
-        (9.5, None, "accel_g"),  # 10.9 g > 10 g
+        (9.5, None, "accel_g"),  # 10.9 g > 10 g of the payload's limits below
         (0.5, None, "accel_g"),  # 0.03 g < 0.1 g
         (2.0, 5.0, "ramp_hz_per_s"),
         (2.0, 0.0, "ramp_hz_per_s"),
     ],
 )
 def test_out_of_range_is_refused_before_anything_is_sent(
-    rig: Rig, freq_hz: float, ramp_hz_per_s: float | None, field: str
+    make_rig: RigFactory, freq_hz: float, ramp_hz_per_s: float | None, field: str
 ) -> None:
+    # A payload that allows 0.1 .. 10 g (seed 000 Table 4 as printed), inside the station's own range.
+    rig = make_rig(limits=dataclasses.replace(LIMITS, accel_min_g=0.1, accel_max_g=10.0))
     rig.servo.enable()
     node_id = rig.cfg.node_id
     with can.Bus(interface="virtual", channel=rig.cfg.channel) as sniffer:

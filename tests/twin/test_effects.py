@@ -63,7 +63,11 @@ def test_instrument_terms_in_the_static_rate(effect, params, theta_deg, expected
     ("effect", "params", "angle_rad"),
     [
         ("mount_misalignment", {"dtheta_mount": 5e-5}, 5e-5),
-        ("index_harmonics", {"c1": 2e-5, "s2": 1e-5}, 2e-5 * math.cos(math.radians(60)) + 1e-5 * math.sin(math.radians(120))),
+        (
+            "index_harmonics",
+            {"c1": 2e-5, "s2": 1e-5},
+            2e-5 * math.cos(math.radians(60)) + 1e-5 * math.sin(math.radians(120)),
+        ),
         # at rest the crank sits at psi = 0: alpha_x = ax0 + axc1
         ("parasitic_rotation", {"ax0": 3e-5, "axs1": 7e-6, "axc1": 1e-5}, 4e-5),
     ],
@@ -77,7 +81,9 @@ def test_angle_effects_tilt_the_static_input(effect, params, angle_rad):
 
 def test_frequency_error_breaks_the_period_identity_by_eps_np_t():
     eps = 2e-5
-    p = simulate_point(PointSpec(0.0, 10.0), EXACT.with_effect("frequency_error", eps_f=eps), np.random.default_rng(1)).record
+    p = simulate_point(
+        PointSpec(0.0, 10.0), EXACT.with_effect("frequency_error", eps_f=eps), np.random.default_rng(1)
+    ).record
     T = 0.1
     mismatch = p.t1_s + p.Np * T - p.Tm_s - p.t2_s
     assert mismatch == pytest.approx(p.Np * T * eps / (1 + eps), rel=1e-6)
@@ -86,7 +92,9 @@ def test_frequency_error_breaks_the_period_identity_by_eps_np_t():
 def test_readhead_latency_delays_t1_and_t2():
     delta = 3e-4
     nominal = simulate_point(PointSpec(36.0, 9.0), EXACT, np.random.default_rng(2)).record
-    late = simulate_point(PointSpec(36.0, 9.0), EXACT.with_effect("readhead_latency", delta=delta), np.random.default_rng(2)).record
+    late = simulate_point(
+        PointSpec(36.0, 9.0), EXACT.with_effect("readhead_latency", delta=delta), np.random.default_rng(2)
+    ).record
     assert late.Tm_s == nominal.Tm_s
     assert late.t1_s - nominal.t1_s == pytest.approx(delta, abs=1e-12)
     assert late.t2_s - nominal.t2_s == pytest.approx(delta, abs=1e-12)

@@ -1,0 +1,1 @@
+"""Procedure engine: procedures are generators of steps; one engine validates, estimates and runs them."""

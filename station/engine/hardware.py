@@ -1,0 +1,40 @@
+"""What the engine needs of a station: the seam between the engine and the drivers.
+
+`drivers.station.StationDevices` implements it for a real station and, with the
+same driver code, for the simulated one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from drivers.counter_timer import Event, WindowResult
+from drivers.reference_marks import FrequencyEstimate
+from station.clock import Clock
+from station.session import StationInfo
+
+
+class StationHardware(Protocol):
+    clock: Clock
+    station: StationInfo
+
+    def move_index(self, position_deg: float) -> float: ...
+
+    def set_vibration(self, freq_hz: float) -> float: ...
+
+    def measure_window(
+        self, preset_pulses: int, *, stream_edges: bool = False, on_event: Callable[[Event], None] | None = None
+    ) -> WindowResult: ...
+
+    def abort_window(self) -> None: ...
+
+    def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def measure_frequency(self, periods: int) -> FrequencyEstimate: ...
+
+    def safe_stop(self) -> None: ...
+
+    def emergency_stop(self) -> None: ...

@@ -1,0 +1,93 @@
+"""The procedure library's registry and the TOML procedure files operators start from.
+
+A procedure file names a registered procedure and its parameters:
+
+    procedure = "seed000.integral_precession"
+    [params]
+    positions_deg = [0, 36, 72]
+    freqs_hz = [8, 9, 10]
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import tomllib
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from station.engine.params import Param, ParameterError, validate_params
+
+
+class ProcedureError(ValueError):
+    """An unknown procedure or a malformed procedure file."""
+
+
+@dataclass(frozen=True)
+class ProcedureSpec:
+    name: str
+    title: str
+    params: tuple[Param, ...]
+    func: Callable[[dict[str, Any]], Generator]
+    analysis: str | None = None  # identification method run on the finished session, if any
+
+    def validate(self, given: dict[str, Any]) -> dict[str, Any]:
+        return validate_params(self.name, self.params, given)
+
+
+_REGISTRY: dict[str, ProcedureSpec] = {}
+
+
+def procedure(name: str, title: str, params: Sequence[Param], analysis: str | None = None):
+    """Register a generator function as a library procedure."""
+
+    def register(func):
+        _REGISTRY[name] = ProcedureSpec(name, title, tuple(params), func, analysis)
+        return func
+
+    return register
+
+
+def load_library() -> dict[str, ProcedureSpec]:
+    """Import every module of the `procedures` package so that its procedures register."""
+    import procedures
+
+    for mod in pkgutil.iter_modules(procedures.__path__):
+        importlib.import_module(f"procedures.{mod.name}")
+    return dict(_REGISTRY)
+
+
+def get_procedure(name: str) -> ProcedureSpec:
+    library = load_library()
+    if name not in library:
+        raise ProcedureError(f"unknown procedure {name!r}; the library has: {', '.join(sorted(library))}")
+    return library[name]
+
+
+def load_procedure_file(path: str | Path) -> tuple[ProcedureSpec, dict[str, Any]]:
+    """Read and validate a TOML procedure file: (procedure, typed parameters)."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ProcedureError(f"procedure file {path}: no such file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProcedureError(f"procedure file {path}: not valid TOML ({exc})") from None
+    unknown = sorted(set(doc) - {"procedure", "params", "title", "instrument_serial"})
+    if unknown:
+        raise ProcedureError(
+            f"procedure file {path}: unknown key(s) {unknown}; allowed: procedure, params, title, instrument_serial"
+        )
+    name = doc.get("procedure")
+    if not isinstance(name, str):
+        raise ProcedureError(f"procedure file {path}: 'procedure' = {name!r}: expected the name of a procedure")
+    params = doc.get("params", {})
+    if not isinstance(params, dict):
+        raise ProcedureError(f"procedure file {path}: [params] must be a table")
+    spec = get_procedure(name)
+    try:
+        return spec, spec.validate(params)
+    except ParameterError as exc:
+        raise ProcedureError(f"procedure file {path}: {exc}") from None
