@@ -2,15 +2,20 @@
 
 `seed000.integral_precession`: at each indexing position the vibration tests
 at every frequency, then the static test (seed 000 5.2), each a counter window
-of whole precession revolutions lasting about `window_s`.
+of whole precession revolutions lasting about `window_s`; identified by the
+integral method (exact window means) and by the integer periodic vibration
+baseline (eq. 35) on the same data.
 """
 
 from __future__ import annotations
 
+from station.analysis.identify import METHODS, identify
 from station.engine.params import Param
-from station.engine.registry import procedure
+from station.engine.registry import Analysis, procedure
 from station.engine.steps import Checkpoint, MeasurePoint, Note
 from station.plan import SEED000_FREQS_HZ, SEED000_WINDOW_S, equal_angle_positions_deg, multiposition_plan, point_id
+from station.report import render_report
+from station.session import Session
 
 POSITION_PARAMS = (
     Param("positions_deg", list, default=equal_angle_positions_deg(10), min=-360.0, max=360.0, unit="deg",
@@ -24,11 +29,23 @@ POSITION_PARAMS = (
 )  # fmt: skip
 
 
+def analyse_integral(session: Session) -> Analysis:
+    """Both identifications (seed 000 eqs. 19-22 and 35) and the session report."""
+    results = {m: identify(session, m) for m in METHODS}
+    uid = session.meta.get("store_uid", "")
+    html = render_report(session, results, title=f"Session {uid}: integral precession (seed 000)")
+    lines = []
+    for m, r in results.items():
+        coefs = ", ".join(f"{n} = {v:.6e} ± {s:.1e}" for n, v, s in zip(r.names, r.values, r.sigmas, strict=True))
+        lines.append(f"{m}: {coefs}; sigma = {r.sigma_residual:.3e} rad/s, mu = {r.mu:.2f} (mu_c = {r.mu_c:.2f})")
+    return Analysis({m: r.to_json() for m, r in results.items()}, html, "\n".join(lines))
+
+
 @procedure(
     "seed000.integral_precession",
     "Integral precession calibration on the vibration table (seed 000)",
     POSITION_PARAMS,
-    analysis="integral",
+    analyse=analyse_integral,
 )
 def integral_precession(p: dict):
     plan = multiposition_plan(p["positions_deg"], p["freqs_hz"], p["window_s"])

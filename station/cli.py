@@ -1,79 +1,84 @@
-"""The `station` command: run a simulated calibration session, identify, import/export, gap diagnosis."""
+"""The `station` command: run procedures on a station (the simulated one by default), identify,
+import/export sessions, gap diagnosis."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
-from dataclasses import asdict
 from pathlib import Path
 
-from station.analysis.identify import METHODS, Identification, identify
+from drivers.errors import DriverError
+from drivers.station_config import ConfigError
+from station.analysis.identify import METHODS, identify
 from station.analysis.least_squares import FitError
+from station.console import (
+    DEFAULT_PROCEDURE,
+    DEFAULT_SPEED,
+    controller_for,
+    describe_plan,
+    exit_code,
+    load_station,
+    open_station,
+    run_with_progress,
+    write_outputs,
+)
+from station.controller import ControlError
+from station.engine.params import ParameterError
+from station.engine.planning import StationModel, ValidationError, plan_procedure
+from station.engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
 from station.interchange import SessionFormatError, read_session, write_session
 from station.plan import seed000_plan
-from station.report import render_report
 from station.store import SessionStore, StoreError
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
-from station.twin.session_sim import simulate_points, simulate_session, station_info
+from station.twin.session_sim import simulate_session
 
 
 def _load_twin(path: str | None) -> TwinConfig:
     return TwinConfig.from_toml(path) if path else default_twin()
 
 
-def _print_identification(r: Identification, out=None) -> None:
-    out = out or sys.stdout
-    print(f"method: {r.method}   points: {r.n_points}   dof: {r.dof}", file=out)
-    for name, v, s in zip(r.names, r.values, r.sigmas, strict=True):
-        print(f"  {name:4s} = {v: .6e} ± {s:.2e}", file=out)
-    verdict = "accepted" if r.mu < r.mu_c else "possible outlier (mu >= mu_c)"
-    print(
-        f"  sigma residual = {r.sigma_residual:.3e} rad/s;  mu = {r.mu:.3f} vs mu_c = {r.mu_c:.3f}: {verdict}", file=out
-    )
+def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid: str | None = None) -> int:
+    """Plan (dry run) before anything moves, run on the station of --station (simulated or real), then
+    analyse, report and export."""
+    config = load_station(args.station)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plan = plan_procedure(spec, params, StationModel.from_config(config))
+    if args.dry_run:
+        describe_plan(plan, sys.stdout)
+        return 0
+    with SessionStore(args.db or out / "station.sqlite") as store:
+        kind = f"simulated, seed {args.seed}, {args.speed:g}x real time" if config.simulated else "real"
+        print(f"station: {config.path} ({kind}); store: {store.path}")
+        with (
+            open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
+            controller_for(config, hw, store, out, args.telemetry) as controller,
+        ):
+            outcome = run_with_progress(
+                controller, spec.name, params, instrument_serial=args.serial, resume_uid=resume_uid
+            )
+        write_outputs(store, outcome, out, sys.stdout)
+    return exit_code(outcome)
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    """The main job: the seed-000 session on the simulated station, stored, identified, reported."""
-    cfg = _load_twin(args.twin)
-    plan = seed000_plan()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    store = SessionStore(args.db or out / "station.sqlite")
-    uid = store.create_session(
-        station_info(cfg),
-        "seed000_integral_precession",
-        instrument_serial=args.serial,
-        config={"twin": cfg.to_dict(), "seed": args.seed, "plan": [asdict(p) for p in plan]},
-    )
-    print(f"session {uid}: {len(plan)} points on the simulated station (seed {args.seed}); store {store.path}")
-    t_wall = time.perf_counter()
-    station_s = 0.0
-    for i, sp in enumerate(simulate_points(plan, cfg, args.seed, raw=args.raw), start=1):
-        store.add_point(uid, sp.record, sp.raw)
-        p = sp.record
-        station_s = p.start_s + p.Tm_s
-        detail = f"Tm {p.Tm_s:.6f} s" + (f", t1 {p.t1_s:.6f}, t2 {p.t2_s:.6f}, Np {p.Np}" if p.t1_s is not None else "")
-        print(f"  [{i:2d}/{len(plan)}] {p.position_deg:6.1f} deg  {p.freq_hz:4.1f} Hz  {detail}")
-    store.set_status(uid, "finished")
-    session = store.load_session(uid, with_raw=False)
-    results = {m: identify(session, m) for m in METHODS}
-    for m, r in results.items():
-        store.add_result(uid, m, r.to_json())
-        _print_identification(r)
-    k = cfg.instrument
-    truth = {"kz": k.kz, "kzz": k.kzz, "ky": k.ky, "k3": k.k3}
-    report = out / f"report-{uid}.html"
-    report.write_text(
-        render_report(session, results, title=f"Session {uid} (simulated seed 000)", config=cfg.to_dict(), truth=truth)
-    )
-    result_json = out / f"result-{uid}.json"
-    result_json.write_text(json.dumps({m: r.to_json() for m, r in results.items()}, indent=2))
-    write_session(store.load_session(uid), out / f"session-{uid}", overwrite=True)
-    print(f"{station_s / 3600:.2f} h of station time in {time.perf_counter() - t_wall:.1f} s wall")
-    print(f"report: {report}\nresult: {result_json}\npiga-session/1: {out / f'session-{uid}'}")
-    return 0
+    """The main job: seed 000's session through engine, drivers and emulators; stored, identified, reported."""
+    return _run(args, *load_procedure_file(args.procedure))
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    return _run(args, *load_procedure_file(args.procedure_file))
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    """Continue a crashed or aborted session: the points it holds are kept, the rest measured."""
+    with SessionStore(args.db or Path(args.out) / "station.sqlite") as store:
+        cfg = store.session_config(args.uid)
+    if "procedure" not in cfg:
+        raise ControlError(f"session {args.uid} was not started by the engine: nothing to resume")
+    spec = get_procedure(cfg["procedure"])
+    return _run(args, spec, spec.validate(cfg["params"]), resume_uid=args.uid)
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -119,30 +124,60 @@ def cmd_import(args: argparse.Namespace) -> int:
     return 0
 
 
+_OWN_PARSERS = ("gap", "gap-validate")
+
+
+def _passed_on(rest: list[str]) -> list[str]:
+    """The arguments of a command that parses its own (main puts a "--" in front of them)."""
+    return rest[1:] if rest[:1] == ["--"] else rest
+
+
 def cmd_gap(args: argparse.Namespace) -> int:
     from station.gap.api import main as gap_main
 
-    return gap_main(args.rest)
+    return gap_main(_passed_on(args.rest))
 
 
 def cmd_gap_validate(args: argparse.Namespace) -> int:
     from station.gap.validate import main as validate_main
 
-    return validate_main(args.rest)
+    return validate_main(_passed_on(args.rest))
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="station", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("calibrate", help="run the seed-000 calibration session on the simulated station")
-    p.add_argument("--out", default="out", help="directory for the store, report and export (default: out)")
-    p.add_argument("--db", help="SQLite store (default: OUT/station.sqlite)")
-    p.add_argument("--twin", help="twin configuration TOML (default: the embedded default)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated station")
-    p.add_argument("--serial", default="SIM-PIGA-0001", help="instrument serial number")
-    p.add_argument("--raw", action="store_true", help="also record raw streams (5 kHz grating, every pulse edge)")
+    def station_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--station", help="station configuration TOML (default: config/station-sim.toml)")
+        p.add_argument("--out", default="out", help="directory for the store, reports and exports (default: out)")
+        p.add_argument("--db", help="SQLite session store (default: OUT/station.sqlite)")
+        p.add_argument("--twin", help="twin configuration TOML of a simulated station (default: embedded)")
+        p.add_argument("--seed", type=int, default=0, help="random seed of a simulated station")
+        p.add_argument(
+            "--speed",
+            type=float,
+            default=DEFAULT_SPEED,
+            help=f"simulated station seconds per wall second (default {DEFAULT_SPEED:g})",
+        )
+        p.add_argument("--serial", default="SIM-PIGA-0001", help="instrument serial number")
+        p.add_argument("--telemetry", metavar="ENDPOINT", help="publish telemetry on this zmq endpoint")
+        p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
+
+    p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
+    station_options(p)
+    p.add_argument("--procedure", default=str(DEFAULT_PROCEDURE), help="procedure file (default: seed 000)")
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("run", help="run a procedure file on a station")
+    p.add_argument("procedure_file")
+    station_options(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("resume", help="continue a crashed or aborted session")
+    p.add_argument("uid")
+    station_options(p)
+    p.set_defaults(func=cmd_resume)
 
     p = sub.add_parser("identify", help="identify coefficients from a piga-session/1 directory")
     p.add_argument("session_dir")
@@ -185,10 +220,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] and argv[0] in _OWN_PARSERS:
+        argv = [argv[0], "--", *argv[1:]]  # argparse.REMAINDER alone would refuse a leading option
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (SessionFormatError, TwinConfigError, FitError, StoreError, FileExistsError) as exc:
+    except (
+        SessionFormatError, TwinConfigError, FitError, StoreError, FileExistsError, ConfigError, ProcedureError,
+        ParameterError, ValidationError, ControlError, DriverError,
+    ) as exc:  # fmt: skip
         print(f"station {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

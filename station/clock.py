@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Protocol, runtime_checkable
 
 
@@ -65,3 +67,32 @@ class VirtualClock:
     def sleep_s(self, duration_s: float) -> None:
         if duration_s > 0:
             time.sleep(duration_s / self.speed)
+
+    def set_speed(self, speed: float) -> None:
+        """Run `speed` times faster than the wall clock from now on; time stays continuous."""
+        if not speed > 0:
+            raise ValueError(f"clock speed must be > 0, got {speed!r}")
+        with self._lock:
+            wall = time.monotonic()
+            self._offset_s += (wall - self._wall0) * self.speed
+            self._wall0 = wall
+            self.speed = float(speed)
+
+
+@contextmanager
+def speed_at_most(clock: Clock, speed: float) -> Iterator[None]:
+    """Inside the block station time runs at most `speed` times wall time.
+
+    For work whose data must cross a real transport as it happens (a stretch
+    of the 5 kHz grating stream): a fast VirtualClock slows down for it; a
+    WallClock already runs at 1.
+    """
+    current = getattr(clock, "speed", 1.0)
+    if not isinstance(clock, VirtualClock) or current <= speed:
+        yield
+        return
+    clock.set_speed(speed)
+    try:
+        yield
+    finally:
+        clock.set_speed(current)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -67,12 +67,26 @@ class RawStreams:
 
 
 @dataclass
+class Measurement:
+    """Any other recorded measurement of a procedure (a grating stretch, a frequency run, a voltmeter reading).
+
+    `key` is unique in its session; `values` are JSON scalars or lists, `arrays` numpy arrays.
+    """
+
+    key: str
+    kind: str
+    values: dict[str, Any] = field(default_factory=dict)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
 class Session:
     station: StationInfo
     points: list[PointRecord]
     notes: str = ""
     raw: dict[str, RawStreams] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    measurements: list[Measurement] = field(default_factory=list)
 
     def rates_radps(self) -> np.ndarray:
         return np.array([p.measured_rate_radps(self.station.pulses_per_rev) for p in self.points])

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from station.session import PointRecord, RawStreams, Session, StationInfo
+from station.session import Measurement, PointRecord, RawStreams, Session, StationInfo
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: measurements, measurement_arrays
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS sessions (
@@ -78,6 +78,21 @@ CREATE TABLE IF NOT EXISTS results (
     result_json TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS points_by_session ON points(session_id, sequence);
+CREATE TABLE IF NOT EXISTS measurements (
+    id INTEGER PRIMARY KEY,
+    session_id INTEGER NOT NULL REFERENCES sessions(id),
+    key TEXT NOT NULL,
+    kind TEXT NOT NULL,
+    values_json TEXT NOT NULL,
+    recorded_utc TEXT NOT NULL,
+    UNIQUE (session_id, key)
+);
+CREATE TABLE IF NOT EXISTS measurement_arrays (
+    measurement_row INTEGER NOT NULL REFERENCES measurements(id),
+    name TEXT NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (measurement_row, name)
+);
 """
 _RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 
@@ -121,6 +136,9 @@ class SessionStore:
                 self._db.execute("INSERT INTO schema_version VALUES (?)", (SCHEMA_VERSION,))
             elif row[0] > SCHEMA_VERSION:
                 raise StoreError(f"{self.path} has schema version {row[0]}; this software reads up to {SCHEMA_VERSION}")
+            elif row[0] < SCHEMA_VERSION:
+                # Migrations so far only add tables, which the schema script has just created.
+                self._db.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
 
     def close(self) -> None:
         self._db.close()
@@ -214,6 +232,38 @@ class SessionStore:
                 f"session {uid}: point {point.point_id!r} (sequence {point.sequence}) is already stored"
             ) from exc
 
+    def add_measurement(self, uid: str, m: Measurement) -> None:
+        """Store one finished measurement and its arrays in a single durable transaction."""
+        sid = self._session_row(uid)
+        try:
+            with self._tx() as db:
+                cur = db.execute(
+                    "INSERT INTO measurements (session_id, key, kind, values_json, recorded_utc)"
+                    " VALUES (?, ?, ?, ?, ?)",
+                    (sid, m.key, m.kind, json.dumps(m.values), _now()),
+                )
+                for name, arr in m.arrays.items():
+                    db.execute(
+                        "INSERT INTO measurement_arrays VALUES (?, ?, ?)",
+                        (cur.lastrowid, name, _to_blob(np.asarray(arr))),
+                    )
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"session {uid}: measurement {m.key!r} is already stored") from exc
+
+    def measurements(self, uid: str, *, with_arrays: bool = True) -> list[Measurement]:
+        rows = self._query(
+            "SELECT id, key, kind, values_json FROM measurements WHERE session_id = ? ORDER BY id",
+            (self._session_row(uid),),
+        )
+        out = []
+        for row_id, key, kind, values_json in rows:
+            arrays = {}
+            if with_arrays:
+                q = "SELECT name, data FROM measurement_arrays WHERE measurement_row = ?"
+                arrays = {n: _from_blob(b) for n, b in self._query(q, (row_id,))}
+            out.append(Measurement(key, kind, json.loads(values_json), arrays))
+        return out
+
     def add_event(self, uid: str, kind: str, message: str, level: str = "info") -> None:
         sid = self._session_row(uid)
         with self._tx() as db:
@@ -285,4 +335,11 @@ class SessionStore:
                 }
                 if arrays:
                     raws[r[1]] = RawStreams(**{n: arrays.get(n) for n in _RAW_FIELDS})
-        return Session(StationInfo(**json.loads(station_json)), points, notes=notes, raw=raws, meta={"store_uid": uid})
+        return Session(
+            StationInfo(**json.loads(station_json)),
+            points,
+            notes=notes,
+            raw=raws,
+            meta={"store_uid": uid},
+            measurements=self.measurements(uid, with_arrays=with_raw),
+        )

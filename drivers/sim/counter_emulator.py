@@ -7,10 +7,13 @@ streaming (world.pulse_edges_s), the closing and, once the first crossing at
 or after the closing is reported (or at once if the table is at rest), DONE.
 A heartbeat goes out every second of station time while a window is under way.
 
-Rate limit: edges are the only bulky output. Each poll sends the edges that
-fit in the transmit FIFO and drops the rest (their indices are skipped and the
-DONE frame counts them), so a virtual clock faster than the line shows up as
-edges_lost, never as a backlog. Events (OPEN/REF/CLOSE/DONE) are never dropped.
+Rate limit: edges are the bulky output. Each poll sends the edges that fit in
+the transmit FIFO and drops the rest (their indices are skipped and the DONE
+frame counts them), so a virtual clock faster than the line shows up as
+edges_lost, never as a backlog. Events (OPEN/REF/CLOSE/DONE) are never
+dropped: reference crossings that do not fit wait on the board (their time
+stamps are already taken) and go out in order on the next polls, before the
+CLOSE.
 
 Faults: NO_ANSWER (commands ignored, `count` of them; silent while armed),
 GARBLE / TRUNCATE / CRC_ERROR (next frame), COUNTER_OVERFLOW (next window
@@ -30,6 +33,8 @@ from drivers.sim.pty_link import Fault, PtyEmulator, garble, truncate
 IDLE, ARMED, COUNTING, CLOSING, DONE_STATE, FAULTED = range(6)
 SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary edges are those
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
+REF_FRAME_BYTES = 7 + c.REF_PAYLOAD.size
+EVENT_RESERVE_BYTES = 256  # room kept for OPEN/CLOSE/DONE/HEARTBEAT/ACK frames
 
 
 class CounterEmulator(PtyEmulator):
@@ -139,7 +144,15 @@ class CounterEmulator(PtyEmulator):
                 return
             t_hi = min(now_s, w.close_s + SNAP_S)
             if t_hi > self._last_s:
-                self._refs(self.world.reference_crossings_s(self._last_s, t_hi))
+                refs = self.world.reference_crossings_s(self._last_s, t_hi)
+                fit = max(self.tx_room() - EVENT_RESERVE_BYTES, 0) // REF_FRAME_BYTES
+                if len(refs) > fit:
+                    # The event FIFO holds what the line cannot take yet: the rest follows next poll.
+                    if fit == 0:
+                        return
+                    refs = refs[:fit]
+                    t_hi = float(refs[-1])
+                self._refs(refs)
                 if self.stream_edges:
                     t, d = self.world.pulse_edges_s(self._last_s, t_hi)
                     # The window's own edges, recomputed, may land a rounding error on either
@@ -147,7 +160,7 @@ class CounterEmulator(PtyEmulator):
                     keep = (t > w.open_s + SNAP_S) & (t <= w.close_s + SNAP_S)
                     self._edges(t[keep], d[keep])
                 self._last_s = t_hi
-            if now_s >= w.close_s:
+            if self._last_s >= w.close_s:
                 self._frame(c.CLOSE, c.CLOSE_PAYLOAD.pack(ticks_of(w.close_s), int(w.pulses)))
                 self.state = CLOSING
                 if self._closing_crossing_seen() or not self.world.table_moving(w.close_s):

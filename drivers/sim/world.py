@@ -139,7 +139,7 @@ class SimStation:
             return self._head.busy(t_s)
 
     # --- instrument output -----------------------------------------------------------------------
-    def _make_window(self, t_s: float, draw_noise: bool) -> PrecessionWindow:
+    def _make_window(self, t_s: float, draw_noise: bool, preset_pulses: int = 819_200) -> PrecessionWindow:
         # The encoder angle: the twin adds the head's angle error and the mount tilt itself.
         theta = math.radians(self.index_position_deg(t_s))
         w = self.crank.speed_radps(t_s)
@@ -147,12 +147,14 @@ class SimStation:
         offset = 0.0
         noise = self.twin.noise
         if draw_noise and noise.rate_noise_radps > 0:
-            tm_est = 819_200 * self.twin.station.pulse_angle_rad / max(abs(rate.c0_radps), 1e-12)
+            tm_est = preset_pulses * self.twin.station.pulse_angle_rad / max(abs(rate.c0_radps), 1e-12)
             offset = self.rng.normal(0.0, noise.rate_noise_radps * math.sqrt(noise.rate_noise_ref_s / tm_est))
         gamma0 = self.crank.phase_rad(t_s) % TWO_PI
         return PrecessionWindow(rate, w, gamma0, offset, self.twin.param("bias_drift", "d"), t_s)
 
-    def _anchor_at(self, t_s: float, *, force: bool = False, draw_noise: bool = False) -> _Anchor:
+    def _anchor_at(
+        self, t_s: float, *, force: bool = False, draw_noise: bool = False, preset_pulses: int = 819_200
+    ) -> _Anchor:
         with self._lock:
             a = self._anchor
             ramping = not self.crank.at_speed(t_s)
@@ -160,7 +162,7 @@ class SimStation:
                 return a
             phi = 0.0 if a is None else a.phi_rad + float(a.window.phi_rad(t_s - a.t_s))
             offset_kept = a.window.offset_radps if a is not None and not draw_noise else 0.0
-            win = self._make_window(t_s, draw_noise)
+            win = self._make_window(t_s, draw_noise, preset_pulses)
             if not draw_noise and offset_kept:
                 win = PrecessionWindow(
                     win.rate, win.w_radps, win.gamma0_rad, offset_kept, win.drift_radps2, win.t0_session_s
@@ -181,7 +183,7 @@ class SimStation:
         """The counter window armed at t_arm: it opens on the next pulse edge and closes P edges later."""
         if preset_pulses <= 0:
             raise ValueError(f"preset pulse count must be > 0, got {preset_pulses}")
-        a = self._anchor_at(t_arm_s, force=True, draw_noise=True)
+        a = self._anchor_at(t_arm_s, force=True, draw_noise=True, preset_pulses=preset_pulses)
         span = 1.0
         while True:
             times, _ = self.pulse_edges_s(t_arm_s, t_arm_s + span)

@@ -1,7 +1,7 @@
 """What the engine needs of a station: the seam between the engine and the drivers.
 
-`drivers.station.StationDevices` implements it for a real station and, with the
-same driver code, for the simulated one.
+`drivers.station.StationDevices` implements it, for a real station and, with
+the same driver code, for the simulated one.
 """
 
 from __future__ import annotations
@@ -13,23 +13,29 @@ import numpy as np
 
 from drivers.counter_timer import Event, WindowResult
 from drivers.reference_marks import FrequencyEstimate
+from drivers.servo import ServoReading
 from station.clock import Clock
 from station.session import StationInfo
 
 
 class StationHardware(Protocol):
     clock: Clock
-    station: StationInfo
+
+    @property
+    def station(self) -> StationInfo: ...
 
     def move_index(self, position_deg: float) -> float: ...
 
-    def set_vibration(self, freq_hz: float) -> float: ...
+    def set_vibration(self, freq_hz: float) -> ServoReading: ...
 
     def measure_window(
-        self, preset_pulses: int, *, stream_edges: bool = False, on_event: Callable[[Event], None] | None = None
-    ) -> WindowResult: ...
-
-    def abort_window(self) -> None: ...
+        self,
+        preset_pulses: int,
+        *,
+        stream_edges: bool = False,
+        on_event: Callable[[Event], None] | None = None,
+        grating_s: float = 0.0,
+    ) -> tuple[WindowResult, tuple[np.ndarray, np.ndarray]]: ...
 
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]: ...
 

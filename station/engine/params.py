@@ -38,6 +38,13 @@ class Param:
         rng = f" in [{lo}, {hi}]" if self.min is not None or self.max is not None else ""
         return f"{kind}{rng}{(' ' + self.unit) if self.unit else ''}"
 
+    def describe(self) -> dict:
+        """The declaration as JSON, for a form that validates before it submits."""
+        kind = {float: "float", int: "int", str: "str", bool: "bool", list: "list"}[self.kind]
+        return {"name": self.name, "kind": kind, "default": self.default, "min": self.min, "max": self.max,
+                "choices": list(self.choices) if self.choices else None, "unit": self.unit, "help": self.help,
+                "required": self.required, "allowed": self.allowed()}  # fmt: skip
+
     def _number(self, value: Any, where: str) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
             raise ParameterError(f"{where} = {value!r}: expected {self.allowed()}")

@@ -19,10 +19,23 @@ from pathlib import Path
 from typing import Any
 
 from station.engine.params import Param, ParameterError, validate_params
+from station.session import Session
 
 
 class ProcedureError(ValueError):
     """An unknown procedure or a malformed procedure file."""
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """What a procedure's analysis makes of a finished session."""
+
+    results: dict[str, dict]  # method -> JSON result, stored with the session
+    report_html: str  # a self-contained HTML report
+    summary: str  # a few lines for the console
+
+
+Analyser = Callable[[Session], Analysis]
 
 
 @dataclass(frozen=True)
@@ -31,20 +44,24 @@ class ProcedureSpec:
     title: str
     params: tuple[Param, ...]
     func: Callable[[dict[str, Any]], Generator]
-    analysis: str | None = None  # identification method run on the finished session, if any
+    analyse: Analyser | None = None  # run on the finished session, if any
 
     def validate(self, given: dict[str, Any]) -> dict[str, Any]:
         return validate_params(self.name, self.params, given)
+
+    def describe(self) -> dict:
+        """Name, title and declared parameters, for forms and listings."""
+        return {"name": self.name, "title": self.title, "params": [p.describe() for p in self.params]}
 
 
 _REGISTRY: dict[str, ProcedureSpec] = {}
 
 
-def procedure(name: str, title: str, params: Sequence[Param], analysis: str | None = None):
+def procedure(name: str, title: str, params: Sequence[Param], analyse: Analyser | None = None):
     """Register a generator function as a library procedure."""
 
     def register(func):
-        _REGISTRY[name] = ProcedureSpec(name, title, tuple(params), func, analysis)
+        _REGISTRY[name] = ProcedureSpec(name, title, tuple(params), func, analyse)
         return func
 
     return register

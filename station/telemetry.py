@@ -1,0 +1,84 @@
+"""Telemetry of one station over pyzmq PUB, for the panel and anyone else who listens.
+
+Each message is two frames: the topic `<station>.<topic>` (so a SUB can
+filter by station and topic) and a JSON document
+
+    {"station": id, "topic": t, "seq": n, "t_s": station time, "wall_s": Unix time, "data": {...}}
+
+`seq` counts every message of the publisher from 0, so a subscriber sees any
+gap (the slow-joiner loss at connect, or a high-water-mark drop). Topics:
+
+    state        {"state", "session_uid", "procedure"}
+    progress     Progress.to_json(): key, done, total, fraction, elapsed_s, estimate_*_s, faults
+    window       {"key", "event", "elapsed_s", "expected_s", "preset_pulses", "pulses_est", ["rate_radps"]}
+    motion       {"freq_hz", "commanded_hz", "index_deg"}
+    trace        {"t_s": [...], "z_m": [...]}  table displacement from the grating, decimated
+    point        a PointRecord as JSON
+    measurement  {"key", "kind", "values"}
+    event        {"kind", "message", "level"}
+    fault        {"kind", "message"}
+    analysis     {"session_uid", "summary", "results"}
+
+The socket binds (the station is the stable end) and is used from one thread
+at a time under a lock: zmq sockets are not thread-safe.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import zmq
+
+from station.clock import Clock
+
+SNDHWM = 10_000  # messages queued per subscriber before zmq drops (the panel must not slow the station)
+
+
+def _plain(o: Any) -> Any:
+    """JSON-safe values: numpy scalars and arrays as numbers and lists, NaN and inf as null."""
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_plain(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _plain(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+class TelemetryPublisher:
+    """PUB socket of one station; `publish(topic, data)` is the engine's Publisher."""
+
+    def __init__(self, endpoint: str, station_id: str, clock: Clock, context: zmq.Context | None = None) -> None:
+        self.station_id = station_id
+        self.clock = clock
+        self._ctx = context or zmq.Context.instance()
+        self._sock = self._ctx.socket(zmq.PUB)
+        self._sock.setsockopt(zmq.SNDHWM, SNDHWM)
+        self._sock.setsockopt(zmq.LINGER, 0)
+        self._sock.bind(endpoint)
+        self.endpoint = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)  # the real port when bound to :0
+        self._lock = threading.Lock()
+        self._seq = 0
+
+    def publish(self, topic: str, data: dict) -> None:
+        with self._lock:
+            if self._sock.closed:
+                return
+            doc = {"station": self.station_id, "topic": topic, "seq": self._seq, "t_s": self.clock.now_s(),
+                   "wall_s": time.time(), "data": _plain(data)}  # fmt: skip
+            self._seq += 1
+            body = json.dumps(doc, allow_nan=False).encode()
+            self._sock.send_multipart([f"{self.station_id}.{topic}".encode(), body])
+
+    def close(self) -> None:
+        with self._lock:
+            self._sock.close()
