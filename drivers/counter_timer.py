@@ -149,7 +149,7 @@ class CounterTimer:
         self.silence_s = silence_s
         self.retries = retries
         self.max_preset = min(max_preset, MAX_PRESET)
-        self._unwrap = TickUnwrapper(clock, absolute=clock is not None)
+        self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
         self._port: FramedPort | None = None
         self._window: WindowResult | None = None
         self._stream_edges = False

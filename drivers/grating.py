@@ -191,7 +191,7 @@ class GratingReadHead:
         self.max_divider = max_divider
         self._clock = clock
         self._port: FramedPort | None = None
-        self._unwrap = TickUnwrapper(clock, absolute=clock is not None)
+        self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
         self._pending: DriverError | None = None
         self._divider = 1
         self._last_ticks: int | None = None

@@ -147,7 +147,7 @@ class ReferenceMarks:
         self.timeout_s = timeout_s
         self.silence_s = silence_s
         self.retries = retries
-        self._unwrap = TickUnwrapper(clock, absolute=clock is not None)
+        self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
         self._link: SerialLink | None = None
         self._lines: LineReader | None = None
         self._last_n: int | None = None

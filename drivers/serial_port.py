@@ -419,6 +419,14 @@ class TickUnwrapper:
     for the emulators, and for boards whose timebase is reset at the clock's
     epoch): the first stamp takes the wrap count that puts it nearest to
     `clock.now_s()`. Otherwise times count from wrap 0 of the device counter.
+
+    `sequential`: for a stream whose consecutive stamps are never a wrap apart
+    (a device that sends a heartbeat or a sample at least every few seconds
+    while it streams, and whose silence the driver detects), each stamp is the
+    next one forward of its predecessor and the host clock only anchors the
+    first. That stays right however late the host reads a backlog, which the
+    host-elapsed rule does not once reading lags by half a wrap (a virtual
+    clock running 1000x faster than the line).
     """
 
     def __init__(
@@ -426,11 +434,13 @@ class TickUnwrapper:
         clock: Clock | None = None,
         *,
         absolute: bool = False,
+        sequential: bool = False,
         tick_s: float = TICK_S,
         bits: int = TICK_BITS,
     ) -> None:
         self.clock: Clock = clock if clock is not None else WallClock()
         self.absolute = absolute
+        self.sequential = sequential
         self.tick_s = tick_s
         self.modulus = 1 << bits
         self._last_ticks: int | None = None  # unwrapped
@@ -454,8 +464,7 @@ class TickUnwrapper:
             full = k * mod + raw
         else:
             delta = (raw - self._last_ticks) % mod
-            expected = (host_s - self._last_host_s) / self.tick_s
-            k = round((expected - delta) / mod)
+            k = 0 if self.sequential else round(((host_s - self._last_host_s) / self.tick_s - delta) / mod)
             full = self._last_ticks + delta + k * mod
         self._last_ticks = full
         self._last_host_s = host_s

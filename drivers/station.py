@@ -20,6 +20,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from drivers.counter_timer import CounterTimer, Event, WindowResult
-from drivers.errors import DriverError, InterlockError
+from drivers.errors import DeviceTimeout, DriverError, InterlockError
 from drivers.grating import GratingReadHead
 from drivers.indexing_head import IndexingHead
 from drivers.reference_marks import FrequencyEstimate, ReferenceMarks
@@ -44,6 +45,10 @@ GRATING_RATE_HZ = 5000.0
 # A grating stretch crosses the serial line as it is sampled: 19-byte frames at 3 Mbaud carry
 # about 15 800 samples per wall second, so station time may run at most 2x while it records.
 GRATING_MAX_SPEED = 2.0
+# The display trace: at most this many grating samples per wall second over the line, so that a
+# fast virtual clock gets a thinned (equivalent-time) sample of the motion instead of a backlog.
+TRACE_SAMPLES_PER_WALL_S = 250.0
+TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often; each drain may wait 1 ms for bytes
 # Reference marks report each crossing as an ASCII line of about 35 bytes at 115 200 baud
 # (330 lines per wall second): at 10 Hz, station time may run at most 10x while they are timed.
 REFERENCE_MAX_SPEED = 10.0
@@ -165,18 +170,26 @@ class StationDevices:
         stream_edges: bool = False,
         on_event: Callable[[Event], None] | None = None,
         grating_s: float = 0.0,
+        on_trace: Callable[[np.ndarray, np.ndarray], None] | None = None,
     ) -> tuple[WindowResult, tuple[np.ndarray, np.ndarray]]:
         """One counter window; with grating_s, also that much of the grating record from its start.
 
         The drive is supervised on every board event: a latched drive fault or bus
-        loss ends the window (the board is aborted) with that error.
+        loss ends the window (the board is aborted) with that error. With on_trace,
+        the grating streams a thinned display trace for the rest of the window,
+        handed over on each board event.
         """
         self.counter.arm(preset_pulses, stream_edges=stream_edges)
+        trace = None
         try:
             grating = self.capture_grating(grating_s) if grating_s > 0 else (np.empty(0), np.empty(0))
+            if on_trace is not None:
+                trace = _DisplayTrace(self.grating, self.clock, on_trace)
 
             def supervised(ev: Event) -> None:
                 self.servo.check()
+                if trace is not None:
+                    trace.drain()
                 if on_event is not None:
                     on_event(ev)
 
@@ -185,6 +198,9 @@ class StationDevices:
             with contextlib.suppress(DriverError):
                 self.counter.abort()
             raise
+        finally:
+            if trace is not None:
+                trace.stop()
         return result, grating
 
     def abort_window(self) -> None:
@@ -233,6 +249,41 @@ class StationDevices:
             except DriverError as exc:
                 log.error("emergency stop: %s", exc)
         self._freq_hz = 0.0
+
+
+class _DisplayTrace:
+    """The grating streaming at a display rate during a window; samples handed over as they come.
+
+    Display only: a lost or damaged sample costs a point of the trace, never the window.
+    """
+
+    def __init__(self, grating: GratingReadHead, clock: Clock, sink: Callable[[np.ndarray, np.ndarray], None]) -> None:
+        speed = getattr(clock, "speed", 1.0)
+        divider = min(max(math.ceil(GRATING_RATE_HZ * speed / TRACE_SAMPLES_PER_WALL_S), 10), grating.max_divider)
+        self.grating = grating
+        self.sink = sink
+        self.errors = 0
+        self._last_drain = 0.0
+        grating.start_streaming(divider)
+
+    def drain(self) -> None:
+        now = time.monotonic()
+        if now - self._last_drain < TRACE_DRAIN_WALL_S:
+            return
+        self._last_drain = now
+        try:
+            block = self.grating.read_block(max_samples=5000, timeout_s=0.001)
+        except DeviceTimeout:
+            return  # nothing new yet
+        except DriverError:
+            self.errors += 1
+            return
+        if len(block):
+            self.sink(block.t_s, block.z_m)
+
+    def stop(self) -> None:
+        with contextlib.suppress(DriverError):
+            self.grating.stop_streaming()
 
 
 @dataclass

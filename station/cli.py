@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from drivers.errors import DriverError
@@ -23,6 +26,7 @@ from station.console import (
     run_with_progress,
     write_outputs,
 )
+from station.control import ControlServer
 from station.controller import ControlError
 from station.engine.params import ParameterError
 from station.engine.planning import StationModel, ValidationError, plan_procedure
@@ -79,6 +83,39 @@ def cmd_resume(args: argparse.Namespace) -> int:
         raise ControlError(f"session {args.uid} was not started by the engine: nothing to resume")
     spec = get_procedure(cfg["procedure"])
     return _run(args, spec, spec.validate(cfg["params"]), resume_uid=args.uid)
+
+
+DEFAULT_TELEMETRY = "tcp://127.0.0.1:5561"
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """Keep a station under remote control (the web panel): control channel and telemetry until SIGINT/SIGTERM."""
+    config = load_station(args.station)
+    token = os.environ.get(args.token_env) if args.token_env else None
+    if args.token_env and not token:
+        raise ControlError(f"--token-env {args.token_env}: that environment variable is not set")
+    telemetry = args.telemetry or DEFAULT_TELEMETRY
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with (
+        SessionStore(args.db or out / "station.sqlite") as store,
+        open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
+        controller_for(config, hw, store, out, telemetry, args.name) as controller,
+    ):
+        server = ControlServer(controller, args.control, token=token).start()
+        print(f"station {args.name} ({config.path}): control {server.endpoint}, telemetry {telemetry}, "
+              f"store {store.path}", flush=True)  # fmt: skip
+        try:
+            stop.wait()
+        finally:
+            if controller.busy:
+                controller.abort()
+                controller.wait(30.0)
+            server.close()
+    return 0
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -178,6 +215,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("uid")
     station_options(p)
     p.set_defaults(func=cmd_resume)
+
+    p = sub.add_parser("serve", help="keep a station under remote control (for the web panel)")
+    station_options(p)
+    p.add_argument("--name", default="station", help="station id in telemetry topics (default: station)")
+    p.add_argument("--control", default="tcp://127.0.0.1:5560", help="control endpoint (REP) to bind")
+    p.add_argument("--token-env", metavar="VAR", help="require the control token held in this environment variable")
+    p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("identify", help="identify coefficients from a piga-session/1 directory")
     p.add_argument("session_dir")

@@ -135,9 +135,13 @@ def controller_for(
     station_id: str = "station",
 ) -> Iterator[StationController]:
     pub = TelemetryPublisher(telemetry, station_id, hardware.clock) if telemetry else None
+    controller = StationController(hardware, store, StationModel.from_config(config), reports_dir=out_dir,
+                                   publish=pub.publish if pub else None)  # fmt: skip
+    beacon = controller.beacon() if pub else None
     try:
-        yield StationController(hardware, store, StationModel.from_config(config), reports_dir=out_dir,
-                                publish=pub.publish if pub else None)  # fmt: skip
+        yield controller
     finally:
+        if beacon is not None:
+            beacon.set()
         if pub is not None:
             pub.close()

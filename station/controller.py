@@ -132,6 +132,17 @@ class StationController:
         p = self.engine.progress.to_json()
         return p | {"busy": self.busy, "freq_hz": self.engine.freq_hz, "index_deg": self.engine.position_deg}
 
+    def beacon(self, period_s: float = 0.2) -> threading.Event:
+        """Publish `status` every period_s of wall time (the panel's heartbeat) until the returned event is set."""
+        stop = threading.Event()
+
+        def loop() -> None:
+            while not stop.wait(period_s):
+                self.publish("status", self.status())
+
+        threading.Thread(target=loop, name="status-beacon", daemon=True).start()
+        return stop
+
     # ---- worker ---------------------------------------------------------------------------------
 
     def _run(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:

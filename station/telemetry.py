@@ -26,32 +26,15 @@ at a time under a lock: zmq sockets are not thread-safe.
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
-from typing import Any
 
-import numpy as np
 import zmq
 
 from station.clock import Clock
+from station.jsonsafe import json_safe
 
 SNDHWM = 10_000  # messages queued per subscriber before zmq drops (the panel must not slow the station)
-
-
-def _plain(o: Any) -> Any:
-    """JSON-safe values: numpy scalars and arrays as numbers and lists, NaN and inf as null."""
-    if isinstance(o, dict):
-        return {str(k): _plain(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_plain(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _plain(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
 
 
 class TelemetryPublisher:
@@ -74,7 +57,7 @@ class TelemetryPublisher:
             if self._sock.closed:
                 return
             doc = {"station": self.station_id, "topic": topic, "seq": self._seq, "t_s": self.clock.now_s(),
-                   "wall_s": time.time(), "data": _plain(data)}  # fmt: skip
+                   "wall_s": time.time(), "data": json_safe(data)}  # fmt: skip
             self._seq += 1
             body = json.dumps(doc, allow_nan=False).encode()
             self._sock.send_multipart([f"{self.station_id}.{topic}".encode(), body])

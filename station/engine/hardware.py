@@ -35,6 +35,7 @@ class StationHardware(Protocol):
         stream_edges: bool = False,
         on_event: Callable[[Event], None] | None = None,
         grating_s: float = 0.0,
+        on_trace: Callable[[np.ndarray, np.ndarray], None] | None = None,
     ) -> tuple[WindowResult, tuple[np.ndarray, np.ndarray]]: ...
 
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]: ...

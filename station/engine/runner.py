@@ -24,6 +24,8 @@ from dataclasses import asdict, dataclass, field
 from enum import StrEnum
 from typing import Any
 
+import numpy as np
+
 from drivers.counter_timer import Event
 from drivers.errors import DriverError
 from station.engine.hardware import StationHardware
@@ -64,7 +66,8 @@ class Progress:
     done: int = 0
     total: int = 0
     estimate_total_s: float = 0.0
-    estimate_remaining_s: float = 0.0
+    estimate_remaining_s: float = 0.0  # of the measurements not yet finished
+    in_step_s: float = 0.0  # station time spent on the measurement under way, up to its estimate
     elapsed_s: float = 0.0
     faults: list[str] = field(default_factory=list)
 
@@ -72,14 +75,21 @@ class Progress:
     def fraction(self) -> float:
         if self.estimate_total_s <= 0:
             return 0.0
-        return min(1.0, max(0.0, 1.0 - self.estimate_remaining_s / self.estimate_total_s))
+        left = self.estimate_remaining_s - self.in_step_s
+        return min(1.0, max(0.0, 1.0 - left / self.estimate_total_s))
+
+    @property
+    def eta_s(self) -> float:
+        """Station seconds left by the dry run's estimates."""
+        return max(self.estimate_remaining_s - self.in_step_s, 0.0)
 
     def to_json(self) -> dict:
-        return asdict(self) | {"state": str(self.state), "fraction": self.fraction}
+        return asdict(self) | {"state": str(self.state), "fraction": self.fraction, "eta_s": self.eta_s}
 
 
 Publisher = Callable[[str, dict], None]
-WINDOW_PUBLISH_WALL_S = 0.1  # window progress at most 10 times per wall second
+WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second
+TRACE_POINTS = 250  # samples per trace message, at most
 
 
 class Engine:
@@ -103,6 +113,7 @@ class Engine:
         self.sequence = 0
         self._session_uid = ""
         self._estimates: dict[str, float] = {}
+        self._step_started_s = 0.0
 
     # ---- control, from any thread ---------------------------------------------------------
 
@@ -204,8 +215,30 @@ class Engine:
             if ev.kind == "close" and elapsed > 0:
                 msg["rate_radps"] = 2 * math.pi * ev.value / (self.hw.station.pulses_per_rev * elapsed)
             self.publish("window", msg)
+            self._publish_progress()
 
         return on_event
+
+    def trace_sink(self) -> Callable:
+        """The on_trace callback of a window: grating samples published as a thinned displacement trace."""
+        t_parts: list = []
+        z_parts: list = []
+        last_wall = [0.0]
+
+        def on_trace(t_s, z_m) -> None:
+            t_parts.append(t_s)
+            z_parts.append(z_m)
+            now = time.monotonic()
+            if now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
+                return
+            last_wall[0] = now
+            t, z = np.concatenate(t_parts), np.concatenate(z_parts)
+            t_parts.clear()
+            z_parts.clear()
+            keep = slice(None, None, max(1, len(t) // TRACE_POINTS))
+            self.publish("trace", {"t_s": t[keep], "z_m": z[keep], "freq_hz": self.freq_hz})
+
+        return on_trace
 
     # ---- internals ----------------------------------------------------------------------------
 
@@ -217,8 +250,11 @@ class Engine:
             self.store.add_event(self._session_uid, "state", str(state))
 
     def _publish_progress(self) -> None:
-        self.progress.elapsed_s = self.clock.now_s() - self.t0_s
-        self.publish("progress", self.progress.to_json())
+        p = self.progress
+        now = self.clock.now_s()
+        p.elapsed_s = now - self.t0_s
+        p.in_step_s = min(max(now - self._step_started_s, 0.0), self._estimates.get(p.key, 0.0)) if p.key else 0.0
+        self.publish("progress", p.to_json())
 
     def _store(self, out: Any) -> Any:
         """Commit a measurement before anything else happens; what the procedure receives."""
@@ -241,11 +277,13 @@ class Engine:
         if key in done:
             return done[key]
         self.progress.key = key
+        self._step_started_s = self.clock.now_s()
         self._publish_progress()
         result = self._store(step.run(self))
         done[key] = result
         self.progress.done += 1
         self.progress.estimate_remaining_s -= self._estimates.get(key, 0.0)
+        self.progress.key = ""
         self._publish_progress()
         return result
 

@@ -109,6 +109,7 @@ class MeasurePoint(Step):
             stream_edges=self.raw,
             on_event=ctx.window_monitor(self.key, self.preset_pulses),
             grating_s=GRATING_CHECK_S if vib else 0.0,
+            on_trace=ctx.trace_sink(),
         )
         timing = capture_timing(result.open_s, result.close_s, result.crossings_s, self.freq_hz)
         extra = (
