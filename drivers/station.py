@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from drivers.counter_timer import CounterTimer, Event, WindowResult
+from drivers.devices import device_kinds
 from drivers.errors import DeviceTimeout, DriverError, InterlockError
 from drivers.grating import GratingReadHead
 from drivers.indexing_head import IndexingHead
@@ -65,6 +66,8 @@ class StationDevices:
     reference: ReferenceMarks
     counter: CounterTimer
     head: IndexingHead
+    extra: dict[str, Any] = field(default_factory=dict)  # further devices (drivers.devices), by name
+    operator: Any = None  # who performs OperatorAction steps; None: a person, through the panel or console
     _closers: list[Callable[[], None]] = field(default_factory=list, repr=False)
     _freq_hz: float = 0.0
 
@@ -104,12 +107,17 @@ class StationDevices:
                 motion_permitted=lambda: devices is not None and devices.table_at_rest(),
             ).open()
             opened.append(head.close)
+            kinds = device_kinds()
+            extra = {}
+            for name, section in config.extras.items():
+                extra[name] = kinds[name].open(section, clock)
+                opened.append(extra[name].close)
         except BaseException:
             for close in reversed(opened):
                 with contextlib.suppress(Exception):
                     close()
             raise
-        devices = cls(config, clock, servo, grating, reference, counter, head, list(reversed(opened)))
+        devices = cls(config, clock, servo, grating, reference, counter, head, extra, list(reversed(opened)))
         return devices
 
     def close(self) -> None:
@@ -130,6 +138,13 @@ class StationDevices:
         self.close()
 
     # ---- operations -------------------------------------------------------------------
+
+    def device(self, name: str) -> Any:
+        """A further device of this station by name (InterlockError if the station has none)."""
+        if name not in self.extra:
+            have = ", ".join(self.extra) or "none"
+            raise InterlockError("station", f"no device {name!r} in {self.config.path} (further devices: {have})")
+        return self.extra[name]
 
     def table_at_rest(self) -> bool:
         """The crank is not powered, or the drive reads zero speed (the head's motion interlock)."""
@@ -308,7 +323,7 @@ class SimulatedStation:
 def _stop_emulators(emulators: dict[str, Any]) -> None:
     for name, emu in reversed(emulators.items()):
         try:
-            emu.stop() if name == "servo" else emu.close()  # a CAN node stops, a pty closes
+            emu.stop() if name == "servo" else emu.close()  # the CAN node stops, the others close
         except Exception as exc:  # every emulator must be stopped
             log.warning("stopping the %s emulator: %s", name, exc)
 
@@ -351,8 +366,12 @@ def simulated_station(
         ):
             emulators[name] = kind(world, baud=getattr(config, name).baud)
             emulators[name].start()
-        ports = {name: emu.port for name, emu in emulators.items() if name != "servo"}
+        kinds = device_kinds()
+        for name, section in config.extras.items():
+            emulators[name] = kinds[name].emulate(section, world)
+        ports = {name: emu.port for name, emu in emulators.items() if getattr(emu, "port", None)}
         devices = StationDevices.open(config.with_serial_ports(**ports), clock)
+        devices.operator = world.operator
     except BaseException:
         _stop_emulators(emulators)
         raise

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, get_type_hints
 
+from drivers.devices import device_kinds
+
 SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
 
 
@@ -34,7 +36,7 @@ class ConfigError(ValueError):
 Check = tuple[Callable[[Any], bool], str]
 
 
-def _range(lo: float, hi: float, *, lo_open: bool = False) -> Check:
+def in_range(lo: float, hi: float, *, lo_open: bool = False) -> Check:
     op = "<" if lo_open else "<="
     return (
         lambda v: (lo < v if lo_open else lo <= v) and v <= hi,
@@ -46,59 +48,60 @@ def _meta(check: Check | None = None, *, optional: bool = False) -> dict[str, An
     return {"check": check, "optional": optional}
 
 
-def _spec(check: Check | None = None, *, optional: bool = False) -> Any:
+def spec(check: Check | None = None, *, optional: bool = False) -> Any:
+    """A checked field of a config section: `check` is (predicate, "what is allowed")."""
     return field(metadata=_meta(check, optional=optional))
 
 
 @dataclass(frozen=True)
 class StationSection:
-    A0_m: float = _spec(_range(0.0, 0.1, lo_open=True))
-    latitude_deg: float = _spec(_range(-90.0, 90.0))
-    g_mps2: float = _spec(_range(9.7, 9.9))
-    earth_rate_radps: float = _spec(_range(7.0e-5, 7.5e-5))
-    pulses_per_rev: int = _spec(_range(1, 2**31))
-    timer_tick_s: float = _spec(_range(0.0, 1e-3, lo_open=True))
+    A0_m: float = spec(in_range(0.0, 0.1, lo_open=True))
+    latitude_deg: float = spec(in_range(-90.0, 90.0))
+    g_mps2: float = spec(in_range(9.7, 9.9))
+    earth_rate_radps: float = spec(in_range(7.0e-5, 7.5e-5))
+    pulses_per_rev: int = spec(in_range(1, 2**31))
+    timer_tick_s: float = spec(in_range(0.0, 1e-3, lo_open=True))
 
 
 @dataclass(frozen=True)
 class LimitsSection:
-    freq_min_hz: float = _spec(_range(0.0, 100.0, lo_open=True))
-    freq_max_hz: float = _spec(_range(0.0, 100.0, lo_open=True))
-    displacement_max_m: float = _spec(_range(0.0, 0.1, lo_open=True))
-    accel_min_g: float = _spec(_range(0.0, 100.0))
-    accel_max_g: float = _spec(_range(0.0, 100.0, lo_open=True))
-    payload_max_kg: float = _spec(_range(0.0, 1000.0, lo_open=True))
-    payload_size_mm: tuple[float, float, float] = _spec(_range(0.0, 2000.0, lo_open=True))
-    ramp_max_hz_per_s: float = _spec(_range(0.0, 100.0, lo_open=True))
+    freq_min_hz: float = spec(in_range(0.0, 100.0, lo_open=True))
+    freq_max_hz: float = spec(in_range(0.0, 100.0, lo_open=True))
+    displacement_max_m: float = spec(in_range(0.0, 0.1, lo_open=True))
+    accel_min_g: float = spec(in_range(0.0, 100.0))
+    accel_max_g: float = spec(in_range(0.0, 100.0, lo_open=True))
+    payload_max_kg: float = spec(in_range(0.0, 1000.0, lo_open=True))
+    payload_size_mm: tuple[float, float, float] = spec(in_range(0.0, 2000.0, lo_open=True))
+    ramp_max_hz_per_s: float = spec(in_range(0.0, 100.0, lo_open=True))
 
 
 @dataclass(frozen=True)
 class ServoSection:
-    interface: str = _spec((bool, "a python-can interface name, e.g. socketcan or virtual"))
-    channel: str = _spec((bool, "a non-empty channel name, e.g. can0"))
-    node_id: int = _spec(_range(1, 127))
+    interface: str = spec((bool, "a python-can interface name, e.g. socketcan or virtual"))
+    channel: str = spec((bool, "a non-empty channel name, e.g. can0"))
+    node_id: int = spec(in_range(1, 127))
     eds: Path = field(metadata=_meta())
-    heartbeat_ms: int = _spec(_range(10, 10_000))
-    timeout_s: float = _spec(_range(0.0, 10.0, lo_open=True))
+    heartbeat_ms: int = spec(in_range(10, 10_000))
+    timeout_s: float = spec(in_range(0.0, 10.0, lo_open=True))
 
 
 @dataclass(frozen=True)
 class SerialSection:
-    port: str | None = _spec((bool, "a device path such as /dev/ttyUSB0"), optional=True)
-    baud: int = _spec(_range(300, 4_000_000))
+    port: str | None = spec((bool, "a device path such as /dev/ttyUSB0"), optional=True)
+    baud: int = spec(in_range(300, 4_000_000))
 
 
 @dataclass(frozen=True)
 class IndexingHeadSection(SerialSection):
-    speed_deg_s: float = _spec(_range(0.0, 360.0, lo_open=True))
-    settle_tol_deg: float = _spec(_range(0.0, 1.0, lo_open=True))
-    settle_time_s: float = _spec(_range(0.0, 60.0))
+    speed_deg_s: float = spec(in_range(0.0, 360.0, lo_open=True))
+    settle_tol_deg: float = spec(in_range(0.0, 1.0, lo_open=True))
+    settle_time_s: float = spec(in_range(0.0, 60.0))
 
 
 @dataclass(frozen=True)
 class PayloadSection:
-    mass_kg: float = _spec(_range(0.0, 1000.0))
-    size_mm: tuple[float, float, float] = _spec(_range(0.0, 2000.0, lo_open=True))
+    mass_kg: float = spec(in_range(0.0, 1000.0))
+    size_mm: tuple[float, float, float] = spec(in_range(0.0, 2000.0, lo_open=True))
 
 
 @dataclass(frozen=True)
@@ -113,15 +116,20 @@ class StationConfig:
     counter: SerialSection
     indexing_head: IndexingHeadSection
     payload: PayloadSection
+    extras: dict[str, Any] = field(default_factory=dict)  # sections of further devices (drivers.devices)
 
     def with_serial_ports(self, **ports: str) -> StationConfig:
         """A copy with serial ports filled in (e.g. emulator pty paths), by section name."""
         changes: dict[str, Any] = {}
+        extras = dict(self.extras)
         for name, port in ports.items():
-            if name not in SERIAL_SECTIONS:
-                raise ConfigError(self.path, name, port, f"one of {', '.join(SERIAL_SECTIONS)}")
-            changes[name] = dataclasses.replace(getattr(self, name), port=port)
-        return dataclasses.replace(self, **changes)
+            if name in SERIAL_SECTIONS:
+                changes[name] = dataclasses.replace(getattr(self, name), port=port)
+            elif name in extras:
+                extras[name] = dataclasses.replace(extras[name], port=port)
+            else:
+                raise ConfigError(self.path, name, port, f"one of {', '.join((*SERIAL_SECTIONS, *extras))}")
+        return dataclasses.replace(self, **changes, extras=extras)
 
 
 _SECTIONS: dict[str, type] = {
@@ -162,8 +170,7 @@ def _convert(path: Path, key: str, value: Any, hint: Any) -> Any:
     return float(value) if hint is float else value
 
 
-def _section(path: Path, name: str, table: Any, simulated: bool) -> Any:
-    cls = _SECTIONS[name]
+def _section(path: Path, name: str, table: Any, simulated: bool, cls: type) -> Any:
     if not isinstance(table, dict):
         raise ConfigError(path, f"[{name}]", table, "a table")
     fields = {f.name: f for f in dataclasses.fields(cls)}
@@ -229,13 +236,16 @@ def load_station_config(path: str | Path) -> StationConfig:
     simulated = doc.pop("simulated", False)
     if not isinstance(simulated, bool):
         raise ConfigError(path, "simulated", simulated, "true or false")
+    kinds = device_kinds()
     for key in doc:
-        if key not in _SECTIONS:
-            raise ConfigError(path, key, doc[key], f"sections {', '.join(_SECTIONS)} and simulated")
+        if key not in _SECTIONS and key not in kinds:
+            allowed = f"sections {', '.join(_SECTIONS)}, optional devices {', '.join(kinds) or 'none'}, and simulated"
+            raise ConfigError(path, key, doc[key], allowed)
     for name in _SECTIONS:
         if name not in doc:
             raise ConfigError(path, f"[{name}]", None, "a required section")
-    sections = {name: _section(path, name, doc[name], simulated) for name in _SECTIONS}
-    cfg = StationConfig(path=path, simulated=simulated, **sections)
+    sections = {name: _section(path, name, doc[name], simulated, cls) for name, cls in _SECTIONS.items()}
+    extras = {name: _section(path, name, doc[name], simulated, kinds[name].section) for name in doc if name in kinds}
+    cfg = StationConfig(path=path, simulated=simulated, **sections, extras=extras)
     _cross_check(cfg)
     return cfg

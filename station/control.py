@@ -7,7 +7,8 @@ request at a time and gets one JSON reply:
     reply    {"ok": true, "result": ...} | {"ok": false, "error": {"type": ..., "message": ...}}
 
 Commands: status, library, plan {procedure, params}, start {procedure, params,
-instrument_serial}, resume_session {uid}, pause, resume, abort, estop. `plan`
+instrument_serial}, resume_session {uid}, pause, resume, abort, estop,
+acknowledge (the operator did what an OperatorAction step asked). `plan`
 and `start` validate the parameters and every step before anything moves; a
 bad request gets its validation message back unchanged (it names the field,
 the value and what is allowed). Every control action goes to the session's
@@ -34,7 +35,7 @@ from station.engine.registry import ProcedureError
 from station.jsonsafe import json_safe
 
 REQUEST_ERRORS = (ControlError, ProcedureError, ParameterError, ValidationError, DriverError, KeyError, TypeError)
-CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop")
+CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge")
 
 
 class ControlServer:
@@ -66,6 +67,7 @@ class ControlServer:
             "pause": lambda a: controller.pause(),
             "resume": lambda a: controller.resume(),
             "abort": lambda a: controller.abort(),
+            "acknowledge": lambda a: controller.engine.acknowledge(),
             "estop": lambda a: controller.emergency_stop(),
         }
 

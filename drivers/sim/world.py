@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from drivers.errors import DriverError
 from station.clock import Clock, WallClock
 from station.twin.config import TwinConfig, default_twin
 from station.twin.crank import CrankModel
@@ -91,12 +94,37 @@ class SimStation:
         self._head = _HeadMove(t0, 0.0, 0.0, index_speed_deg_s)
         self._version = 0
         self._anchor: _Anchor | None = None
+        self._shared: dict[str, Any] = {}
+        self._operator_handlers: dict[str, Callable[[Any, float], None]] = {}
         self._edge_phase_rad = float(self.rng.uniform(0.0, self.twin.station.pulse_angle_rad))
 
     # --- state changes -------------------------------------------------------------------
     def _changed(self) -> None:
         with self._lock:
             self._version += 1
+
+    def set_twin(self, twin: TwinConfig) -> None:
+        """Change the physics from now on (an emulated device that alters the instrument, e.g. its servo offset)."""
+        with self._lock:
+            self.twin = twin
+        self._changed()
+
+    def on_operator(self, key: str, handler: Callable[[Any, float], None]) -> None:
+        """Let a model act when the simulated operator is asked to do `key` (handler(value, t_s))."""
+        with self._lock:
+            self._operator_handlers[key] = handler
+
+    @property
+    def operator(self) -> SimOperator:
+        return SimOperator(self)
+
+    def shared(self, name: str, factory: Callable[[], Any]) -> Any:
+        """One model per world under `name` (a chamber's temperature, a shaker's motion), made on first use,
+        so that the emulators of several devices see the same physical thing."""
+        with self._lock:
+            if name not in self._shared:
+                self._shared[name] = factory()
+            return self._shared[name]
 
     # --- table -----------------------------------------------------------------------------
     def table_position_m(self, t_s: np.ndarray) -> np.ndarray:
@@ -199,6 +227,25 @@ class SimStation:
         tm = from_open.first_passage_s(preset_pulses * self.twin.station.pulse_angle_rad)
         sign = 1 if from_open.mean_rate_radps >= 0 else -1
         return Window(t_open, t_open + tm, sign * preset_pulses)
+
+
+class SimOperator:
+    """The simulated station's operator: does at once what an OperatorAction asks, through the world's handlers."""
+
+    def __init__(self, world: SimStation) -> None:
+        self.world = world
+
+    def perform(self, message: str, action: dict[str, Any]) -> None:
+        handlers = self.world._operator_handlers
+        unknown = [k for k in action if k not in handlers]
+        if unknown:
+            raise DriverError(
+                "simulated operator", f"cannot do {unknown} (asked: {message!r})", allowed=", ".join(sorted(handlers))
+            )
+        t_s = self.world.clock.now_s()
+        for key, value in action.items():
+            handlers[key](value, t_s)
+        self.world._changed()
 
 
 class _TrackedCrank(CrankModel):

@@ -7,7 +7,7 @@ the same driver code, for the simulated one.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -41,6 +41,8 @@ class StationHardware(Protocol):
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]: ...
 
     def measure_frequency(self, periods: int) -> FrequencyEstimate: ...
+
+    def device(self, name: str) -> Any: ...
 
     def safe_stop(self) -> None: ...
 

@@ -41,11 +41,14 @@ class StationModel:
     k0_nominal_radps: float = 1.5e-4
     kz_nominal_radps_per_g: float = 0.56
     devices: frozenset[str] = frozenset({"servo", "grating", "reference", "counter", "indexing_head"})
+    sections: dict[str, Any] = field(default_factory=dict)  # config sections of further devices, by name
 
     @classmethod
     def from_config(cls, cfg: StationConfig) -> StationModel:
         s, lim, h = cfg.station, cfg.limits, cfg.indexing_head
         return cls(
+            devices=cls.devices | frozenset(cfg.extras),
+            sections=dict(cfg.extras),
             station=StationInfo(s.A0_m, s.latitude_deg, s.g_mps2, s.earth_rate_radps, s.pulses_per_rev),
             freq_min_hz=lim.freq_min_hz,
             freq_max_hz=lim.freq_max_hz,
@@ -55,6 +58,10 @@ class StationModel:
             index_speed_deg_s=h.speed_deg_s,
             index_settle_s=h.settle_time_s,
         )
+
+    def section(self, device: str) -> Any:
+        """The config section (limits, speeds) of a further device; KeyError if the station has none."""
+        return self.sections[device]
 
     def accel_g(self, freq_hz: float) -> float:
         """A0 (2 pi f)^2 / g, the table's acceleration amplitude."""
@@ -97,9 +104,11 @@ class PlanContext:
         name = type(step).__name__ if step is not None else "step"
         return ValidationError(f"step {self.index} {name}{key}: {field_} = {value!r} is not allowed: {allowed}")
 
-    def require(self, device: str) -> None:
+    def require(self, device: str) -> Any:
+        """The config section of a further device the step needs (its config section, None for core devices)."""
         if device not in self.model.devices:
             raise self.fail("device", device, f"a device of this station: {', '.join(sorted(self.model.devices))}")
+        return self.model.sections.get(device)
 
     def claim(self, key: str) -> None:
         """Reserve a measurement key; a key is used once per session."""

@@ -40,6 +40,7 @@ from station.store import SessionStore
 class State(StrEnum):
     IDLE = "idle"
     RUNNING = "running"
+    WAITING_OPERATOR = "waiting_operator"
     PAUSING = "pausing"
     PAUSED = "paused"
     ABORTING = "aborting"
@@ -104,6 +105,7 @@ class Engine:
         self._lock = threading.Lock()
         self._resume = threading.Event()
         self._resume.set()
+        self._acknowledged = threading.Event()
         self._pause_requested = False
         self._abort_requested = False
         self._estop = False
@@ -133,9 +135,13 @@ class Engine:
     def abort(self) -> None:
         with self._lock:
             self._abort_requested = True
-            if self.progress.state in (State.RUNNING, State.PAUSING, State.PAUSED):
+            if self.progress.state in (State.RUNNING, State.PAUSING, State.PAUSED, State.WAITING_OPERATOR):
                 self._set_state(State.ABORTING)
             self._resume.set()
+
+    def acknowledge(self) -> None:
+        """The operator has done what the open OperatorAction asked."""
+        self._acknowledged.set()
 
     def emergency_stop(self) -> None:
         """Quick-stop the crank and hold the head now, then end the procedure."""
@@ -186,6 +192,21 @@ class Engine:
         self.position_deg = self.hw.move_index(position_deg)
         self.publish("motion", {"freq_hz": 0.0, "commanded_hz": 0.0, "index_deg": self.position_deg})
         return self.position_deg
+
+    def ask_operator(self, message: str, action: dict) -> None:
+        """Publish the request and wait for the operator (a simulated station's operator acts on `action`)."""
+        self._acknowledged.clear()
+        self.event("operator", message)
+        self.publish("prompt", {"message": message, "action": action})
+        operator = getattr(self.hw, "operator", None)
+        if operator is not None:
+            operator.perform(message, action)
+            return
+        self._set_state(State.WAITING_OPERATOR)
+        while not self._acknowledged.wait(0.1):
+            self.check_abort()
+        self.check_abort()
+        self._set_state(State.RUNNING)
 
     def wait_s(self, duration_s: float) -> None:
         """Wait station time, in slices so that an abort is seen within a second of station time."""

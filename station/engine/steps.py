@@ -252,3 +252,24 @@ class Wait(Step):
 
     def run(self, ctx: RunContext) -> None:
         ctx.wait_s(self.duration_s)
+
+
+@dataclass(frozen=True)
+class OperatorAction(Step):
+    """Ask the operator to do something by hand and wait for their confirmation (a fixture pose, a cable).
+
+    `action` says the same thing to machines: what a simulated operator does to the simulated
+    world (e.g. {"fixture_pose": 3}); a real operator reads `message` on the panel or console.
+    """
+
+    message: str
+    action: tuple[tuple[str, Any], ...] = ()
+    expected_s: float = 300.0
+
+    def plan(self, ctx: PlanContext) -> tuple[float, Any]:
+        if not 0 <= self.expected_s <= 86400:
+            raise ctx.fail("expected_s", self.expected_s, "0 .. 86400 s")
+        return self.expected_s, None
+
+    def run(self, ctx: RunContext) -> None:
+        ctx.ask_operator(self.message, dict(self.action))
