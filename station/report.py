@@ -7,47 +7,26 @@ capture table in the manner of Table 8, and the station and instrument configura
 
 from __future__ import annotations
 
-import html
-import io
 import json
 from collections.abc import Mapping
 
-import matplotlib
-
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
 from station.analysis.identify import Identification
 from station.analysis.regressors import COEFFICIENTS
+from station.htmlkit import document, esc, mapping_table, svg
 from station.session import Session
 
 _UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g²", "ky": "rad/s/g²", "k3": "rad/s/g³"}
-_CSS = """
-body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
-table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}
-th{background:#eee}td.l,th.l{text-align:left}.ok{color:#070}.bad{color:#b00}h2{border-bottom:1px solid #ccc}
-"""
-
-
-def _svg(fig) -> str:
-    buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight")
-    plt.close(fig)
-    text = buf.getvalue()
-    return text[text.index("<svg") :]
-
-
-def _esc(x) -> str:
-    return html.escape(str(x))
 
 
 def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float] | None) -> str:
     head = "<tr><th class=l>coefficient</th><th class=l>unit</th>"
     for m in results:
-        head += f"<th>{_esc(m)} value</th><th>{_esc(m)} σ</th>"
+        head += f"<th>{esc(m)} value</th><th>{esc(m)} σ</th>"
         if truth:
-            head += f"<th>{_esc(m)} error</th>"
+            head += f"<th>{esc(m)} error</th>"
     if truth:
         head += "<th>true (twin)</th>"
     rows = [head + "</tr>"]
@@ -93,7 +72,7 @@ def _residual_plots(results: Mapping[str, Identification]) -> str:
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend()
-    return _svg(fig)
+    return svg(fig)
 
 
 def _timing_table(session: Session) -> str:
@@ -125,21 +104,16 @@ def render_report(
     truth: Mapping[str, float] | None = None,
 ) -> str:
     """The whole report as one HTML string."""
-    st = session.station
-    station_rows = "".join(f"<tr><td class=l>{k}</td><td>{_esc(v)}</td></tr>" for k, v in vars(st).items())
     parts = [
-        f"<!doctype html><html><head><meta charset=utf-8><title>{_esc(title)}</title>"
-        f"<style>{_CSS}</style></head><body>",
-        f"<h1>{_esc(title)}</h1><p>{len(session.points)} points; {_esc(session.notes)}</p>",
+        f"<p>{len(session.points)} points; {esc(session.notes)}</p>",
         "<h2>Coefficients (integral precession, seed 000 eqs. 19-22)</h2>",
         _coef_table(results, truth),
         "<h2>Residuals</h2>",
         _residual_plots(results),
         "<h2>Timing capture (as seed 000 Table 8)</h2>",
         _timing_table(session),
-        "<h2>Station</h2><table>" + station_rows + "</table>",
+        "<h2>Station</h2>" + mapping_table(vars(session.station)),
     ]
     if config:
-        parts.append("<h2>Configuration</h2><pre>" + _esc(json.dumps(config, indent=2, default=str)) + "</pre>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
+        parts.append("<h2>Configuration</h2><pre>" + esc(json.dumps(config, indent=2, default=str)) + "</pre>")
+    return document(title, parts)

@@ -1,0 +1,55 @@
+"""Pieces of the self-contained HTML reports: inline SVG figures, escaping, tables, the page.
+
+Every report of the project is one HTML file with its plots inlined as SVG:
+no script, stylesheet or font is loaded from anywhere (labs are often offline).
+"""
+
+from __future__ import annotations
+
+import html
+import io
+from collections.abc import Iterable, Mapping
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}
+th{background:#eee}td.l,th.l{text-align:left}.ok{color:#070}.bad{color:#b00}h2{border-bottom:1px solid #ccc}
+"""
+
+
+def svg(fig) -> str:
+    """A matplotlib figure as inline SVG (the figure is closed)."""
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg", bbox_inches="tight")
+    plt.close(fig)
+    text = buf.getvalue()
+    return text[text.index("<svg") :]
+
+
+def esc(x: object) -> str:
+    return html.escape(str(x))
+
+
+def table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
+    """A table; the first column left-aligned, cells escaped."""
+    head = "".join(f"<th{' class=l' if i == 0 else ''}>{esc(h)}</th>" for i, h in enumerate(header))
+    body = "".join(
+        "<tr>" + "".join(f"<td{' class=l' if i == 0 else ''}>{esc(c)}</td>" for i, c in enumerate(r)) + "</tr>"
+        for r in rows
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def mapping_table(values: Mapping[str, object]) -> str:
+    return table(("key", "value"), values.items())
+
+
+def document(title: str, parts: Iterable[str]) -> str:
+    """The whole page: a title and the given HTML parts."""
+    head = f"<!doctype html><html><head><meta charset=utf-8><title>{esc(title)}</title><style>{CSS}</style></head>"
+    return "\n".join([head, "<body>", f"<h1>{esc(title)}</h1>", *parts, "</body></html>"])
