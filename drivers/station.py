@@ -55,6 +55,15 @@ TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often; each drain
 REFERENCE_MAX_SPEED = 10.0
 
 
+@dataclass(frozen=True)
+class MotionRecord:
+    """The table's motion over a stretch: grating samples and the reference crossings among them."""
+
+    t_s: np.ndarray
+    z_m: np.ndarray
+    reference_t_s: np.ndarray
+
+
 @dataclass
 class StationDevices:
     """Open drivers of one station and the operations the engine needs of them."""
@@ -223,14 +232,36 @@ class StationDevices:
 
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
         """duration_s of the 5 kHz grating record: (t_s, z_m) with no sample lost."""
-        n = max(math.ceil(duration_s * GRATING_RATE_HZ), 1)
         with speed_at_most(self.clock, GRATING_MAX_SPEED):
-            self.grating.start_streaming()
+            return self._grating_stretch(duration_s)
+
+    def capture_motion(self, duration_s: float) -> MotionRecord:
+        """A grating stretch and the reference crossings (psi = 0) that fall in it, on one time base.
+
+        The crossings fix the crank phase of every sample, so that the harmonics of z(t)
+        come out relative to psi as physics.md defines them (seed 000 eq. 30).
+        """
+        with speed_at_most(self.clock, min(GRATING_MAX_SPEED, REFERENCE_MAX_SPEED)):
+            self.reference.start()
             try:
-                block = self.grating.read_for(n)
+                t_s, z_m = self._grating_stretch(duration_s)
+                crossings = []
+                while not crossings or crossings[-1] <= t_s[-1]:
+                    crossings.append(self.reference.next_crossing().t_s)
             finally:
                 with contextlib.suppress(DriverError):
-                    self.grating.stop_streaming()
+                    self.reference.stop()
+        ref = np.asarray(crossings)
+        return MotionRecord(t_s, z_m, ref[(ref >= t_s[0]) & (ref <= t_s[-1])])
+
+    def _grating_stretch(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
+        n = max(math.ceil(duration_s * GRATING_RATE_HZ), 1)
+        self.grating.start_streaming()
+        try:
+            block = self.grating.read_for(n)
+        finally:
+            with contextlib.suppress(DriverError):
+                self.grating.stop_streaming()
         if block.lost:
             raise DriverError("grating read head", f"{block.lost} samples lost in a {duration_s:g} s stretch")
         return block.t_s, block.z_m

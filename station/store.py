@@ -318,7 +318,10 @@ class SessionStore:
 
     def load_session(self, uid: str, *, with_raw: bool = True) -> Session:
         sid = self._session_row(uid)
-        ((station_json, notes),) = self._query("SELECT station_json, notes FROM sessions WHERE id = ?", (sid,))
+        ((station_json, notes, config_json),) = self._query(
+            "SELECT station_json, notes, config_json FROM sessions WHERE id = ?", (sid,)
+        )
+        config = json.loads(config_json)
         rows = self._query(
             "SELECT id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses, Tm_s, t1_s, t2_s, Np,"
             " extra_json FROM points WHERE session_id = ? ORDER BY sequence",
@@ -340,6 +343,6 @@ class SessionStore:
             points,
             notes=notes,
             raw=raws,
-            meta={"store_uid": uid},
+            meta={"store_uid": uid, "procedure": config.get("procedure"), "params": config.get("params", {})},
             measurements=self.measurements(uid, with_arrays=with_raw),
         )

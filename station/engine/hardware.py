@@ -14,6 +14,7 @@ import numpy as np
 from drivers.counter_timer import Event, WindowResult
 from drivers.reference_marks import FrequencyEstimate
 from drivers.servo import ServoReading
+from drivers.station import MotionRecord
 from station.clock import Clock
 from station.session import StationInfo
 
@@ -39,6 +40,8 @@ class StationHardware(Protocol):
     ) -> tuple[WindowResult, tuple[np.ndarray, np.ndarray]]: ...
 
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def capture_motion(self, duration_s: float) -> MotionRecord: ...
 
     def measure_frequency(self, periods: int) -> FrequencyEstimate: ...
 

@@ -159,7 +159,11 @@ class SetVibration(Step):
 
 @dataclass(frozen=True)
 class CaptureGrating(Step):
-    """Record duration_s of the 5 kHz grating as a measurement (arrays t_s, z_m), for seed 000 Table 5."""
+    """Record duration_s of the 5 kHz grating and the reference crossings in it (seed 000 eq. 30, Table 5).
+
+    Result: Measurement of kind "motion" with arrays t_s, z_m and reference_t_s (station time) and
+    values freq_hz (commanded), position_deg.
+    """
 
     name: str
     duration_s: float
@@ -171,16 +175,17 @@ class CaptureGrating(Step):
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
         if not 0 < self.duration_s <= 600:
             raise ctx.fail("duration_s", self.duration_s, "0 .. 600 s")
-        freq_hz = ctx.state.freq_hz
+        f = ctx.state.freq_hz
         t = np.arange(math.ceil(self.duration_s * 5000)) / 5000.0
-        z = ctx.model.station.A0_m * np.sin(2 * np.pi * freq_hz * t)
-        values = {"freq_hz": freq_hz, "position_deg": ctx.state.position_deg}
-        return self.duration_s, Measurement(self.key, "grating", values, {"t_s": t, "z_m": z})
+        z = ctx.model.station.A0_m * np.sin(2 * np.pi * f * t)
+        ref = np.arange(0.0, self.duration_s, 1.0 / f) if f else np.zeros(0)
+        values = {"freq_hz": f, "position_deg": ctx.state.position_deg}
+        return self.duration_s, Measurement(self.key, "motion", values, {"t_s": t, "z_m": z, "reference_t_s": ref})
 
     def run(self, ctx: RunContext) -> Measurement:
-        t_s, z_m = ctx.hw.capture_grating(self.duration_s)
+        m = ctx.hw.capture_motion(self.duration_s)
         values = {"freq_hz": ctx.freq_hz, "position_deg": ctx.position_deg}
-        return Measurement(self.key, "grating", values, {"t_s": t_s - t_s[0], "z_m": z_m})
+        return Measurement(self.key, "motion", values, {"t_s": m.t_s, "z_m": m.z_m, "reference_t_s": m.reference_t_s})
 
 
 @dataclass(frozen=True)
