@@ -1,7 +1,13 @@
 """Sim-to-real gap diagnosis of a recorded session against a twin: `diagnose` and `station gap`.
 
     station gap SESSION_DIR [--twin CONFIG] --json OUT.json [--html OUT.html] [--twin-out OUT.toml]
-    station gap UID --db STORE.sqlite ...          (a session of our own store)
+    station gap --db STORE.sqlite UID --json OUT.json ...      (a session of our own store)
+
+Python API (stable; the web panel uses it):
+    report = diagnose(session, twin)          # GapReport; raises GapInputError on bad input
+    report.to_json()                          # the OUT.json document (plain JSON types)
+    station.gap.report_html.render(report)    # the self-contained HTML report
+    report.twin_out                           # the twin with the effect(s) switched on
 
 Steps (issue 3): localise (refit the calibrated coefficients, standardised
 residuals with honest noise, maps), attribute (identifiability, then every
@@ -17,55 +23,61 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from station.analysis.least_squares import FitError
 from station.gap import candidates as cl
-from station.gap.attribute import ALPHA, MAX_EFFECTS, Scored, Selection, forward_select
+from station.gap.attribute import ALPHA, AMBIGUOUS_DBIC, MAX_EFFECTS, Scored, Selection, forward_select
 from station.gap.design import GapInputError, PointDesign, check_geometry
 from station.gap.fit import Channels, Linearisation, ModelFit, evaluate, fit_model
 from station.gap.forward import CALIBRATED
 from station.gap.heldout import Folds, HeldOut, heldout, shrink
 from station.gap.identifiability import IdentifiabilityReport, assess
-from station.gap.localise import detectors, maps, standardised, where_text
+from station.gap.localise import detectors, maps, significant, standardised, where_text
 from station.gap.noise import (
+    HonestNoise,
+    PureError,
+    TimingNoise,
     excess_scatter_pvalue,
+    honest_noise,
+    lack_of_fit_pvalue,
     pure_error,
     rate_weights,
     timing_noise,
     timing_rate_sd_radps,
 )
-from station.gap.rawstreams import raw_evidence
-from station.gap.verdict import MIN_DOF, NoiseCheck, Verdict, decide
+from station.gap.rawstreams import raw_evidence, raw_summary_text
+from station.gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide
 from station.session import Session
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
 
 FORMAT = "piga-gap/1"
-PURE_ERROR_MIN_DOF = 5
 
 
 @dataclass
 class GapReport:
-    """Everything the diagnosis found; `to_json` is the OUT.json document."""
+    """Everything the diagnosis found. `to_json()` is the OUT.json document; the arrays feed the HTML maps."""
 
     verdict: Verdict
-    candidates: list[dict]
-    gap_before: HeldOut
-    gap_after: HeldOut
+    candidates: list[dict]  # ranked: the chosen effects, then identifiable candidates by BIC, then the rest
+    gap_before: HeldOut  # the twin with its calibrated coefficients refitted
+    gap_after: HeldOut  # ... and the chosen effects added
     where: dict
     identifiability: IdentifiabilityReport
     noise: dict
     coefficients: dict
-    twin_out: TwinConfig
+    twin_out: TwinConfig  # the twin with the chosen effect(s) switched on (the input twin unless explained)
     session_info: dict
+    settings: dict
     elapsed_s: float
-    z_before: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
-    z_after: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
-    design: PointDesign | None = field(repr=False, default=None)
-    tau_z_before: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    design: PointDesign = field(repr=False)
+    z_before: np.ndarray = field(repr=False)  # standardised residual of every point, twin refitted
+    z_after: np.ndarray = field(repr=False)  # ... with the chosen effects
+    tau_z_before: np.ndarray = field(repr=False)  # standardised period identities of the vibration points
+    tau_z_after: np.ndarray = field(repr=False)
     raw: dict = field(default_factory=dict)
 
     @property
@@ -73,86 +85,173 @@ class GapReport:
         return list(self.verdict.effects)
 
     def to_json(self) -> dict:
-        return {
-            "format": FORMAT,
-            "verdict": self.verdict.verdict,
-            "verdict_text": self.verdict.text,
-            "effects": self.verdict.effects,
-            "partial_effects": self.verdict.partial,
-            "remaining": self.verdict.remaining,
-            "candidates": self.candidates,
-            "gap_before": self.gap_before.to_json(),
-            "gap_after": self.gap_after.to_json(),
-            "where": self.where,
-            "identifiability": self.identifiability.to_json(),
-            "noise": self.noise,
-            "calibrated_coefficients": self.coefficients,
-            "twin_config": self.twin_out.to_dict(),
-            "session": self.session_info,
-            "settings": {"alpha": ALPHA, "max_effects": MAX_EFFECTS, "min_dof": MIN_DOF},
-            "elapsed_s": self.elapsed_s,
-        }
+        return clean_json(
+            {
+                "format": FORMAT,
+                **self.verdict.to_json(),
+                "candidates": self.candidates,
+                "gap_before": self.gap_before.to_json(),
+                "gap_after": self.gap_after.to_json(),
+                "where": self.where,
+                "identifiability": self.identifiability.to_json(),
+                "noise": self.noise,
+                "calibrated_coefficients": self.coefficients,
+                "twin_config": self.twin_out.to_dict(),
+                "session": self.session_info,
+                "settings": self.settings,
+                "elapsed_s": self.elapsed_s,
+            }
+        )
 
 
-def _noise_check(fit: ModelFit, pe, twin: TwinConfig) -> NoiseCheck:
+def clean_json(o):
+    """Plain JSON values: numpy scalars and arrays converted, NaN and inf as null."""
+    if isinstance(o, dict):
+        return {str(k): clean_json(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [clean_json(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return clean_json(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+# ----------------------------------------------------------------------------- the diagnosis
+
+
+def _check_fittable(design: PointDesign) -> None:
+    n_pos = design.positions_deg.size
+    if not design.vib.any():
+        raise GapInputError("the session has no vibration points: the calibrated coefficients need vibration")
+    if design.n_points <= n_pos + len(CALIBRATED):
+        raise GapInputError(
+            f"too few points to fit: {design.n_points} points cannot fit {n_pos} static levels and "
+            f"{len(CALIBRATED)} calibrated coefficients ({', '.join(CALIBRATED)})"
+        )
+
+
+def _channels(design: PointDesign, twin: TwinConfig, tn: TimingNoise) -> Channels:
+    """Observations whitened by the scatter of the twin refitted (window-length weights first, then timing)."""
+    weights = rate_weights(design, twin)
+    try:
+        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s), twin)
+    except FitError as exc:
+        raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
+    rss = float(np.sum(weights * probe.lin.residuals**2))
+    floor = 1e-12 * float(np.max(np.abs(design.rate_radps)))
+    sigma_w = max(math.sqrt(rss / probe.lin.dof), floor, 1e-300)
+    # The timing term of the weights needs sigma0: the probe's is close enough (it is a small term).
+    return Channels(design, twin, rate_weights(design, twin, tn.sigma_tau_s, sigma_w), sigma_w, tn.sigma_tau_s)
+
+
+def _noise_check(fit: ModelFit, pe: PureError | None, twin: TwinConfig) -> NoiseCheck:
+    """Residual scatter of a fit against an independent reference (repeats, else the twin's noise model)."""
     if pe is not None and pe.dof >= 3 and fit.dof_rate > pe.dof:
-        from scipy import stats
-
-        ss_pe = pe.sigma0_radps**2 * pe.dof
-        lof = max(fit.rss_rate - ss_pe, 0.0) / (fit.dof_rate - pe.dof)
-        F = lof / max(pe.sigma0_radps**2, 1e-300)
-        return NoiseCheck("pure error of repeats", pe.sigma0_radps, float(stats.f.sf(F, fit.dof_rate - pe.dof, pe.dof)))
+        return NoiseCheck("pure error of repeats", pe.sigma0_radps, lack_of_fit_pvalue(fit.rss_rate, fit.dof_rate, pe))
     if twin.noise.rate_noise_radps > 0:
         p = excess_scatter_pvalue(fit.sigma0_hat_radps, fit.dof_rate, twin.noise.rate_noise_radps)
         return NoiseCheck("twin noise model", twin.noise.rate_noise_radps, p)
     return NoiseCheck("none", None, None)
 
 
-def _coef_json(fit: ModelFit) -> dict:
+def _coefficients(fit: ModelFit) -> dict:
     return {c: {"value": float(v), "sigma": float(s)} for c, v, s in zip(CALIBRATED, fit.K, fit.K_sigmas, strict=True)}
 
 
-def _candidate_entry(
-    s: Scored | None, name: str, ident: IdentifiabilityReport, chosen: set[str], final: ModelFit, twin: TwinConfig
-) -> dict:
-    cid = ident.candidates[name]
-    cand = cl.LIBRARY[name]
-    entry: dict = {
-        "name": name,
-        "cause": cand.cause,
-        "identifiable": cid.identifiable,
-        "identifiability": {
-            "reason": cid.reason,
-            "fitted_parameters": cid.kept,
-            "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with],
-        },
-        "fixed_parameters": cl.fixed_params(cand, twin),
-        "notes": cand.notes,
-        "accepted": name in chosen,
-    }
-    if s is None:
-        entry.update({"parameters": {}, "uncertainty": {}, "evidence": None, "heldout_shrink": None, "rank": None})
-        return entry
-    fit = final if name in chosen and name in final.effects else s.fit
-    params = {fp.param: float(v) for fp, v in zip(fit.free, fit.values, strict=True) if fp.effect == name}
-    unc = {fp.param: float(v) for fp, v in zip(fit.free, fit.sigmas, strict=True) if fp.effect == name}
-    entry.update(
-        {
-            "parameters": params,
-            "uncertainty": unc,
-            "units": {fp.param: fp.unit for fp in cand.free},
-            "evidence": {
-                "delta_bic": float(s.dbic),
-                "F_rate": None if not math.isfinite(s.F) else float(s.F),
-                "p_value": float(s.p_value),
-                "delta_rss_in_sigma2": float(s.drss_sigma2),
-                "delta_chi2_timing": float(s.dchi2_tau),
-                "heldout_gap": None if not math.isfinite(s.heldout_G) else float(s.heldout_G),
+def _with_coefficients(cfg: TwinConfig, fit: ModelFit) -> TwinConfig:
+    return replace(cfg, instrument=replace(cfg.instrument, **dict(zip(CALIBRATED, map(float, fit.K), strict=True))))
+
+
+def _candidate_table(
+    selection: Selection,
+    ident: IdentifiabilityReport,
+    shrinks: dict[str, tuple[float, float | None]],
+    twin: TwinConfig,
+) -> list[dict]:
+    """Every candidate: the chosen effects first, then the identifiable ones by BIC, then the rest."""
+    first = {s.name: s for s in selection.steps[0]} if selection.steps else {}
+    chosen = {s.name: s for s in selection.chosen}
+    order = list(chosen) + [n for n in first if n not in chosen and ident.candidates[n].identifiable]
+    order += [n for n in first if n not in order] + [n for n in ident.candidates if n not in order and n not in first]
+    rank = 0
+    table = []
+    for name in order:
+        cid, cand = ident.candidates[name], cl.LIBRARY[name]
+        s: Scored | None = chosen.get(name) or first.get(name)
+        entry: dict = {
+            "name": name,
+            "cause": cand.cause,
+            "identifiable": cid.identifiable,
+            "identifiability": {
+                "reason": cid.reason,
+                "fitted_parameters": cid.kept,
+                "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with],
             },
-            "heldout_shrink": s.heldout_shrink,
+            "fixed_parameters": cl.fixed_params(cand, twin),
+            "notes": cand.notes,
+            "accepted": name in chosen,
+            "rank": None,
+            "parameters": {},
+            "uncertainty": {},
+            "units": {fp.param: fp.unit for fp in cand.free},
+            "evidence": None,
+            "heldout_shrink": None,
         }
-    )
-    return entry
+        if s is not None:
+            if cid.identifiable:
+                rank += 1
+                entry["rank"] = rank
+            # A chosen effect's parameters come from the final joint fit.
+            fit = selection.final if name in chosen else s.fit
+            entry["parameters"], entry["uncertainty"] = fit.effect_parameters(name)
+            G, entry["heldout_shrink"] = shrinks.get(name, (math.nan, None))
+            entry["evidence"] = {
+                "delta_bic": s.dbic,
+                "F_rate": s.F,
+                "p_value": s.p_value,
+                "delta_rss_in_sigma2": s.drss_sigma2,
+                "delta_chi2_timing": s.dchi2_tau,
+                "heldout_gap_with_it": G,
+                "rivals_within_delta_bic": s.rivals,
+            }
+        table.append(entry)
+    return table
+
+
+def _noise_json(
+    twin: TwinConfig,
+    honest: HonestNoise,
+    base: ModelFit,
+    final: ModelFit,
+    pe: PureError | None,
+    checks: tuple[NoiseCheck, NoiseCheck],
+    tn: TimingNoise,
+    design: PointDesign,
+) -> dict:
+    return {
+        "model": "var(wbar_i) = sigma0^2 T_ref / Tm_i (white rate noise over the window) "
+        "+ (|wbar_i| sigma_tau / Tm_i)^2 (the two time stamps of Tm)",
+        "T_ref_s": twin.noise.rate_noise_ref_s,
+        "sigma0_radps": honest.sigma0_radps,
+        "sigma0_dof": honest.dof,
+        "source": honest.source,
+        "sigma0_twin_fit_radps": base.sigma0_hat_radps,
+        "sigma0_final_fit_radps": final.sigma0_hat_radps,
+        "pure_error": None if pe is None else {"sigma0_radps": pe.sigma0_radps, "dof": pe.dof, "groups": pe.groups},
+        "twin_nominal_sigma0_radps": twin.noise.rate_noise_radps,
+        "excess_scatter_before": {"reference": checks[0].reference, "p_value": checks[0].p_value},
+        "excess_scatter_after": {"reference": checks[1].reference, "p_value": checks[1].p_value},
+        "timing": {
+            "sigma_tau_s": tn.sigma_tau_s,
+            "dof": tn.dof,
+            "floor_s": tn.floor_s,
+            "eps_f_from_period_identities": tn.eps_f_hat,
+            "max_rate_sd_from_timing_radps": float(np.max(timing_rate_sd_radps(design, tn.sigma_tau_s))),
+        },
+    }
 
 
 def diagnose(
@@ -163,157 +262,106 @@ def diagnose(
     max_effects: int = MAX_EFFECTS,
     suggest: bool = True,
 ) -> GapReport:
-    """Diagnose the gap between a recorded session and the twin (issue 3). Raises GapInputError."""
+    """Diagnose the gap between a recorded session and the twin (issue 3). Raises GapInputError on bad input.
+
+    exclude: effects left out of the candidate library; suggest=False skips the
+    search for separating test points (the slowest part of the identifiability check).
+    """
     t_start = time.perf_counter()
     check_geometry(session, twin)
     design = PointDesign.from_session(session)
-    n_pos = design.positions_deg.size
-    n_lin = n_pos + len(CALIBRATED)
-    if not design.vib.any():
-        raise GapInputError("the session has no vibration points: the calibrated coefficients need vibration")
-    if design.n_points <= n_lin:
-        raise GapInputError(
-            f"too few points to fit: {design.n_points} points cannot fit {n_pos} static levels and "
-            f"{len(CALIBRATED)} calibrated coefficients"
-        )
-    lib = cl.library(exclude=exclude)
+    _check_fittable(design)
     tn = timing_noise(design, twin)
-    weights = rate_weights(design, twin)
-    try:
-        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s), twin)
-    except FitError as exc:
-        raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
-    rss = float(np.sum(weights * probe.lin.residuals**2))
-    dof0 = design.n_points - n_lin
-    sigma_w = math.sqrt(rss / dof0) if rss > 0 else 0.0
-    sigma_w = max(sigma_w, 1e-12 * float(np.max(np.abs(design.rate_radps))), 1e-300)
-    ch = Channels(design, twin, weights, sigma_w, tn.sigma_tau_s)
-    lin = Linearisation(ch, lib)
+    ch = _channels(design, twin, tn)
+    lin = Linearisation(ch, cl.library(exclude=exclude))
     base = fit_model(lin, [])
-    ident = assess(lin, 1.0, suggest=suggest and dof0 >= MIN_DOF)
-    drop = ident.dropped
-    start = {"frequency_error.eps_f": tn.eps_f_hat}
+    dof0 = base.dof_rate
+    ident = assess(lin, suggest=suggest and dof0 >= MIN_DOF, has_raw=bool(session.raw))
     if dof0 >= MIN_DOF:
-        selection = forward_select(lin, base, ident.fittable(), drop, start, max_effects)
+        start = {"frequency_error.eps_f": tn.eps_f_hat}
+        selection = forward_select(lin, base, ident.fittable(), ident.dropped, start, max_effects)
     else:
-        selection = Selection([], [], base, [])
+        selection = Selection([], [], base)
     final = selection.final
-    pe = pure_error(design, final.rate_resid_radps, weights)
-    pe_ok = pe if (pe is not None and pe.dof >= PURE_ERROR_MIN_DOF) else None
-    sigma0 = pe_ok.sigma0_radps if pe_ok else final.sigma0_hat_radps
-    if not math.isfinite(sigma0) or sigma0 <= 0:
-        sigma0 = sigma_w
-    kappa = sigma0 / sigma_w
+
+    # Localise: structure tests, then the honest noise, standardised residuals and maps.
+    dets_before = detectors(ch, base)
+    dets_after = detectors(ch, final)
+    pe = pure_error(design, final.rate_resid_radps, ch.weights)
+    structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None]
+    honest = honest_noise(pe, final.r_white, ch.n_rate, final.dof_rate, ch.sigma0_radps, structure)
+    kappa = honest.sigma0_radps / ch.sigma0_radps
     ident.noise_ratio = 1.0 / kappa
-    for c in ident.candidates.values():
-        for p in c.params:
-            p.snr_at_scale /= kappa
-            p.min_detectable *= kappa
-            for s in p.separating:
-                if "snr_after_projection_at_typical_magnitude" in s:
-                    s["snr_after_projection_at_typical_magnitude"] /= kappa
+
+    # Shrink: the held-out gap of the twin, of each candidate alone, and of the chosen model.
     folds = Folds.of(design)
 
     def ho(fit: ModelFit) -> HeldOut:
-        return heldout(fit.J, fit.r_white, design, folds, kappa, sigma0, tn.sigma_tau_s)
+        return heldout(fit.J, fit.r_white, design, folds, kappa, honest.sigma0_radps, tn.sigma_tau_s)
 
     h_base = ho(base)
     h_final = ho(final) if selection.chosen else h_base
-    first_step = selection.steps[0] if selection.steps else []
-    for s in first_step:
-        hs = ho(s.fit)
-        s.heldout_G = hs.G
-        s.heldout_shrink = shrink(h_base, hs)
-    total_shrink = shrink(h_base, h_final)
-    dets_before = detectors(ch, base)
-    dets_after = detectors(ch, final) if selection.chosen else dets_before
-    nc_before = _noise_check(base, pe, twin)
-    nc_after = _noise_check(final, pe, twin) if selection.chosen else nc_before
-    more = False
-    if len(selection.chosen) == max_effects and len(selection.steps) > max_effects - 1:
-        more = False  # the selection stops at the cap; test one more step
-        rest = [n for n in ident.fittable() if n not in {s.name for s in selection.chosen}]
-        if rest:
-            extra = forward_select(lin, final, rest, drop, start, 1)
-            more = bool(extra.chosen)
-    verdict = decide(dof0, selection, dets_before, dets_after, nc_before, nc_after, total_shrink, more)
-    # Standardised residuals and maps (twin as it is, and after the chosen effects).
-    z_before = standardised(base, ch, kappa)
-    z_after = standardised(final, ch, kappa)
-    tau_z = base.tau_resid_s / tn.sigma_tau_s
-    m = maps(design, z_before, tau_z)
+    shrinks = {}
+    for s in selection.steps[0] if selection.steps else []:
+        h = ho(s.fit)
+        shrinks[s.name] = (h.G, shrink(h_base, h))
+    checks = (_noise_check(base, pe, twin), _noise_check(final, pe, twin))
+    verdict = decide(dof0, selection, ident, dets_before, dets_after, *checks, shrink(h_base, h_final))
+
+    z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s
+    z_after, tau_z_after = z_before, tau_z_before  # the same arrays when no effect was added
+    if selection.chosen:
+        z_after, tau_z_after = standardised(final, ch, kappa), final.tau_resid_s / tn.sigma_tau_s
+    raw = raw_evidence(session, design, _with_coefficients(twin, base), tn.sigma_tau_s / math.sqrt(2.0))
+    summary = where_text(maps(design, z_before, tau_z_before), dets_before, ALPHA)
+    if raw:
+        summary += " " + raw_summary_text(raw) + "."
+    maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
     where = {
-        "summary": where_text(m, dets_before, ALPHA),
-        "after_effects": where_text(maps(design, z_after, final.tau_resid_s / tn.sigma_tau_s), dets_after, ALPHA)
-        if selection.chosen
-        else None,
-        "maps": m,
+        "summary": summary,
+        "after_effects": where_text(maps_after, dets_after, ALPHA) if maps_after else None,
+        "maps": maps(design, z_before, tau_z_before),
+        "maps_after_effects": maps_after,
         "structure_tests_before": [d.to_json() for d in dets_before],
         "structure_tests_after": [d.to_json() for d in dets_after],
-    }
-    raw = raw_evidence(session, design, twin)
-    if raw:
-        where["raw_streams"] = raw
-    chosen = {s.name for s in selection.chosen}
-    scored = {s.name: s for s in first_step}
-    for s in selection.chosen:
-        scored.setdefault(s.name, s)
-    order = [s.name for s in selection.chosen] + [s.name for s in first_step if s.name not in chosen]
-    order += [n for n in ident.candidates if n not in order]
-    cands = []
-    for rank, name in enumerate(order, start=1):
-        e = _candidate_entry(scored.get(name), name, ident, chosen, final, twin)
-        if e["evidence"] is not None:
-            e["rank"] = rank
-        cands.append(e)
-    twin_out = final.cfg if verdict.verdict == "explained" else twin
-    noise = {
-        "model": "sigma_i = sigma0 sqrt(T_ref / Tm_i) (white rate noise); timing stamps add "
-        "|wbar| sqrt(2) sd_stamp / Tm",
-        "T_ref_s": twin.noise.rate_noise_ref_s,
-        "sigma0_radps": sigma0,
-        "source": "pure error of repeats" if pe_ok else "residual dof of the final model",
-        "sigma0_twin_fit_radps": base.sigma0_hat_radps,
-        "sigma0_final_fit_radps": final.sigma0_hat_radps,
-        "dof_final": final.dof_rate,
-        "pure_error": None if pe is None else {"sigma0_radps": pe.sigma0_radps, "dof": pe.dof, "groups": pe.groups},
-        "twin_nominal_sigma0_radps": twin.noise.rate_noise_radps,
-        "excess_scatter_before": {"reference": nc_before.reference, "p_value": nc_before.p_value},
-        "excess_scatter_after": {"reference": nc_after.reference, "p_value": nc_after.p_value},
-        "timing": {
-            "sigma_tau_s": tn.sigma_tau_s,
-            "dof": tn.dof,
-            "floor_s": tn.floor_s,
-            "max_rate_sd_from_timing_radps": float(np.max(timing_rate_sd_radps(design, twin))),
-        },
+        "raw_streams": raw or None,
     }
     info = {
         "n_points": design.n_points,
         "n_vibration": int(design.vib.sum()),
-        "positions_deg": [float(p) for p in design.positions_deg],
-        "frequencies_hz": [float(f) for f in np.unique(design.freq_hz[design.vib])],
+        "positions_deg": design.positions_deg,
+        "frequencies_hz": np.unique(design.freq_hz[design.vib]),
         "raw_streams": len(session.raw),
         "residual_dof": dof0,
+        "excluded_from_library": list(exclude),
     }
-    report = GapReport(
+    return GapReport(
         verdict=verdict,
-        candidates=cands,
+        candidates=_candidate_table(selection, ident, shrinks, twin),
         gap_before=h_base,
         gap_after=h_final,
         where=where,
         identifiability=ident,
-        noise=noise,
-        coefficients={"twin_refit": _coef_json(base), "with_effects": _coef_json(final)},
-        twin_out=twin_out,
+        noise=_noise_json(twin, honest, base, final, pe, checks, tn, design),
+        coefficients={"twin_refit": _coefficients(base), "with_effects": _coefficients(final)},
+        twin_out=final.cfg if verdict.verdict == "explained" else twin,
         session_info=info,
+        settings={
+            "alpha": ALPHA,
+            "ambiguous_delta_bic": AMBIGUOUS_DBIC,
+            "max_effects": max_effects,
+            "min_dof": MIN_DOF,
+            "min_shrink": MIN_SHRINK,
+            "suggest_separating_points": suggest,
+        },
         elapsed_s=time.perf_counter() - t_start,
+        design=design,
         z_before=z_before,
         z_after=z_after,
-        design=design,
-        tau_z_before=tau_z,
+        tau_z_before=tau_z_before,
+        tau_z_after=tau_z_after,
         raw=raw,
     )
-    return report
 
 
 # ----------------------------------------------------------------------------- command line
@@ -321,8 +369,8 @@ def diagnose(
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="station gap", description="Sim-to-real gap diagnosis of a recorded session.")
-    p.add_argument("session", metavar="SESSION_DIR", help="a piga-session/1 directory (or a session uid with --db)")
-    p.add_argument("--db", help="read session UID from this SQLite store instead of a directory")
+    p.add_argument("session", metavar="SESSION_DIR", help="a piga-session/1 directory (or a session UID with --db)")
+    p.add_argument("--db", metavar="STORE", help="read session UID from this SQLite store instead of a directory")
     p.add_argument("--twin", help="twin configuration TOML to compare with (default: the embedded default twin)")
     p.add_argument("--json", required=True, metavar="OUT.json", help="write the diagnosis here")
     p.add_argument("--html", metavar="OUT.html", help="also write a self-contained HTML report")
@@ -339,32 +387,36 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_session(args: argparse.Namespace) -> Session:
-    if args.db:
+def load_session(path_or_uid: str, db: str | None = None) -> Session:
+    """A piga-session/1 directory, or session `path_or_uid` of the SQLite store `db`."""
+    if db:
         from station.store import SessionStore
 
-        with SessionStore(args.db) as store:
-            return store.load_session(args.session)
+        if not Path(db).is_file():
+            raise FileNotFoundError(f"no store {db}")
+        with SessionStore(db) as store:
+            return store.load_session(path_or_uid)
     from station.interchange import read_session
 
-    return read_session(args.session)
+    return read_session(path_or_uid)
 
 
 def main(argv: list[str] | None = None) -> int:
     """`station gap`: 0 on success (whatever the verdict), 2 on bad input."""
     args = build_parser().parse_args(argv)
     from station.interchange import SessionFormatError
+    from station.store import StoreError
 
     try:
         twin = TwinConfig.from_toml(args.twin) if args.twin else default_twin()
-        session = _load_session(args)
+        session = load_session(args.session, args.db)
         report = diagnose(
             session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
         )
-    except (GapInputError, SessionFormatError, TwinConfigError, ValueError, FileNotFoundError) as exc:
+    except (GapInputError, SessionFormatError, TwinConfigError, StoreError, ValueError, FileNotFoundError) as exc:
         print(f"station gap: error: {exc}", file=sys.stderr)
         return 2
-    Path(args.json).write_text(json.dumps(clean_json(report.to_json()), indent=2, allow_nan=False))
+    Path(args.json).write_text(json.dumps(report.to_json(), indent=2, allow_nan=False))
     if args.html:
         from station.gap.report_html import render
 
@@ -377,21 +429,6 @@ def main(argv: list[str] | None = None) -> int:
         f"{report.elapsed_s:.1f} s"
     )
     return 0
-
-
-def clean_json(o):
-    """Plain JSON values: numpy scalars and arrays converted, NaN and inf as null."""
-    if isinstance(o, dict):
-        return {str(k): clean_json(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [clean_json(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return clean_json(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
 
 
 if __name__ == "__main__":

@@ -1,33 +1,34 @@
 """Attribution: each candidate added to the twin and fitted with the calibrated coefficients, ranked.
 
-Forward selection. At each step every candidate not yet chosen (and not
-absorbed: station.gap.identifiability) is fitted jointly with the calibrated
+Forward selection. At each step every candidate not yet chosen (and with at
+least one parameter the calibrated terms do not absorb:
+station.gap.identifiability) is fitted jointly with the calibrated
 coefficients and the effects already chosen (station.gap.fit.fit_model), then
 - evidence: the F-test of the rate channel, F = (dRSS / m) / (RSS / dof),
   with m the candidate's fitted rate parameters; for the period identities
   (frequency_error) the chi-square test of d chi^2_tau with 1 dof; a
   candidate acting on both channels takes the smaller p-value times 2;
-- information criterion: BIC = n_r ln(RSS_r / n_r) + chi^2_tau + k ln(n_r + n_tau);
-- held-out gap and shrink (station.gap.heldout).
+- information criterion: BIC = n_r ln(RSS_r / n_r) + chi^2_tau + k ln(n_r + n_tau).
 A candidate is accepted when its p-value is below ALPHA / (number tested at that
 step) (Bonferroni) and it lowers the BIC; among those the lowest BIC wins.
-Candidates whose BIC is within AMBIGUOUS_DBIC of the winner's are named as
-not separable from it by this session.
+Candidates whose BIC is within AMBIGUOUS_DBIC of the winner's (short of
+"strong" evidence, Kass and Raftery 1995) are its rivals: this session does
+not tell them apart. Selection stops at max_effects; one more
+step then says whether a further effect would still have been accepted.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
 from scipy import stats
 
 from station.gap.fit import Linearisation, ModelFit, fit_model
 
 ALPHA = 0.01
-AMBIGUOUS_DBIC = 2.0
+AMBIGUOUS_DBIC = 6.0
 MAX_EFFECTS = 3
 
 
@@ -37,22 +38,22 @@ class Scored:
 
     name: str
     fit: ModelFit
-    m_rate: int
     F: float
-    p_rate: float
-    p_tau: float
     p_value: float
     bic: float
     dbic: float  # vs the reference model (negative = better)
     drss_sigma2: float  # rate dRSS in units of the reference sigma0^2
     dchi2_tau: float
-    heldout_G: float = math.nan
-    heldout_shrink: float | None = None
-    extra: dict = field(default_factory=dict)
+    rivals: list[str] = field(default_factory=list)  # within AMBIGUOUS_DBIC when chosen
+
+
+def _timing_params(fit: ModelFit) -> int:
+    return sum(1 for fp in fit.free if fp.effect == "frequency_error")
 
 
 def bic(fit: ModelFit, n_rate: int, n_tau: int) -> float:
-    k = fit.n_rate_params + sum(1 for fp in fit.free if fp.effect == "frequency_error")
+    """Schwarz's criterion of the joint rate and period-identity fit (the timing chi^2 has known sigma)."""
+    k = fit.n_rate_params + _timing_params(fit)
     return n_rate * math.log(fit.rss_rate / n_rate) + fit.chi2_tau + k * math.log(n_rate + n_tau)
 
 
@@ -64,28 +65,53 @@ def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_tau: int) -> S
     if m_rate > 0 and fit.dof_rate > 0:
         F = (drss / m_rate) / (fit.rss_rate / fit.dof_rate)
         p_rate = float(stats.f.sf(F, m_rate, fit.dof_rate)) if F > 0 else 1.0
-    acts_on_tau = any(fp.effect == "frequency_error" for fp in fit.free) and not any(
-        fp.effect == "frequency_error" for fp in ref.free
-    )
+    acts_on_tau = _timing_params(fit) > _timing_params(ref)
     dchi = ref.chi2_tau - fit.chi2_tau
     p_tau = float(stats.chi2.sf(dchi, 1)) if acts_on_tau and dchi > 0 else 1.0
-    if acts_on_tau and m_rate > 0:
-        p = min(1.0, 2.0 * min(p_rate, p_tau))
-    elif acts_on_tau:
-        p = p_tau
-    else:
-        p = p_rate
+    p = p_rate
+    if acts_on_tau:
+        p = min(1.0, 2.0 * min(p_rate, p_tau)) if m_rate > 0 else p_tau
     b_ref, b = bic(ref, n_rate, n_tau), bic(fit, n_rate, n_tau)
     s0 = ref.rss_rate / max(ref.dof_rate, 1)
-    return Scored(name, fit, m_rate, F, p_rate, p_tau, p, b, b - b_ref, drss / s0, dchi)
+    return Scored(name, fit, F, p, b, b - b_ref, drss / s0, dchi)
 
 
 @dataclass
 class Selection:
     chosen: list[Scored]
-    steps: list[list[Scored]]  # every candidate scored at each step
+    steps: list[list[Scored]]  # every candidate scored at each step, best BIC first
     final: ModelFit
-    ambiguous: list[str]  # candidates not separable from the first chosen effect
+    capped: bool = False  # a further effect would still be accepted beyond max_effects
+
+    @property
+    def effects(self) -> list[str]:
+        return [s.name for s in self.chosen]
+
+
+def _step(
+    lin: Linearisation,
+    current: ModelFit,
+    chosen: Sequence[str],
+    names: Sequence[str],
+    drop: frozenset[str],
+    start: Mapping[str, float],
+) -> tuple[list[Scored], Scored | None]:
+    """Score every candidate of `names` on top of `current`; the accepted one, if any."""
+    d = lin.ch.design
+    n_rate, n_tau = d.n_points, int(d.vib.sum())
+    scored = []
+    for name in names:
+        fit = fit_model(lin, [*chosen, name], drop=drop, start=start)
+        if fit.dof_rate > 0:
+            scored.append(score(current, fit, name, n_rate, n_tau))
+    scored.sort(key=lambda s: s.bic)
+    limit = ALPHA / max(len(scored), 1)
+    ok = [s for s in scored if s.p_value < limit and s.dbic < 0]
+    if not ok:
+        return scored, None
+    best = ok[0]
+    best.rivals = [s.name for s in scored if s is not best and s.bic - best.bic < AMBIGUOUS_DBIC]
+    return scored, best
 
 
 def forward_select(
@@ -93,38 +119,20 @@ def forward_select(
     base: ModelFit,
     names: Sequence[str],
     drop: frozenset[str],
-    start: dict[str, float],
+    start: Mapping[str, float],
     max_effects: int = MAX_EFFECTS,
 ) -> Selection:
     """Greedy forward selection of effects over candidates `names`."""
-    d = lin.ch.design
-    n_rate, n_tau = d.n_points, int(d.vib.sum())
     current, chosen, steps = base, [], []
     remaining = list(names)
-    ambiguous: list[str] = []
-    while remaining and len(chosen) < max_effects:
-        scored = []
-        for name in remaining:
-            effs = [s.name for s in chosen] + [name]
-            fit = fit_model(lin, effs, drop=drop, start=start)
-            if fit.dof_rate <= 0:
-                continue
-            scored.append(score(current, fit, name, n_rate, n_tau))
-        scored.sort(key=lambda s: s.bic)
+    while remaining:
+        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop, start)
+        if len(chosen) == max_effects:
+            return Selection(chosen, steps, current, capped=best is not None)
         steps.append(scored)
-        limit = ALPHA / max(len(scored), 1)
-        ok = [s for s in scored if s.p_value < limit and s.dbic < 0]
-        if not ok:
+        if best is None:
             break
-        best = ok[0]
-        if not chosen:
-            ambiguous = [s.name for s in scored if s is not best and s.bic - best.bic < AMBIGUOUS_DBIC]
         chosen.append(best)
         current = best.fit
         remaining.remove(best.name)
-    return Selection(chosen, steps, current, ambiguous)
-
-
-def rank_table(step: list[Scored]) -> list[Scored]:
-    """Candidates of one step, best information criterion first."""
-    return sorted(step, key=lambda s: (s.bic, -np.nan_to_num(s.drss_sigma2)))
+    return Selection(chosen, steps, current)

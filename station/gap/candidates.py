@@ -4,8 +4,8 @@ Each candidate names the twin effect it switches on (station.twin.config.EFFECTS
 and the parameters that are fitted, each with a typical magnitude (`scale`,
 from seed 000 Tables 5-7 and section 6.1 where the seed gives one) used for
 scaling the fit and for the design-level identifiability report, and a
-finite-difference step. Parameters that are fixed instead of fitted are
-stated with the reason (`fixed`).
+finite-difference step. Parameters that are set instead of fitted (`fixed`)
+take the twin's value when the twin has the effect on, else a nominal value.
 
 Two parameters of the table are never fitted by the rate data:
 - parasitic_rotation ax0 enters exactly as dtheta_mount does (theta_e =
@@ -20,9 +20,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from station.twin.config import EFFECTS, TwinConfig
-
-# L0 used for lateral_resonance when the twin does not switch it on: 1 % lateral motion.
-LATERAL_L0_NOMINAL = 0.01
 
 
 @dataclass(frozen=True)
@@ -44,7 +41,7 @@ class FreeParam:
 class Candidate:
     name: str
     free: tuple[FreeParam, ...]
-    fixed: Mapping[str, float] = field(default_factory=dict)  # parameters set, not fitted
+    fixed: Mapping[str, float] = field(default_factory=dict)  # set, not fitted: nominal values
     notes: str = ""
 
     @property
@@ -88,6 +85,7 @@ def _library() -> dict[str, Candidate]:
         Candidate(
             "lateral_resonance",
             (_fp("lateral_resonance", "kx", 1e-5),),
+            fixed={"L0": 0.01},  # 1 % lateral motion
             notes="only kx L0^2 is seen: L0 is fixed, fr and Q come from the twin, phiL has no effect on window means",
         ),
         Candidate("odd_quadratic", (_fp("odd_quadratic", "koq", 1e-6),)),
@@ -117,11 +115,8 @@ def library(names: Sequence[str] | None = None, exclude: Sequence[str] = ()) -> 
 
 
 def fixed_params(candidate: Candidate, twin: TwinConfig) -> dict[str, float]:
-    """Parameters of the candidate's effect that are set, not fitted (twin's value where on)."""
-    if candidate.name == "lateral_resonance":
-        l0 = twin.param("lateral_resonance", "L0")
-        return {"L0": l0 if l0 > 0 else LATERAL_L0_NOMINAL}
-    return dict(candidate.fixed)
+    """Parameters of the candidate's effect that are set, not fitted: the twin's value where it is on."""
+    return {k: twin.param(candidate.name, k) or nominal for k, nominal in candidate.fixed.items()}
 
 
 def apply(

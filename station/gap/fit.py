@@ -105,8 +105,10 @@ def model_columns(ch: Channels, K: np.ndarray, cfg_of, steps: Sequence[float]) -
     cfg_of(j, h) is the twin with parameter j moved by h (parameter units).
     """
     d = ch.design
-    full0, tau0 = predict_full(d, cfg_of(0, 0.0), K)
     cols = np.empty((ch.n_rate + ch.n_tau, len(steps)))
+    if not steps:
+        return cols
+    full0, tau0 = predict_full(d, cfg_of(0, 0.0), K)
     for j, h in enumerate(steps):
         full, tau = predict_full(d, cfg_of(j, h), K)
         cols[:, j] = np.concatenate(
@@ -136,6 +138,7 @@ class Linearisation:
         self.base_cfg = base_cfg
         if base_cfg != ch.twin:  # fixed parameters (lateral L0) change nothing at kx = 0, but be exact
             self.state = evaluate(ch, base_cfg)
+        self.n_rows = self.state.r_white.size
 
         def cfg_of(j: int, h: float) -> TwinConfig:
             fp = self.params[j]
@@ -149,6 +152,9 @@ class Linearisation:
         n_pos = ch.design.positions_deg.size
         L = Xs[:, :n_pos]
         self.Q_levels = np.vstack([L / np.linalg.norm(L, axis=0), np.zeros((ch.n_tau, n_pos))])
+
+    def param(self, key: str) -> cl.FreeParam:
+        return next(fp for fp in self.params if fp.key == key)
 
     def project(self, M: np.ndarray) -> np.ndarray:
         """Remove the part of the columns that the static levels and calibrated terms absorb."""
@@ -186,21 +192,11 @@ class ModelFit:
     def sigma0_hat_radps(self) -> float:
         return math.sqrt(self.rss_rate / self.dof_rate) if self.dof_rate > 0 else math.nan
 
-    @property
-    def n_free(self) -> int:
-        return len(self.free)
-
-    def params(self) -> dict[str, dict[str, float]]:
-        out: dict[str, dict[str, float]] = {}
-        for fp, v in zip(self.free, self.values, strict=True):
-            out.setdefault(fp.effect, {})[fp.param] = float(v)
-        return out
-
-    def uncertainties(self) -> dict[str, dict[str, float]]:
-        out: dict[str, dict[str, float]] = {}
-        for fp, s in zip(self.free, self.sigmas, strict=True):
-            out.setdefault(fp.effect, {})[fp.param] = float(s)
-        return out
+    def effect_parameters(self, effect: str) -> tuple[dict[str, float], dict[str, float]]:
+        """Fitted values and standard uncertainties of one effect's free parameters."""
+        rows = zip(self.free, self.values, self.sigmas, strict=True)
+        mine = [(fp.param, v, sd) for fp, v, sd in rows if fp.effect == effect]
+        return {k: float(v) for k, v, _ in mine}, {k: float(sd) for k, _, sd in mine}
 
 
 def fit_model(

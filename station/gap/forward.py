@@ -27,7 +27,7 @@ import numpy as np
 
 from station.gap.design import PointDesign
 from station.twin.config import InstrumentCoefficients, TwinConfig
-from station.twin.precession import PeriodicRate, PrecessionWindow, periodic_rate
+from station.twin.precession import PrecessionWindow, periodic_rate
 
 CALIBRATED: tuple[str, ...] = ("kz", "kzz", "ky", "k3")
 # Effects whose only action is an instrument term: dropped from the unit-coefficient configs.
@@ -47,14 +47,6 @@ class Prediction:
     base_radps: np.ndarray
     units_radps: np.ndarray
     tau_s: np.ndarray
-
-    def rate_radps(self, coefficients: np.ndarray) -> np.ndarray:
-        return self.base_radps + self.units_radps @ np.asarray(coefficients, dtype=float)
-
-
-def true_frequency_hz(freq_cmd_hz: np.ndarray, cfg: TwinConfig) -> np.ndarray:
-    """f_true = f_cmd (1 + eps_f) (physics.md effects table, frequency_error)."""
-    return np.asarray(freq_cmd_hz, dtype=float) * (1.0 + cfg.param("frequency_error", "eps_f"))
 
 
 def unit_config(cfg: TwinConfig, coefficient: str) -> TwinConfig:
@@ -77,31 +69,31 @@ def window_mean_radps(
     Tm_s: float,
     cfg: TwinConfig,
 ) -> float:
-    """wbar = phi(Tm) / Tm of one window (exact closed form of PrecessionWindow)."""
-    rate = periodic_rate(theta_rad, freq_true_hz, cfg)
-    if freq_true_hz == 0.0:
-        return rate.c0_radps
-    window = PrecessionWindow(rate, 2.0 * math.pi * freq_true_hz, gamma0_rad)
+    """wbar = phi(Tm) / Tm of one vibration window (exact closed form of PrecessionWindow)."""
+    window = PrecessionWindow(periodic_rate(theta_rad, freq_true_hz, cfg), 2.0 * math.pi * freq_true_hz, gamma0_rad)
     return float(window.phi_rad(Tm_s)) / Tm_s
 
 
 def drift_mean_radps(d_radps2: float, start_s: np.ndarray, Tm_s: np.ndarray) -> np.ndarray:
-    """Window mean of the bias drift d t_session over each window (PrecessionWindow's drift term)."""
-    if d_radps2 == 0.0:
-        return np.zeros(np.shape(start_s))
-    zero = PeriodicRate.constant(0.0)
-    return np.array(
-        [
-            float(PrecessionWindow(zero, 0.0, 0.0, 0.0, d_radps2, t0).phi_rad(tm)) / tm
-            for t0, tm in zip(start_s, Tm_s, strict=True)
-        ]
-    )
+    """Window mean of the bias drift d t_session: phi = d (t0 t + t^2 / 2) over [0, Tm], divided by Tm."""
+    return d_radps2 * (np.asarray(start_s, dtype=float) + 0.5 * np.asarray(Tm_s, dtype=float))
+
+
+def period_identity_s(design: PointDesign, cfg: TwinConfig) -> np.ndarray:
+    """tau = Np (T_true - T_cmd), T_true = T_cmd / (1 + eps_f), for vibration points; 0 for static ones."""
+    tau = np.zeros(design.n_points)
+    v = design.vib
+    eps = cfg.param("frequency_error", "eps_f")
+    tau[v] = design.Np[v] / design.freq_hz[v] * (1.0 / (1.0 + eps) - 1.0)
+    return tau
 
 
 def predict(design: PointDesign, cfg: TwinConfig) -> Prediction:
     """Base and unit columns of the window-mean rate of every point, and the period identity."""
-    base, units, tau = _window_means(design, cfg, [base_config(cfg)] + [unit_config(cfg, c) for c in CALIBRATED])
-    return Prediction(base, units, tau)
+    means = _window_means(design, cfg, [base_config(cfg)] + [unit_config(cfg, c) for c in CALIBRATED])
+    levels = _static_levels(design, [unit_config(cfg, c) for c in CALIBRATED])
+    base = means[:, 0] + drift_mean_radps(cfg.param("bias_drift", "d"), design.start_s, design.Tm_s)
+    return Prediction(base, means[:, 1:] - levels, period_identity_s(design, cfg))
 
 
 def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,34 +103,28 @@ def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray)
     need (the static levels absorb the per-position constants it keeps).
     """
     inst = replace(cfg.instrument, **dict(zip(CALIBRATED, map(float, coefficients), strict=True)))
-    rate, _, tau = _window_means(design, cfg, [replace(cfg, instrument=inst)], refer=False)
-    return rate, tau
+    rate = _window_means(design, cfg, [replace(cfg, instrument=inst)])[:, 0]
+    rate = rate + drift_mean_radps(cfg.param("bias_drift", "d"), design.start_s, design.Tm_s)
+    return rate, period_identity_s(design, cfg)
 
 
-def _window_means(design: PointDesign, cfg: TwinConfig, configs: list[TwinConfig], refer: bool = True):
-    """Window means of every point under each config (first: with drift), and tau."""
-    f_true = true_frequency_hz(design.freq_hz, cfg)
+def _static_levels(design: PointDesign, configs: list[TwinConfig]) -> np.ndarray:
+    """Static rate at each point's position under each config (points x configs)."""
+    per_position = np.array([[periodic_rate(th, 0.0, c).c0_radps for c in configs] for th in design.position_rad])
+    return per_position[design.pos_index]
+
+
+def _window_means(design: PointDesign, cfg: TwinConfig, configs: list[TwinConfig]) -> np.ndarray:
+    """Window-mean rate of every point under each config (points x configs), frequency and latency from cfg.
+
+    gamma0 = -w_true (t1 - delta): the read head stamps the crossing of psi = 0 delta late (physics.md).
+    """
+    f_true = design.freq_hz * (1.0 + cfg.param("frequency_error", "eps_f"))
     latency_s = cfg.param("readhead_latency", "delta")
-    n = design.n_points
-    out = np.zeros((n, len(configs)))
-    static_level = {}
-    for j, theta in enumerate(design.position_rad):
-        static_level[j] = [periodic_rate(theta, 0.0, c).c0_radps for c in configs]
-    for i in range(n):
+    out = _static_levels(design, configs)
+    for i in np.flatnonzero(design.vib):
+        w = 2.0 * math.pi * f_true[i]
+        gamma0 = -w * (design.t1_s[i] - latency_s)
         theta = float(design.theta_rad[i])
-        if design.vib[i]:
-            w = 2.0 * math.pi * f_true[i]
-            gamma0 = -w * (design.t1_s[i] - latency_s)
-            out[i] = [window_mean_radps(theta, f_true[i], gamma0, design.Tm_s[i], c) for c in configs]
-        else:
-            out[i] = static_level[int(design.pos_index[i])]
-    base = out[:, 0] + drift_mean_radps(cfg.param("bias_drift", "d"), design.start_s, design.Tm_s)
-    units = out[:, 1:]
-    if refer and units.shape[1]:
-        units = units - np.array([static_level[int(j)][1:] for j in design.pos_index])
-    tau = np.zeros(n)
-    vib = design.vib
-    with np.errstate(divide="ignore"):
-        period_cmd = np.where(vib, 1.0 / np.where(vib, design.freq_hz, 1.0), 0.0)
-    tau[vib] = design.Np[vib] * (period_cmd[vib] / (1.0 + cfg.param("frequency_error", "eps_f")) - period_cmd[vib])
-    return base, units, tau
+        out[i] = [window_mean_radps(theta, f_true[i], gamma0, design.Tm_s[i], c) for c in configs]
+    return out

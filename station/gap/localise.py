@@ -10,15 +10,17 @@ fitted model and tested by F = (dRSS / r) / ((RSS - dRSS) / (dof - r)), r the
 rank of D after projecting off the model's columns. Blocks: one offset per
 frequency (vibration points); position harmonics a^2 {cos k theta, sin k theta},
 k = 1..4 (vibration points); a cubic trend in session time (every point); one
-offset per run-order block (vibration points); and, for the period identities,
-a slope in Np T (a frequency error). They find structure that no library
-effect has to explain, and what is left after the chosen effects.
+offset per run-order block (vibration points); one point off by itself (the
+largest studentised deleted residual, Bonferroni over the points: seed 000's
+reliability test, eq. 28, made exact); and, for the period identities, a
+slope in Np T (a frequency error). They find structure that no library effect
+has to explain, and what is left after the chosen effects.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.polynomial import legendre
@@ -36,6 +38,13 @@ class Detector:
     dof: tuple[int, int]
     p_value: float
     what: str
+    # Orthonormal whitened columns of the block off the model (rate-channel blocks only).
+    basis: np.ndarray | None = field(default=None, repr=False, compare=False)
+    at: str = ""  # the point, for a test of one point
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} at {self.at}" if self.at else self.name
 
     def to_json(self) -> dict:
         return {
@@ -44,6 +53,7 @@ class Detector:
             "dof": list(self.dof),
             "p_value": _r(self.p_value),
             "tests": self.what,
+            "at": self.at or None,
         }
 
 
@@ -110,7 +120,9 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
             continue
         drss = float(np.sum((U.T @ r) ** 2))
         F = (drss / k) / max((rss_rate - drss) / dof2, 1e-300)
-        out.append(Detector(name, F, (k, dof2), float(stats.f.sf(F, k, dof2)), what))
+        out.append(Detector(name, F, (k, dof2), float(stats.f.sf(F, k, dof2)), what, U))
+    if fit.dof_rate >= 2:
+        out.append(_single_point(d, Q, r, rss_rate, fit.dof_rate))
     if ch.n_tau >= 3:
         vib = d.vib
         span = d.Np[vib] / d.freq_hz[vib]
@@ -130,6 +142,26 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
             )
         )
     return out
+
+
+def _single_point(d: PointDesign, Q: np.ndarray, r: np.ndarray, rss_rate: float, dof: int) -> Detector:
+    """The point whose own offset lowers the RSS most: drss_i = r_i^2 / (1 - h_i) (r is off the model)."""
+    n = d.n_points
+    h = np.sum(Q[:n] ** 2, axis=1)
+    drss = r[:n] ** 2 / np.clip(1.0 - h, 1e-12, None)
+    i = int(np.argmax(drss))
+    F = float(drss[i]) / max((rss_rate - float(drss[i])) / (dof - 1), 1e-300)
+    p = min(1.0, n * float(stats.f.sf(F, 1, dof - 1)))
+    column = -Q @ Q[i]
+    column[i] += 1.0
+    basis = (column / np.linalg.norm(column))[:, None]
+    what = f"one point off by itself (the largest of {n} studentised residuals, Bonferroni)"
+    return Detector("single_point", F, (1, dof - 1), p, what, basis, d.point_ids[i])
+
+
+def significant(dets: list[Detector], alpha: float) -> list[Detector]:
+    """The structure tests significant at level alpha, Bonferroni over the family."""
+    return [d for d in dets if d.p_value < alpha / max(len(dets), 1)]
 
 
 def standardised(fit: ModelFit, ch: Channels, rate_sigma_ratio: float) -> np.ndarray:
@@ -219,9 +251,9 @@ def where_text(m: dict, dets: list[Detector], alpha: float) -> str:
         parts.append(f"run-order block {g['block']} ({g['start_s']:.0f}-{g['end_s']:.0f} s, rms z {g['rms_z']:.2f})")
     if "timing" in m:
         parts.append(f"period identities rms z {m['timing']['rms_z']:.2f}")
-    sig = [dt for dt in dets if dt.p_value < alpha / max(len(dets), 1)]
+    sig = significant(dets, alpha)
     if sig:
-        parts.append("structure: " + "; ".join(f"{dt.name} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig))
+        parts.append("structure: " + "; ".join(f"{dt.label} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig))
     else:
         parts.append(f"no structure test significant at the {alpha:g} level (Bonferroni over {len(dets)} tests)")
     return "; ".join(parts) + "."

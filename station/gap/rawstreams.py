@@ -6,8 +6,10 @@ timing capture, so the reduction needs no model):
 - grating: least squares of z(t) on 1, sin j psi_a, cos j psi_a (j = 1..3)
   gives (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) as the read head sees them; the
   twin predicts the same numbers from table_position_m at psi = psi_a + w delta
-  (latency shifts the reference); the differences, with standard errors from
-  the fit's residual scatter, are the waveform gap.
+  (latency shifts the reference); the differences are the waveform gap. Their
+  standard errors combine the fit's residual scatter with the phase error of
+  the stamp t1 (sd_stamp): psi_a off by e turns (Zsj, Zcj) by j e, so
+  se(Zcj) = j w sd_stamp |Zsj| and se(Zsj) = j w sd_stamp |Zcj|.
 - pulses: the precession angle at every pulse edge (cumulative up/down
   count times the pulse angle) fitted by phi0 + c0 t + sum_j (A_j sin j psi_a +
   B_j cos j psi_a) gives the rate's harmonics r_j = j w (A_j, B_j); the twin
@@ -81,9 +83,21 @@ def _twin_rate_harmonics(theta: float, f_true: float, delta: float, cfg: TwinCon
     return np.array(out)
 
 
-def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dict:
-    """Grating and pulse-rate harmonics of every vibration point with raw streams ({} if none)."""
-    cfg = twin
+def _phase_se(coef: np.ndarray, w: float, sd_stamp_s: float) -> np.ndarray:
+    """se of (Zs1, Zc1, Zs2, ...) from a phase error w sd_stamp of the apparent crank phase."""
+    out = np.empty_like(coef)
+    for k, j in enumerate(HARMONICS):
+        zs, zc = coef[2 * k], coef[2 * k + 1]
+        out[2 * k], out[2 * k + 1] = j * w * sd_stamp_s * abs(zc), j * w * sd_stamp_s * abs(zs)
+    return out
+
+
+def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float) -> dict:
+    """Grating and pulse-rate harmonics of every vibration point with raw streams ({} if none).
+
+    cfg: the twin to compare with, its calibrated coefficients refitted to the session;
+    sd_stamp_s: standard deviation of one time stamp (of t1).
+    """
     if not session.raw:
         return {}
     points = []
@@ -95,18 +109,21 @@ def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dic
             continue
         t1, t2, tm, n_p = design.t1_s[i], design.t2_s[i], design.Tm_s[i], int(design.Np[i])
         w = 2 * math.pi * n_p / (t2 + tm - t1)
+        f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
         entry: dict = {
             "point_id": pid,
             "position_deg": float(design.position_deg[i]),
             "freq_hz": float(design.freq_hz[i]),
             "measured_freq_hz": w / (2 * math.pi),
+            "twin_freq_hz": float(f_true),
         }
         if raw.grating_t.size > 20:
             s = _stride(raw.grating_t.size)
             t, z = raw.grating_t[s], raw.grating_z[s]
             coef, se = _lsq(_design(w * (t - t1)), z)
-            meas, se = coef[1:], se[1:]
-            pred = _twin_grating(w, delta, twin)
+            meas = coef[1:]
+            se = np.hypot(se[1:], _phase_se(meas, w, sd_stamp_s))
+            pred = _twin_grating(w, delta, cfg)
             diff = meas - pred
             entry["grating"] = {
                 n: {"measured_m": float(m), "twin_m": float(p), "difference_m": float(dd), "se_m": float(e)}
@@ -115,34 +132,57 @@ def raw_evidence(session: Session, design: PointDesign, twin: TwinConfig) -> dic
             rows_w.append(w)
             rows_d.append(diff)
             rows_s.append(se)
-        if raw.pulse_t.size > 20:
-            direction = raw.pulse_dir if raw.pulse_dir is not None else np.ones(raw.pulse_t.size)
-            phi = np.cumsum(direction) * (2 * math.pi / session.station.pulses_per_rev)
-            s = _stride(raw.pulse_t.size)
-            t, ph = raw.pulse_t[s], phi[s]
-            A = _design(w * (t - t1), with_line=t)
-            coef, se = _lsq(A, ph)
-            meas = []
-            for k, j in enumerate(HARMONICS):
-                a_s, a_c = coef[2 + 2 * k], coef[3 + 2 * k]
-                # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
-                meas += [-j * w * a_c, j * w * a_s]
-            f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
-            pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, delta, cfg)
-            entry["pulse_rate_harmonics"] = [
-                {
-                    "harmonic": j,
-                    "measured_radps": float(math.hypot(meas[2 * k], meas[2 * k + 1])),
-                    "twin_radps": float(math.hypot(pred[2 * k], pred[2 * k + 1])),
-                    "difference_radps": float(math.hypot(meas[2 * k] - pred[2 * k], meas[2 * k + 1] - pred[2 * k + 1])),
-                }
-                for k, j in enumerate(HARMONICS)
-            ]
+        if raw.pulse_t.size > 20 and raw.pulse_dir is None:
+            entry["pulse_rate_harmonics"] = "no pulse directions (pulse_dir): the up/down count cannot be rebuilt"
+        elif raw.pulse_t.size > 20:
+            entry["pulse_rate_harmonics"] = _pulse_harmonics(raw, w, t1, session.station.pulses_per_rev, i, design, cfg)
         points.append(entry)
     out: dict = {"points": points, "n_points": len(points)}
     if rows_d:
         out["grating_summary"] = _grating_summary(np.array(rows_w), np.array(rows_d), np.array(rows_s))
     return out
+
+
+def _pulse_harmonics(raw, w: float, t1: float, pulses_per_rev: int, i: int, design: PointDesign, cfg: TwinConfig):
+    """Rate harmonics from the precession angle at every pulse edge, against the twin's periodic_rate."""
+    phi = np.cumsum(raw.pulse_dir) * (2 * math.pi / pulses_per_rev)
+    s = _stride(raw.pulse_t.size)
+    t = raw.pulse_t[s]
+    coef, se = _lsq(_design(w * (t - t1), with_line=t), phi[s])
+    f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+    pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, cfg.param("readhead_latency", "delta"), cfg)
+    out = []
+    for k, j in enumerate(HARMONICS):
+        a_s, a_c = coef[2 + 2 * k], coef[3 + 2 * k]
+        # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
+        meas = np.array([-j * w * a_c, j * w * a_s])
+        twin = pred[2 * k : 2 * k + 2]
+        out.append(
+            {
+                "harmonic": j,
+                "measured_radps": float(np.hypot(*meas)),
+                "twin_radps": float(np.hypot(*twin)),
+                "difference_radps": float(np.hypot(*(meas - twin))),
+                "se_radps": float(j * w * max(se[2 + 2 * k], se[3 + 2 * k])),
+            }
+        )
+    return out
+
+
+def raw_summary_text(raw: dict, n_se: float = 3.0) -> str:
+    """The grating's waveform differences from the twin that exceed n_se standard errors, in words."""
+    summary = raw.get("grating_summary", {})
+    big = [
+        f"{name.removesuffix('_m')} {v['value']:+.3g} ± {v['se']:.2g}"
+        for name, v in summary.items()
+        if abs(v["value"]) > n_se * v["se"]
+    ]
+    head = f"raw streams at {raw['n_points']} vibration points"
+    if not summary:
+        return head + " (no grating record)"
+    if big:
+        return head + "; grating differs from the twin in " + ", ".join(big)
+    return head + f"; grating agrees with the twin within {n_se:g} se"
 
 
 def _grating_summary(w: np.ndarray, d: np.ndarray, s: np.ndarray) -> dict:

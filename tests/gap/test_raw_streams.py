@@ -1,0 +1,60 @@
+"""Where raw streams exist: the grating's harmonics and the pulse-rate spectrum against the twin's."""
+
+from __future__ import annotations
+
+import pytest
+
+from station.gap.api import diagnose
+from station.gap.design import PointDesign
+from station.gap.validate import scaled_injection
+from station.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
+
+PLAN = multiposition_plan([0.0, 45.0, 135.0, 180.0, 225.0, 315.0], (6.0, 8.0, 10.0), window_s=30.0)
+
+
+@pytest.fixture(scope="module")
+def harmonics(twin):
+    """Second and third harmonics of the table motion (seed 000 Table 5's kind), 15 times the noise."""
+    design = PointDesign.from_session(simulate_session(PLAN, twin, 7))
+    injected = scaled_injection(design, twin, "waveform_harmonics", 15.0)
+    session = simulate_session(PLAN, twin.with_effect("waveform_harmonics", **injected), 7, raw=True)
+    return session, injected, diagnose(session, twin, suggest=False)
+
+
+def test_the_grating_measures_the_injected_harmonics(harmonics):
+    """se: the fit's scatter and the phase error of the stamp t1 (50 ns tick, 0.1 us jitter)."""
+    _, injected, rep = harmonics
+    summary = rep.where["raw_streams"]["grating_summary"]
+    for key in ("Zs2", "Zc2", "Zs3", "Zc3"):
+        got = summary[f"{key}_m"]
+        assert abs(got["value"] - injected[key]) < 4 * got["se"], key
+        assert abs(got["value"]) > 100 * got["se"], key
+    for key in ("z0_m", "z1_m_s_per_rad", "Zc1_m"):  # the fundamental is the twin's
+        assert abs(summary[key]["value"]) < 4 * summary[key]["se"], key
+    assert "grating differs from the twin in Zs2" in rep.where["summary"]
+
+
+def test_the_period_and_the_pulse_rate_spectrum(harmonics, twin):
+    session, _, rep = harmonics
+    points = rep.where["raw_streams"]["points"]
+    assert len(points) == sum(p.kind == "vibration" for p in session.points)
+    for p in points:
+        # the record's own frequency, 2 pi Np / (t2 + Tm - t1): stamps of 0.14 us over ~30 s
+        assert p["measured_freq_hz"] == pytest.approx(p["twin_freq_hz"], rel=1e-7)
+        second = p["pulse_rate_harmonics"][1]
+        assert second["harmonic"] == 2
+        if p["freq_hz"] == 10.0:  # the 2nd harmonic of a_z reaches the rate through kz aI
+            assert second["difference_radps"] > 5 * second["se_radps"]
+
+
+def test_raw_streams_without_pulse_directions_are_said_so(harmonics, twin):
+    session, _, _ = harmonics
+    pid = next(p.point_id for p in session.points if p.kind == "vibration")
+    session.raw[pid].pulse_dir, kept = None, session.raw[pid].pulse_dir
+    try:
+        rep = diagnose(session, twin, suggest=False)
+    finally:
+        session.raw[pid].pulse_dir = kept
+    entry = next(p for p in rep.where["raw_streams"]["points"] if p["point_id"] == pid)
+    assert "no pulse directions" in entry["pulse_rate_harmonics"]

@@ -1,0 +1,94 @@
+"""Each verdict reached on simulated seed-000 sessions, with tolerances in units of the noise.
+
+Effects are injected at SNR 15 after the calibrated terms are projected out
+(station.gap.validate.scaled_injection), so for a one-parameter effect the
+fitted value over its uncertainty must be about 15 too (|p| / sigma_p is the
+same projected norm); sigma0 is estimated from about 25 residual dof, so
+that ratio is allowed 0.7x to 1.4x.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from station.gap.api import diagnose
+from station.gap.validate import step_sequence
+
+SNR = 15.0
+SEED = 3
+
+
+@pytest.mark.parametrize(
+    ("effect", "parameter"),
+    [
+        ("cross_coupling", "kip"),
+        ("odd_quadratic", "koq"),
+        ("frequency_error", "eps_f"),
+        ("parasitic_rotation", "axs1"),
+    ],
+)
+def test_an_injected_library_effect_is_explained_by_name(seed000_session, seed000_report, effect, parameter):
+    _, injected = seed000_session("effect", effect, SNR, SEED)
+    rep = seed000_report("effect", effect, SNR, SEED)
+    assert rep.verdict.verdict == "explained", rep.verdict.text
+    assert rep.effects == [effect]
+    entry = next(c for c in rep.to_json()["candidates"] if c["name"] == effect)
+    assert entry["rank"] == 1 and entry["identifiable"] and entry["accepted"]
+    # The held-out gap after is noise: within 3 se of 0, so it removes >= 80 % of a gap of this size.
+    assert entry["heldout_shrink"] >= 0.8
+    assert abs(rep.gap_after.G) < 3 * rep.gap_after.se
+    assert 10 * rep.gap_before.se < rep.gap_before.G
+    for key, value in entry["parameters"].items():
+        assert abs(value - injected[key]) < 4 * entry["uncertainty"][key], key
+    if len(entry["parameters"]) == 1:
+        ratio = abs(entry["parameters"][parameter]) / entry["uncertainty"][parameter]
+        assert 0.7 * SNR < ratio < 1.4 * SNR
+
+
+@pytest.mark.parametrize("seed", [1001, 1002])
+def test_a_null_session_has_no_gap(seed000_report, twin, seed):
+    rep = seed000_report("null", None, 0.0, seed)
+    assert rep.verdict.verdict == "no_gap", rep.verdict.text
+    assert rep.effects == [] and not rep.verdict.ambiguous
+    assert abs(rep.gap_before.G) < 3 * rep.gap_before.se  # chi-square_1 rows: se = sqrt(2 / rows)
+    assert rep.twin_out == twin  # unchanged
+    assert all(c["rank"] is None or not c["accepted"] for c in rep.candidates)
+
+
+def test_an_out_of_library_term_is_not_declared_explained(seed000_report):
+    """k4 aI^4 is no library effect (its nearest look-alike keeps cos < 0.75 in this design)."""
+    rep = seed000_report("out_of_library", "quartic_term", 20.0, SEED)
+    assert rep.verdict.verdict in ("unexplained", "cannot_tell"), rep.verdict.text
+    assert rep.effects == []
+
+
+def test_a_bias_step_is_unexplained_and_located_at_its_position(seed000_session, seed000_report):
+    """A k0 step between two points of one position: every other position's static level absorbs it,
+    so the gap is the one point of that position measured before the step."""
+    session, _ = seed000_session("out_of_library", "bias_step", 20.0, SEED)
+    rep = seed000_report("out_of_library", "bias_step", 20.0, SEED)
+    assert rep.verdict.verdict == "unexplained", rep.verdict.text
+    step = step_sequence(len(session.points))
+    position = session.points[step].position_deg
+    before_step = [p.point_id for p in session.points if p.position_deg == position and p.sequence < step]
+    flagged = next(t for t in rep.where["structure_tests_before"] if t["name"] == "single_point")
+    assert flagged["p_value"] < 0.01 and flagged["at"] in before_step
+    worst = max(rep.where["maps"]["by_position"], key=lambda g: g["rms_z"])
+    assert worst["position_deg"] == position
+
+
+def test_an_effect_this_design_cannot_separate_gives_cannot_tell_with_the_points_that_would(seed000_report):
+    """A constant mount tilt lies in the span of the 8 index-angle harmonics at 10 equal positions."""
+    rep = seed000_report("effect", "mount_misalignment", SNR, SEED, suggest=True)
+    assert rep.verdict.verdict == "cannot_tell", rep.verdict.text
+    assert {"mount_misalignment", "index_harmonics"} <= set(rep.verdict.ambiguous)
+    assert rep.effects == []
+    assert "positions half-way" in rep.verdict.text
+
+
+def test_the_twin_with_the_effect_switched_on_closes_the_gap(seed000_session, seed000_report, twin):
+    session, _ = seed000_session("effect", "cross_coupling", SNR, SEED)
+    rep = seed000_report("effect", "cross_coupling", SNR, SEED)
+    assert "cross_coupling" in rep.twin_out.effects and "cross_coupling" not in twin.effects
+    again = diagnose(session, rep.twin_out, suggest=False)
+    assert again.verdict.verdict == "no_gap", again.verdict.text
