@@ -1,0 +1,102 @@
+"""Self-alignment of the PIGA on the indexing head from static windows (seed 000 eqs. 25-27).
+
+Eq. 25: wbar + w_ie sin(lam - theta) = k0 + kz cos(theta + dtheta_h).
+
+Two positions, 0 and 180 deg, as the seed does (eq. 26):
+    cos(dtheta_h) = (wbar_0 - wbar_180 + 2 w_ie sin lam) / (2 kz)
+which gives |dtheta_h| only, and poorly: near zero, cos is flat, so a 1e-6
+relative error of kz or of the rates is an angle error of 1.4e-3 rad. Eq. 27
+propagates that honestly (its derivative 1/sin(dtheta_h) grows without bound).
+
+Three or more positions: eq. 25 is linear in (k0, kz cos dtheta_h, kz sin
+dtheta_h) and least squares gives the signed angle and kz together, with
+their covariance. A design symmetric about 0 deg (0, 60, 180, 300) keeps the
+nonlinear terms, which eq. 25 leaves out, from biasing the sine component.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from station.session import StationInfo
+
+
+@dataclass(frozen=True)
+class Alignment:
+    method: str
+    dtheta_h_rad: float
+    sigma_rad: float
+    kz_radps_per_g: float
+    sigma_kz: float
+    k0_radps: float
+    residual_sigma_radps: float
+
+    def to_json(self) -> dict:
+        return {
+            "method": self.method,
+            "dtheta_h": {"value": self.dtheta_h_rad, "sigma": self.sigma_rad, "unit": "rad"},
+            "kz": {"value": self.kz_radps_per_g, "sigma": self.sigma_kz, "unit": "rad/s/g"},
+            "k0": {"value": self.k0_radps, "unit": "rad/s"},
+            "residual_sigma_radps": self.residual_sigma_radps,
+        }
+
+
+def earth_rate_along_ia(theta_rad: np.ndarray, station: StationInfo, latitude_rad: float | None = None) -> np.ndarray:
+    """w_ie sin(lam - theta): the earth rate along IA (physics.md inputs)."""
+    lam = math.radians(station.latitude_deg) if latitude_rad is None else latitude_rad
+    return station.earth_rate_radps * np.sin(lam - np.asarray(theta_rad, dtype=float))
+
+
+def two_position(
+    rate_0_radps: float,
+    rate_180_radps: float,
+    station: StationInfo,
+    *,
+    kz_radps_per_g: float,
+    sigma_rate_radps: float,
+    sigma_latitude_rad: float,
+    sigma_kz: float,
+) -> Alignment:
+    """|dtheta_h| by eq. 26 and its uncertainty by eq. 27."""
+    lam = math.radians(station.latitude_deg)
+    wie = station.earth_rate_radps
+    c = (rate_0_radps - rate_180_radps + 2 * wie * math.sin(lam)) / (2 * kz_radps_per_g)
+    angle = math.acos(min(c, 1.0))
+    s = math.sin(angle)
+    # d(angle)/dc = -1/sin(angle); dc/dwbar = 1/(2 kz); dc/dlam = wie cos(lam)/kz; dc/dkz = -c/kz
+    d_dc = math.inf if s == 0 else 1.0 / s
+    var_c = 2 * (sigma_rate_radps / (2 * kz_radps_per_g)) ** 2
+    var_c += (wie * math.cos(lam) / kz_radps_per_g * sigma_latitude_rad) ** 2 + (c / kz_radps_per_g * sigma_kz) ** 2
+    sigma = d_dc * math.sqrt(var_c)
+    k0 = 0.5 * (rate_0_radps + rate_180_radps)  # the earth-rate terms cancel in the sum at 0 and 180 deg
+    return Alignment("eq. 26 (0 and 180 deg)", angle, sigma, kz_radps_per_g, sigma_kz, k0, math.nan)
+
+
+def multi_position(theta_rad: np.ndarray, rates_radps: np.ndarray, station: StationInfo) -> Alignment:
+    """Signed dtheta_h and kz by least squares of eq. 25 over three or more static positions."""
+    theta = np.asarray(theta_rad, dtype=float)
+    y = np.asarray(rates_radps, dtype=float) + earth_rate_along_ia(theta, station)
+    X = np.column_stack([np.ones_like(theta), np.cos(theta), -np.sin(theta)])
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    dof = len(y) - 3
+    resid = y - X @ beta
+    sigma_e = math.sqrt(float(resid @ resid) / dof) if dof > 0 else math.nan
+    cov = np.linalg.inv(X.T @ X) * (sigma_e**2 if dof > 0 else math.nan)
+    k0, a, b = beta  # a = kz cos(d), b = kz sin(d)
+    kz = math.hypot(a, b)
+    angle = math.atan2(b, a)
+    # gradients of (kz, angle) with respect to (a, b)
+    J = np.array([[a / kz, b / kz], [-b / kz**2, a / kz**2]])
+    cov_ka = J @ cov[1:, 1:] @ J.T
+    return Alignment(
+        f"eq. 25 least squares ({len(y)} positions)",
+        angle,
+        math.sqrt(cov_ka[1, 1]),
+        kz,
+        math.sqrt(cov_ka[0, 0]),
+        float(k0),
+        sigma_e,
+    )
