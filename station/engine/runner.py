@@ -364,17 +364,19 @@ class Engine:
         except StopIteration as stop:
             value = stop.value
             self._stop_safely()
-        except Aborted as exc:
-            final = State.ESTOPPED if self._estop else State.ABORTED
-            self.event("abort", str(exc), "critical" if self._estop else "warning")
-            if not self._estop:
+        except (Aborted, DriverError, TimingFault) as exc:
+            if self._abort_requested:  # an abort or emergency stop; device errors it causes are its consequence
+                final = State.ESTOPPED if self._estop else State.ABORTED
+                self.event("abort", f"{'emergency stop' if self._estop else 'abort'}: {exc}",
+                           "critical" if self._estop else "warning")  # fmt: skip
+                if not self._estop:
+                    self._stop_safely()
+            else:
+                final = State.FAILED
+                p.faults.append(f"{type(exc).__name__}: {exc}")
+                self.event("fault", p.faults[-1], "error")
+                self.publish("fault", {"kind": type(exc).__name__, "message": str(exc)})
                 self._stop_safely()
-        except (DriverError, TimingFault) as exc:
-            final = State.FAILED
-            p.faults.append(f"{type(exc).__name__}: {exc}")
-            self.event("fault", p.faults[-1], "error")
-            self.publish("fault", {"kind": type(exc).__name__, "message": str(exc)})
-            self._stop_safely()
         finally:
             gen.close()
         self.freq_hz = 0.0

@@ -30,6 +30,8 @@ class WindowTiming:
 
 # Table 4: frequency stability < 5e-4. Counted periods and the grating must agree to that.
 FREQ_TOLERANCE_REL = 5e-4
+# Consecutive crossings one period apart: a missed one shows as 2 periods, a spurious one as a part of one.
+PERIOD_TOLERANCE = 0.1
 # A reference crossing and the grating's mid-stroke crossing: the waveform effects of
 # Table 5 (Zc1 up to ~0.02 mm of 30 mm) shift the zero crossing by < 1e-3 rad of phase;
 # 2e-3 rad of phase (32 us at 10 Hz) is the tolerance.
@@ -54,6 +56,14 @@ def capture_timing(open_s: float, close_s: float, crossings_s: np.ndarray, freq_
     t1 = float(after_open[0] - open_s)
     t2 = float(after_open[k] - close_s)
     period = 1.0 / freq_hz
+    gaps = np.diff(after_open[: k + 1]) / period
+    bad = np.flatnonzero(np.abs(gaps - 1.0) > PERIOD_TOLERANCE)
+    if bad.size:
+        i = int(bad[0])
+        raise TimingFault(
+            f"reference crossings {i} and {i + 1} after the opening are {gaps[i]:.3f} periods apart "
+            f"(allowed 1 ± {PERIOD_TOLERANCE:g}): missed or spurious reference crossings"
+        )
     np_ = k
     counted_hz = np_ / (after_open[k] - after_open[0]) if np_ else float("nan")
     if not abs(counted_hz / freq_hz - 1.0) <= FREQ_TOLERANCE_REL:
