@@ -51,6 +51,7 @@ from station.gap.noise import (
 )
 from station.gap.rawstreams import raw_evidence, raw_summary_text
 from station.gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide
+from station.jsonsafe import json_safe
 from station.session import Session
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
 
@@ -85,7 +86,7 @@ class GapReport:
         return list(self.verdict.effects)
 
     def to_json(self) -> dict:
-        return clean_json(
+        return json_safe(
             {
                 "format": FORMAT,
                 **self.verdict.to_json(),
@@ -102,21 +103,6 @@ class GapReport:
                 "elapsed_s": self.elapsed_s,
             }
         )
-
-
-def clean_json(o):
-    """Plain JSON values: numpy scalars and arrays converted, NaN and inf as null."""
-    if isinstance(o, dict):
-        return {str(k): clean_json(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [clean_json(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return clean_json(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
 
 
 # ----------------------------------------------------------------------------- the diagnosis
@@ -216,6 +202,7 @@ def _candidate_table(
                 "delta_chi2_timing": s.dchi2_tau,
                 "heldout_gap_with_it": G,
                 "rivals_within_delta_bic": s.rivals,
+                "fit_converged": s.fit.converged,
             }
         table.append(entry)
     return table
@@ -242,8 +229,8 @@ def _noise_json(
         "sigma0_final_fit_radps": final.sigma0_hat_radps,
         "pure_error": None if pe is None else {"sigma0_radps": pe.sigma0_radps, "dof": pe.dof, "groups": pe.groups},
         "twin_nominal_sigma0_radps": twin.noise.rate_noise_radps,
-        "excess_scatter_before": {"reference": checks[0].reference, "p_value": checks[0].p_value},
-        "excess_scatter_after": {"reference": checks[1].reference, "p_value": checks[1].p_value},
+        "excess_scatter_before": vars(checks[0]),
+        "excess_scatter_after": vars(checks[1]),
         "timing": {
             "sigma_tau_s": tn.sigma_tau_s,
             "dof": tn.dof,

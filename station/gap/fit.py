@@ -6,15 +6,12 @@ Model of every recorded rate (station.gap.forward):
 
 and of every period identity, tau_i = Np_i (T_true - T_cmd)(p). For given
 effect parameters p the static levels c and K follow by the weighted joint
-least squares of station.analysis.least_squares.fit_joint (weights Tm / T_ref,
-station.gap.noise), so the calibrated terms are refitted at every p
-(variable projection). p is fitted by Gauss-Newton on the projected residual
+least squares of station.analysis.least_squares.fit_joint (weights from
+station.gap.noise), so the calibrated terms are refitted at every p (variable
+projection). p is fitted by scipy.optimize.least_squares (Levenberg-Marquardt)
 with finite-difference columns of the exact forward model: the columns at the
-twin's own values are computed once per session (`Linearisation`) and reused
-by every candidate; after each step the exact model is evaluated again, and
-while the linear prediction of the residual misses the exact one the columns
-are recomputed at the new point; if that does not settle, the fit is handed
-to scipy.optimize.least_squares (method "lm").
+twin's own values are computed once per session (`Linearisation`) and serve
+as every candidate's first Jacobian.
 """
 
 from __future__ import annotations
@@ -32,12 +29,10 @@ from station.gap.design import PointDesign
 from station.gap.forward import CALIBRATED, Prediction, predict, predict_full
 from station.twin.config import TwinConfig
 
-# Gauss-Newton is accepted when the exact residual sum of squares (whitened) is within
-# this of the linear prediction: far below the 1-unit scale of one noise standard deviation.
-_LINEARITY_TOL = 0.05
-_CONVERGED_GAIN = 0.01  # a Gauss-Newton step that gains less (whitened RSS) has converged
-_MAX_RELINEARISE = 6
-_RCOND = 1e-3  # relative singular value below which a combination of parameters is not moved
+# Stop when the whitened sum of squares changes by less than 1e-4 of itself (a few 1e-3 of one
+# noise variance) or the parameters by less than 1e-4 of their size.
+_FTOL = 1e-4
+_XTOL = 1e-4
 
 
 @dataclass(frozen=True)
@@ -46,7 +41,7 @@ class Channels:
 
     design: PointDesign
     twin: TwinConfig
-    weights: np.ndarray  # Tm / T_ref
+    weights: np.ndarray  # sigma0^2 / var(wbar_i) (station.gap.noise.rate_weights)
     sigma0_radps: float  # rate noise at T_ref used for whitening
     sigma_tau_s: float
 
@@ -129,15 +124,14 @@ class Linearisation:
 
     def __init__(self, ch: Channels, cands: Sequence[cl.Candidate]) -> None:
         self.ch = ch
-        self.state = evaluate(ch, ch.twin)
         self.cands = {c.name: c for c in cands}
         self.fixed = {c.name: cl.fixed_params(c, ch.twin) for c in cands}
         self.params: list[cl.FreeParam] = [fp for c in cands for fp in c.free]
         self.p0 = {fp.key: v for fp, v in zip(self.params, cl.twin_values(ch.twin, self.params), strict=True)}
+        # The twin with the fixed parameters set (lateral L0: no change while kx is the twin's).
         base_cfg = cl.apply(ch.twin, [], [], self.fixed)
         self.base_cfg = base_cfg
-        if base_cfg != ch.twin:  # fixed parameters (lateral L0) change nothing at kx = 0, but be exact
-            self.state = evaluate(ch, base_cfg)
+        self.state = evaluate(ch, base_cfg)
         self.n_rows = self.state.r_white.size
 
         def cfg_of(j: int, h: float) -> TwinConfig:
@@ -169,14 +163,12 @@ class Linearisation:
 class ModelFit:
     """A fitted model: twin + effects, with the calibrated coefficients refitted."""
 
-    effects: tuple[str, ...]
     free: tuple[cl.FreeParam, ...]
     values: np.ndarray  # free parameters, parameter units
     sigmas: np.ndarray
     cfg: TwinConfig  # the twin with the fitted effects switched on
     K: np.ndarray
     K_sigmas: np.ndarray
-    levels_radps: np.ndarray
     rate_resid_radps: np.ndarray
     tau_resid_s: np.ndarray  # vibration points only
     rss_rate: float  # sum w e^2, (rad/s)^2
@@ -184,8 +176,7 @@ class ModelFit:
     chi2_tau: float  # sum (e / sigma_tau)^2
     J: np.ndarray  # whitened Jacobian (rate rows, then timing rows) x (levels, K, free)
     r_white: np.ndarray
-    converged: bool
-    corr: np.ndarray  # correlation matrix of the free parameters
+    converged: bool  # least_squares met its tolerances
     n_rate_params: int
 
     @property
@@ -205,54 +196,47 @@ def fit_model(
     drop: frozenset[str] = frozenset(),
     start: Mapping[str, float] | None = None,
 ) -> ModelFit:
-    """Fit the twin with candidates `names` switched on; parameters in `drop` stay at the twin's value."""
+    """Fit the twin with candidates `names` switched on; parameters in `drop` stay at the twin's value.
+
+    scipy.optimize.least_squares (Levenberg-Marquardt) on the residual with the static levels and K
+    refitted at every point (variable projection); its Jacobian is the model columns projected off
+    the levels and K (Kaufman's approximation), taken from `lin` at the twin's own values.
+    """
     ch = lin.ch
     cands = [lin.cands[n] for n in names]
     free = tuple(fp for c in cands for fp in c.free if fp.key not in drop)
     fixed = {c.name: lin.fixed[c.name] for c in cands}
     p0 = np.array([lin.p0[fp.key] for fp in free])
     scale = np.array([fp.scale for fp in free])
+    u0 = np.array([((start or {}).get(fp.key, p) - p) / s for fp, p, s in zip(free, p0, scale, strict=True)])
+    if not free:
+        return _finish(ch, free, p0, scale, u0, lin.state, np.zeros((lin.n_rows, 0)), True)
+    states: dict[bytes, State] = {}
+    columns: dict[bytes, np.ndarray] = {}
 
     def cfg_at(u: np.ndarray) -> TwinConfig:
         return cl.apply(lin.base_cfg, free, p0 + scale * u, fixed)
 
-    u = np.zeros(len(free))
-    for j, fp in enumerate(free):
-        if start and fp.key in start:
-            u[j] = (start[fp.key] - p0[j]) / scale[j]
-    state = lin.state if not np.any(u) else evaluate(ch, cfg_at(u))
-    J_u = np.column_stack([lin.columns[fp.key] for fp in free]) * scale if free else np.zeros((state.r_white.size, 0))
-    if np.any(u):
-        J_u = _columns_at(ch, state, cfg_at, u, free, scale)
-    converged = not free
-    for _ in range(_MAX_RELINEARISE + 1):
-        if not free:
-            break
-        P = _projector(state)
-        A = J_u - P @ (P.T @ J_u)
-        du = _solve(A, state.r_white)
-        predicted = float(np.sum((state.r_white - A @ du) ** 2))
-        new = evaluate(ch, cfg_at(u + du))
-        if new.rss_white > state.rss_white + _LINEARITY_TOL:
-            break  # the linear step overshoots: hand over to least_squares
-        gain = state.rss_white - new.rss_white
-        u, state = u + du, new
-        if abs(new.rss_white - predicted) <= _LINEARITY_TOL + 1e-6 * predicted or gain < _CONVERGED_GAIN:
-            converged = True
-            break
-        J_u = _columns_at(ch, state, cfg_at, u, free, scale)
-    if not converged:
-        u, state, converged = _least_squares(ch, cfg_at, u, free, scale)
-        J_u = _columns_at(ch, state, cfg_at, u, free, scale)
-    return _finish(ch, tuple(names), free, p0, scale, u, state, J_u, converged)
+    def state_at(u: np.ndarray) -> State:
+        if u.tobytes() not in states:
+            states[u.tobytes()] = lin.state if not np.any(u) else evaluate(ch, cfg_at(u))
+        return states[u.tobytes()]
 
+    def columns_at(u: np.ndarray) -> np.ndarray:
+        """Whitened model columns per unit of u (at the twin's own values: from the linearisation)."""
+        if u.tobytes() not in columns:
+            if np.any(u):
+                columns[u.tobytes()] = _columns_at(ch, state_at(u), cfg_at, u, free, scale)
+            else:
+                columns[u.tobytes()] = np.column_stack([lin.columns[fp.key] for fp in free]) * scale
+        return columns[u.tobytes()]
 
-def _solve(A: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Least-squares step, columns scaled to unit norm; directions the data cannot see are not moved."""
-    norms = np.linalg.norm(A, axis=0)
-    norms = np.where(norms > 0, norms, 1.0)
-    x, *_ = np.linalg.lstsq(A / norms, r, rcond=_RCOND)
-    return x / norms
+    def jac(u: np.ndarray) -> np.ndarray:
+        J, P = columns_at(u), _projector(state_at(u))
+        return -(J - P @ (P.T @ J))
+
+    res = least_squares(lambda u: state_at(u).r_white, u0, jac=jac, method="lm", ftol=_FTOL, xtol=_XTOL)
+    return _finish(ch, free, p0, scale, res.x, state_at(res.x), columns_at(res.x), bool(res.success))
 
 
 def _projector(state: State) -> np.ndarray:
@@ -274,30 +258,7 @@ def _columns_at(ch, state, cfg_at, u, free, scale) -> np.ndarray:
     return model_columns(ch, state.lin.values, cfg_of, steps) * scale
 
 
-def _least_squares(ch, cfg_at, u0, free, scale):
-    """Fallback for strongly nonlinear cases: scipy least_squares ("lm") on the projected residual.
-
-    Its Jacobian is the projected model columns (variable projection with
-    Kaufman's approximation), one twin evaluation per parameter.
-    """
-    cache: dict[str, State] = {}
-
-    def fun(u: np.ndarray) -> np.ndarray:
-        st = evaluate(ch, cfg_at(u))
-        cache["u"], cache["s"] = u.copy(), st
-        return st.r_white
-
-    def jac(u: np.ndarray) -> np.ndarray:
-        st = cache["s"] if "u" in cache and np.array_equal(cache["u"], u) else evaluate(ch, cfg_at(u))
-        J = _columns_at(ch, st, cfg_at, u, free, scale)
-        P = _projector(st)
-        return -(J - P @ (P.T @ J))
-
-    res = least_squares(fun, u0, jac=jac, method="lm", x_scale=1.0, max_nfev=30)
-    return res.x, evaluate(ch, cfg_at(res.x)), bool(res.success)
-
-
-def _finish(ch, names, free, p0, scale, u, state: State, J_u, converged) -> ModelFit:
+def _finish(ch, free, p0, scale, u, state: State, J_u, converged: bool) -> ModelFit:
     d = ch.design
     n_pos = d.positions_deg.size
     J = np.hstack([state.X_white, J_u])
@@ -313,20 +274,15 @@ def _finish(ch, names, free, p0, scale, u, state: State, J_u, converged) -> Mode
     cov = _covariance(Jc)
     k = slice(n_pos, n_pos + len(CALIBRATED))
     uu = slice(n_pos + len(CALIBRATED), J.shape[1])
-    cov_u = cov[uu, uu]
-    sd_u = np.sqrt(np.clip(np.diag(cov_u), 0, None))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_u / np.outer(sd_u, sd_u)
+    sd_u = np.sqrt(np.clip(np.diag(cov[uu, uu]), 0, None))
     tau_res = d.tau_s[d.vib] - state.pred.tau_s[d.vib]
     return ModelFit(
-        effects=names,
         free=free,
         values=p0 + scale * u,
         sigmas=sd_u * scale,
         cfg=state.cfg,
         K=lin.values,
         K_sigmas=np.sqrt(np.clip(np.diag(cov[k, k]), 0, None)),
-        levels_radps=lin.static_levels,
         rate_resid_radps=lin.residuals,
         tau_resid_s=tau_res,
         rss_rate=rss,
@@ -335,7 +291,6 @@ def _finish(ch, names, free, p0, scale, u, state: State, J_u, converged) -> Mode
         J=J,
         r_white=state.r_white,
         converged=converged,
-        corr=corr,
         n_rate_params=n_rate_params,
     )
 

@@ -66,7 +66,6 @@ class HeldOut:
     rate_excess_rms_radps: float
     timing_excess_rms_s: float
     n_rows: int
-    z2_rate: np.ndarray  # per point (NaN where never held out), mean over schemes
 
     def to_json(self) -> dict:
         return {
@@ -123,7 +122,6 @@ def heldout(
     Jw[:n] /= rate_sigma_ratio
     rw[:n] /= rate_sigma_ratio
     by_scheme: dict[str, float] = {}
-    z2_sum, z2_cnt = np.zeros(n), np.zeros(n)
     z2_rate, z2_tau, ex_rate, ex_tau = [], [], [], []
     for scheme, fold_list in folds.schemes.items():
         z2_scheme = []
@@ -133,16 +131,12 @@ def heldout(
             z2_scheme.append(z2)
             z2_rate.append(z2[:k])
             z2_tau.append(z2[k:])
-            z2_sum[held] += z2[:k]
-            z2_cnt[held] += 1
             # Back to physical units: rate rows referred to T_ref, timing rows in seconds.
             ex_rate.append((z2[:k] - 1.0) * (1.0 + h[:k]) * sigma0_radps**2)
             ex_tau.append((z2[k:] - 1.0) * (1.0 + h[k:]) * sigma_tau_s**2)
         by_scheme[scheme] = float(np.mean(np.concatenate(z2_scheme)) - 1.0)
     if not by_scheme:
-        return HeldOut(math.nan, {}, {}, math.nan, math.nan, math.nan, 0, np.full(n, np.nan))
-    with np.errstate(invalid="ignore"):
-        per_point = np.where(z2_cnt > 0, z2_sum / np.maximum(z2_cnt, 1), np.nan)
+        return HeldOut(math.nan, {}, {}, math.nan, math.nan, math.nan, 0)
     return HeldOut(
         G=float(np.mean(list(by_scheme.values()))),
         by_scheme=by_scheme,
@@ -154,7 +148,6 @@ def heldout(
         rate_excess_rms_radps=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_rate))))),
         timing_excess_rms_s=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_tau))))),
         n_rows=int(sum(z.size for z in z2_rate + z2_tau)),
-        z2_rate=per_point,
     )
 
 

@@ -53,12 +53,13 @@ import numpy as np
 import station.twin.measurement
 import station.twin.session_sim
 from station.gap import candidates as cl
-from station.gap.api import clean_json, diagnose
+from station.gap.api import diagnose
 from station.gap.design import PointDesign
 from station.gap.fit import Channels, Linearisation
 from station.gap.forward import CALIBRATED, predict, predict_full
 from station.gap.identifiability import COLLINEAR_COS, principal_cos, subspace
 from station.gap.noise import rate_weights
+from station.jsonsafe import json_safe
 from station.plan import equal_angle_positions_deg, preset_pulses, seed000_plan
 from station.twin.config import TwinConfig, default_twin
 from station.twin.inputs import instrument_inputs, instrument_rate_radps
@@ -284,7 +285,7 @@ def run_case(case: Case, twin: TwinConfig | None = None) -> dict:
     j = diagnose(session, twin, exclude=exclude, suggest=False).to_json()
     elapsed = time.perf_counter() - t0
     truth = next((c for c in j["candidates"] if c["name"] == case.effect), None)
-    return clean_json(
+    return json_safe(
         {
             "design": case.design,
             "kind": case.kind,
@@ -507,9 +508,9 @@ def main(argv: list[str] | None = None) -> int:
         None if args.quiet else progress,
     )
     if args.json:
-        Path(args.json).write_text(json.dumps(clean_json(out), indent=2, allow_nan=False))
+        Path(args.json).write_text(json.dumps(json_safe(out), indent=2, allow_nan=False))
     brief = {k: {kk: vv for kk, vv in v.items() if kk != "per_effect"} for k, v in out["summary"].items()}
-    print(json.dumps(clean_json(brief), indent=2))
+    print(json.dumps(json_safe(brief), indent=2))
     return 0
 
 

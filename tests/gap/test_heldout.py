@@ -83,7 +83,7 @@ def test_a_right_model_has_no_held_out_gap_and_structure_has_one(design):
 
 def test_shrink_is_the_fraction_of_the_held_out_gap_removed():
     def h(G: float) -> HeldOut:
-        return HeldOut(G, {}, {}, 0.1, 0.0, 0.0, 60, np.zeros(0))
+        return HeldOut(G, {}, {}, 0.1, 0.0, 0.0, 60)
 
     assert shrink(h(2.0), h(0.5)) == pytest.approx(0.75)
     assert shrink(h(2.0), h(-0.1)) == pytest.approx(1.05)
