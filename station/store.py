@@ -344,5 +344,5 @@ class SessionStore:
             notes=notes,
             raw=raws,
             meta={"store_uid": uid, "procedure": config.get("procedure"), "params": config.get("params", {})},
-            measurements=self.measurements(uid, with_arrays=with_raw),
+            measurements=self.measurements(uid),  # a measurement's arrays are its data, not raw streams
         )
