@@ -66,7 +66,7 @@ BAD = [
     ([(r"^node_id = 5\n", "")], "[servo] node_id", "None"),
     ([(r"^node_id = 5", 'node_id = "5"')], "[servo] node_id", "'5'"),
     ([(r"^A0_m = 0.03", 'A0_m = "0.03"')], "[station] A0_m", "'0.03'"),
-    ([(r"^baud = 115200", "baud = true")], "[grating] baud", "True"),
+    ([(r"^baud = 115200", "baud = true")], "[reference] baud", "True"),
     ([(r"^payload_size_mm = .*", "payload_size_mm = [200, 200]")], "payload_size_mm", "200"),
     ([(r"^node_id = 5", "node_id = 128")], "[servo] node_id", "128"),
     ([(r"^freq_max_hz = 10.0", "freq_max_hz = -1.0")], "[limits] freq_max_hz", "-1.0"),
