@@ -300,14 +300,12 @@ def diagnose(
     if selection.chosen:
         z_after, tau_z_after = standardised(final, ch, kappa), final.tau_resid_s / tn.sigma_tau_s
     raw = raw_evidence(session, design, _with_coefficients(twin, base), tn.sigma_tau_s / math.sqrt(2.0))
-    summary = where_text(maps(design, z_before, tau_z_before), dets_before, ALPHA)
-    if raw:
-        summary += " " + raw_summary_text(raw) + "."
+    maps_before = maps(design, z_before, tau_z_before)
     maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
     where = {
-        "summary": summary,
+        "summary": where_text(maps_before, dets_before, ALPHA) + (f" {raw_summary_text(raw)}." if raw else ""),
         "after_effects": where_text(maps_after, dets_after, ALPHA) if maps_after else None,
-        "maps": maps(design, z_before, tau_z_before),
+        "maps": maps_before,
         "maps_after_effects": maps_after,
         "structure_tests_before": [d.to_json() for d in dets_before],
         "structure_tests_after": [d.to_json() for d in dets_after],

@@ -10,8 +10,8 @@ timing capture, so the reduction needs no model):
   standard errors combine the fit's residual scatter with the phase error of
   the stamp t1 (sd_stamp): psi_a off by e turns (Zsj, Zcj) by j e, so
   se(Zcj) = j w sd_stamp |Zsj| and se(Zsj) = j w sd_stamp |Zcj|.
-- pulses: the precession angle at every pulse edge (cumulative up/down
-  count times the pulse angle) fitted by phi0 + c0 t + sum_j (A_j sin j psi_a +
+- pulses: the precession angle at every pulse edge (the level it crosses,
+  from the up/down count, times the pulse angle) fitted by phi0 + c0 t + sum_j (A_j sin j psi_a +
   B_j cos j psi_a) gives the rate's harmonics r_j = j w (A_j, B_j); the twin
   predicts them from periodic_rate (rotated by the latency phase).
 At most MAX_SAMPLES samples per stream are used (evenly strided).
@@ -135,7 +135,9 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
         if raw.pulse_t.size > 20 and raw.pulse_dir is None:
             entry["pulse_rate_harmonics"] = "no pulse directions (pulse_dir): the up/down count cannot be rebuilt"
         elif raw.pulse_t.size > 20:
-            entry["pulse_rate_harmonics"] = _pulse_harmonics(raw, w, t1, session.station.pulses_per_rev, i, design, cfg)
+            entry["pulse_rate_harmonics"] = _pulse_harmonics(
+                raw, w, t1, session.station.pulses_per_rev, i, design, cfg, sd_stamp_s
+            )
         points.append(entry)
     out: dict = {"points": points, "n_points": len(points)}
     if rows_d:
@@ -143,30 +145,33 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
     return out
 
 
-def _pulse_harmonics(raw, w: float, t1: float, pulses_per_rev: int, i: int, design: PointDesign, cfg: TwinConfig):
+def _pulse_harmonics(
+    raw, w: float, t1: float, pulses_per_rev: int, i: int, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float
+) -> list[dict]:
     """Rate harmonics from the precession angle at every pulse edge, against the twin's periodic_rate."""
-    phi = np.cumsum(raw.pulse_dir) * (2 * math.pi / pulses_per_rev)
+    # The level an edge crosses: the up/down count after it, plus one after a down edge (a
+    # down-crossing of level k leaves the count at k - 1); the count alone would add a
+    # half-pulse square wave in step with the rate's sign, i.e. spurious odd harmonics.
+    levels = np.cumsum(raw.pulse_dir) + (raw.pulse_dir < 0)
     s = _stride(raw.pulse_t.size)
     t = raw.pulse_t[s]
-    coef, se = _lsq(_design(w * (t - t1), with_line=t), phi[s])
+    coef, se = _lsq(_design(w * (t - t1), with_line=t), levels[s] * (2 * math.pi / pulses_per_rev))
+    # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
+    jw = np.repeat([j * w for j in HARMONICS], 2)
+    meas = jw * np.column_stack([-coef[3::2], coef[2::2]]).ravel()
+    se_rate = np.hypot(jw * np.column_stack([se[3::2], se[2::2]]).ravel(), _phase_se(meas, w, sd_stamp_s))
     f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
     pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, cfg.param("readhead_latency", "delta"), cfg)
-    out = []
-    for k, j in enumerate(HARMONICS):
-        a_s, a_c = coef[2 + 2 * k], coef[3 + 2 * k]
-        # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
-        meas = np.array([-j * w * a_c, j * w * a_s])
-        twin = pred[2 * k : 2 * k + 2]
-        out.append(
-            {
-                "harmonic": j,
-                "measured_radps": float(np.hypot(*meas)),
-                "twin_radps": float(np.hypot(*twin)),
-                "difference_radps": float(np.hypot(*(meas - twin))),
-                "se_radps": float(j * w * max(se[2 + 2 * k], se[3 + 2 * k])),
-            }
-        )
-    return out
+    return [
+        {
+            "harmonic": j,
+            "measured_radps": float(np.hypot(*meas[2 * k : 2 * k + 2])),
+            "twin_radps": float(np.hypot(*pred[2 * k : 2 * k + 2])),
+            "difference_radps": float(np.hypot(*(meas - pred)[2 * k : 2 * k + 2])),
+            "se_radps": float(np.hypot(*se_rate[2 * k : 2 * k + 2])),
+        }
+        for k, j in enumerate(HARMONICS)
+    ]
 
 
 def raw_summary_text(raw: dict, n_se: float = 3.0) -> str:

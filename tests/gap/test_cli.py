@@ -71,3 +71,10 @@ def test_a_session_of_our_own_store(seed000_session, outputs, tmp_path):
     from_dir = json.loads((outputs / "g.json").read_text())
     assert from_store["verdict"] == from_dir["verdict"]
     assert from_store["candidates"][0]["parameters"] == pytest.approx(from_dir["candidates"][0]["parameters"])
+
+
+def test_the_twin_out_used_as_twin_leaves_no_gap(outputs):
+    args = ["gap", str(outputs / "session"), "--twin", str(outputs / "twin.toml")]
+    args += ["--json", str(outputs / "again.json")]
+    assert main([*args, "--no-suggest"]) == 0
+    assert json.loads((outputs / "again.json").read_text())["verdict"] == "no_gap"

@@ -6,7 +6,8 @@ import pytest
 
 from station.gap.api import diagnose
 from station.gap.design import PointDesign
-from station.gap.validate import scaled_injection
+from station.gap.rawstreams import raw_evidence
+from station.gap.validate import scaled_injection, timing_stamp_sd_s
 from station.plan import multiposition_plan
 from station.twin.session_sim import simulate_session
 
@@ -58,3 +59,15 @@ def test_raw_streams_without_pulse_directions_are_said_so(harmonics, twin):
         session.raw[pid].pulse_dir = kept
     entry = next(p for p in rep.where["raw_streams"]["points"] if p["point_id"] == pid)
     assert "no pulse directions" in entry["pulse_rate_harmonics"]
+
+
+def test_the_pulse_rate_spectrum_of_a_null_session_is_the_twins(twin):
+    """Up/down edges give the precession angle at each level crossed; with the twin's own rate, every harmonic
+    agrees within 4 se (the fit's scatter and the t1 stamp's phase error)."""
+    plan = multiposition_plan([0.0, 45.0], (10.0,), window_s=30.0)
+    session = simulate_session(plan, twin, 3, raw=True)
+    evidence = raw_evidence(session, PointDesign.from_session(session), twin, timing_stamp_sd_s(twin))
+    for point in evidence["points"]:
+        for h in point["pulse_rate_harmonics"]:
+            assert h["difference_radps"] < 4 * h["se_radps"], (point["point_id"], h)
+        assert point["pulse_rate_harmonics"][0]["measured_radps"] > 4  # kz a cos(theta): a = 12.1 at 10 Hz
