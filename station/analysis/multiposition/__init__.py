@@ -1,0 +1,1 @@
+"""Static multiposition calibration on the indexing head in the gravity field (seed 003)."""
