@@ -420,10 +420,11 @@ class TickUnwrapper:
     epoch): the first stamp takes the wrap count that puts it nearest to
     `clock.now_s()`. Otherwise times count from wrap 0 of the device counter.
 
-    `sequential`: for a stream whose consecutive stamps are never a wrap apart
-    (a device that sends a heartbeat or a sample at least every few seconds
-    while it streams, and whose silence the driver detects), each stamp is the
-    next one forward of its predecessor and the host clock only anchors the
+    `sequential`: for a stream whose consecutive stamps are never half a wrap
+    apart (a device that sends a heartbeat or a sample at least every few
+    seconds while it streams, and whose silence the driver detects), each
+    stamp is taken nearest to its predecessor (frames of different kinds may
+    arrive a little out of time order) and the host clock only anchors the
     first. That stays right however late the host reads a backlog, which the
     host-elapsed rule does not once reading lags by half a wrap (a virtual
     clock running 1000x faster than the line).
@@ -464,8 +465,9 @@ class TickUnwrapper:
             full = k * mod + raw
         else:
             delta = (raw - self._last_ticks) % mod
-            k = 0 if self.sequential else round(((host_s - self._last_host_s) / self.tick_s - delta) / mod)
-            full = self._last_ticks + delta + k * mod
+            # sequential: nearest to the predecessor, since a heartbeat stream has no long silences
+            expected = 0.0 if self.sequential else (host_s - self._last_host_s) / self.tick_s
+            full = self._last_ticks + delta + round((expected - delta) / mod) * mod
         self._last_ticks = full
         self._last_host_s = host_s
         return full

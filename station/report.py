@@ -104,8 +104,9 @@ def render_report(
     truth: Mapping[str, float] | None = None,
 ) -> str:
     """The whole report as one HTML string."""
+    serial = session.meta.get("instrument_serial") or "not recorded"
     parts = [
-        f"<p>{len(session.points)} points; {esc(session.notes)}</p>",
+        f"<p>Instrument {esc(serial)}; {len(session.points)} points; {esc(session.notes)}</p>",
         "<h2>Coefficients (integral precession, seed 000 eqs. 19-22)</h2>",
         _coef_table(results, truth),
         "<h2>Residuals</h2>",

@@ -318,8 +318,8 @@ class SessionStore:
 
     def load_session(self, uid: str, *, with_raw: bool = True) -> Session:
         sid = self._session_row(uid)
-        ((station_json, notes, config_json),) = self._query(
-            "SELECT station_json, notes, config_json FROM sessions WHERE id = ?", (sid,)
+        ((station_json, notes, config_json, serial, procedure),) = self._query(
+            "SELECT station_json, notes, config_json, instrument_serial, procedure FROM sessions WHERE id = ?", (sid,)
         )
         config = json.loads(config_json)
         rows = self._query(
@@ -343,6 +343,11 @@ class SessionStore:
             points,
             notes=notes,
             raw=raws,
-            meta={"store_uid": uid, "procedure": config.get("procedure"), "params": config.get("params", {})},
+            meta={
+                "store_uid": uid,
+                "procedure": procedure,
+                "params": config.get("params", {}),
+                "instrument_serial": serial,
+            },
             measurements=self.measurements(uid),  # a measurement's arrays are its data, not raw streams
         )
