@@ -64,18 +64,15 @@ def test_the_out_of_library_signal_is_what_the_simulator_adds(twin, kind, value)
 
 def test_a_small_blind_run_scores_what_it_diagnosed(tmp_path, capsys):
     out = tmp_path / "v.json"
-    args = ["gap-validate", "--design", "seed000", "--snr", "10", "--reps", "1", "--nulls", "1"]
-    args += ["--effects", "cross_coupling", "--out-of-library", "quartic_term", "--workers", "1", "--quiet"]
+    args = ["gap-validate", "--design", "seed000", "--snr", "10", "--reps", "1", "--nulls", "0"]
+    args += ["--effects", "cross_coupling", "--out-of-library", "--workers", "1", "--quiet"]
     assert main([*args, "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
     cases = doc["cases"]
-    assert [c["kind"] for c in cases] == ["null", "effect", "out_of_library"]
+    assert [c["kind"] for c in cases] == ["effect"]
     s = doc["summary"]["seed000"]
     effect = next(c for c in cases if c["kind"] == "effect")
     assert s["top1_at_snr10_identifiable"] == float(effect["effects"][:1] == ["cross_coupling"])
-    null = next(c for c in cases if c["kind"] == "null")
-    assert s["null_false_attribution"] == float(null["verdict"] == "explained" or bool(null["ambiguous"]))
-    ool = next(c for c in cases if c["kind"] == "out_of_library")
-    assert s["out_of_library_explained_snr_ge10"] == float(ool["verdict"] == "explained")
-    assert s["out_of_library_by_effect"]["quartic_term"]["look_alike"]["cos"] < 0.9
+    assert s["null_false_attribution"] is None and s["n_null"] == 0
+    assert s["out_of_library_explained_snr_ge10"] is None and s["out_of_library_by_effect"] == {}
     assert '"top1_at_snr10_identifiable"' in capsys.readouterr().out
