@@ -146,6 +146,8 @@ class TemperatureChamber:
         setpoint_min_c: float = -40.0,
         setpoint_max_c: float = 80.0,
         ramp_max_c_per_min: float = 5.0,
+        stable_band_c: float = 0.1,
+        time_constant_s: float = 600.0,  # the product's lag, for soak estimates
         timeout_s: float = 0.5,
         retries: int = 2,
     ) -> None:
@@ -155,6 +157,8 @@ class TemperatureChamber:
         self.setpoint_min_c = setpoint_min_c
         self.setpoint_max_c = setpoint_max_c
         self.ramp_max_c_per_min = ramp_max_c_per_min
+        self.stable_band_c = stable_band_c
+        self.time_constant_s = time_constant_s
         self.timeout_s = timeout_s
         self.retries = retries
         self._link: SerialLink | None = None
@@ -249,24 +253,30 @@ class TemperatureChamber:
     def ramp_rate_c_per_min(self) -> float:
         return self._number("RR")
 
-    def status(self) -> ChamberStatus:
+    def _status_word(self) -> tuple[tuple[str, ...], bool]:
+        """(active alarms, set point ramping) from SW."""
         word = self.read("SW")
         try:
             bits = int(word.lstrip(">"), 16)
         except ValueError as exc:
             raise FrameError(DEVICE, f"status word {word!r} is not >XXXX hex") from exc
-        alarms = tuple(name for bit, name in ALARM_BITS.items() if bits >> bit & 1)
-        if "sensor break" in alarms:
-            return ChamberStatus(float("nan"), self.setpoint_c(), self.working_setpoint_c(), alarms, False)
-        return ChamberStatus(self.temperature_c(), self.setpoint_c(), self.working_setpoint_c(), alarms,
-                             bool(bits >> RAMPING_BIT & 1))  # fmt: skip
+        return tuple(name for bit, name in ALARM_BITS.items() if bits >> bit & 1), bool(bits >> RAMPING_BIT & 1)
 
-    def check(self) -> ChamberStatus:
-        """The status; DeviceFault naming the alarms if any is active."""
-        st = self.status()
-        if st.alarms:
-            raise DeviceFault(DEVICE, "alarm active", field="alarms", value=", ".join(st.alarms), allowed="none")
-        return st
+    def check_alarms(self) -> None:
+        """DeviceFault naming the active alarms, if any (one query)."""
+        alarms = self._status_word()[0]
+        if alarms:
+            raise DeviceFault(DEVICE, "alarm active", field="alarms", value=", ".join(alarms), allowed="none")
+
+    def status(self) -> ChamberStatus:
+        """Temperature, set points, alarms and ramping (a broken sensor reads NaN here, not an error)."""
+        alarms, ramping = self._status_word()
+        pv = float("nan") if "sensor break" in alarms else self.temperature_c()
+        return ChamberStatus(pv, self.setpoint_c(), self.working_setpoint_c(), alarms, ramping)
+
+    def settled(self, status: ChamberStatus) -> bool:
+        """At temperature: the set point has stopped ramping and the product is within the stable band of it."""
+        return not status.ramping and abs(status.temperature_c - status.setpoint_c) <= self.stable_band_c
 
     # ---- commands
 
@@ -290,7 +300,7 @@ def _open(section: TemperatureChamberSection, clock: Clock) -> TemperatureChambe
     return TemperatureChamber(
         section.port or "", baud=section.baud, address=section.address, setpoint_min_c=section.setpoint_min_c,
         setpoint_max_c=section.setpoint_max_c, ramp_max_c_per_min=section.ramp_max_c_per_min,
-        timeout_s=section.timeout_s,
+        stable_band_c=section.stable_band_c, time_constant_s=section.time_constant_s, timeout_s=section.timeout_s,
     ).open()  # fmt: skip
 
 

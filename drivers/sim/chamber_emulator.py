@@ -17,8 +17,10 @@ ChamberFault.OVER_TEMPERATURE (the over-temperature protection trips at the next
 
 from __future__ import annotations
 
+import bisect
 import enum
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,15 +39,32 @@ class ChamberFault(enum.Enum):
     OVER_TEMPERATURE = "over_temperature"
 
 
+@dataclass(frozen=True)
+class _Segment:
+    """The chamber from one command to the next: ramp from_c -> target_c at rate, product at start_c at t0_s."""
+
+    t0_s: float
+    start_c: float
+    from_c: float
+    target_c: float
+    rate_c_per_min: float
+
+
 class ChamberThermal:
-    """The chamber's product temperature over station time (thread-safe); starts at ambient."""
+    """The chamber's product temperature over station time, past ones included (thread-safe); starts at ambient."""
 
     def __init__(self, ambient_c: float = AMBIENT_C, time_constant_s: float = 600.0) -> None:
         self.time_constant_s = time_constant_s
         self._lock = threading.Lock()
-        self._t0_s = 0.0
-        self._start_c = self._from_c = self.target_c = ambient_c
-        self.rate_c_per_min = 0.0
+        self._segments = [_Segment(0.0, ambient_c, ambient_c, ambient_c, 0.0)]
+
+    @property
+    def target_c(self) -> float:
+        return self._segments[-1].target_c
+
+    @property
+    def rate_c_per_min(self) -> float:
+        return self._segments[-1].rate_c_per_min
 
     def temperature_c(self, t_s: float) -> float:
         return self.state(t_s)[0]
@@ -53,19 +72,19 @@ class ChamberThermal:
     def state(self, t_s: float) -> tuple[float, float]:
         """(product temperature, working set point) at station time t_s."""
         with self._lock:
-            product, sp = ramped_lag(t_s - self._t0_s, self._start_c, self._from_c, self.target_c,
-                                     self.rate_c_per_min / 60.0, self.time_constant_s)  # fmt: skip
+            seg = self._segments[max(bisect.bisect_right([g.t0_s for g in self._segments], t_s) - 1, 0)]
+        product, sp = ramped_lag(max(t_s - seg.t0_s, 0.0), seg.start_c, seg.from_c, seg.target_c,
+                                 seg.rate_c_per_min / 60.0, self.time_constant_s)  # fmt: skip
         return float(product), float(sp)
 
     def command(self, t_s: float, target_c: float | None = None, rate_c_per_min: float | None = None) -> None:
         """A new target and/or rate from t_s on; the ramp restarts from where the working set point is."""
         product, sp = self.state(t_s)
         with self._lock:
-            self._t0_s, self._start_c, self._from_c = t_s, product, sp
-            if target_c is not None:
-                self.target_c = target_c
-            if rate_c_per_min is not None:
-                self.rate_c_per_min = rate_c_per_min
+            last = self._segments[-1]
+            target = last.target_c if target_c is None else target_c
+            rate = last.rate_c_per_min if rate_c_per_min is None else rate_c_per_min
+            self._segments.append(_Segment(t_s, product, sp, target, rate))
 
 
 class ChamberEmulator(PtyEmulator):

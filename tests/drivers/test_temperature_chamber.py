@@ -90,17 +90,18 @@ def test_set_point_ramps_and_the_product_follows(rig) -> None:
     assert chamber.identity() == ">2408"
     assert chamber.temperature_c() == pytest.approx(20.0, abs=5 * PV_NOISE_C)
     chamber.set_ramp_rate(6.0)
+    cmd_from = world.clock.now_s()
     chamber.set_setpoint(30.0)
-    t_cmd = world.clock.now_s()
+    cmd_to = world.clock.now_s()
     assert chamber.setpoint_c() == 30.0 and chamber.ramp_rate_c_per_min() == 6.0
     st = chamber.status()
     assert st.ramping and not st.alarms and 20.0 <= st.working_setpoint_c < 30.0
     world.clock.sleep_s(60.0)
-    # PV is the model at the query's station time (bracketed by clock readings) plus sensor noise.
+    # PV is the model plus sensor noise, the command and the query each at a station time between two clock readings.
     before = world.clock.now_s()
     pv = chamber.temperature_c()
     after = world.clock.now_s()
-    lo, hi = sorted(float(ramped_lag(t - t_cmd, 20.0, 20.0, 30.0, 0.1, 60.0)[0]) for t in (before, after))
+    lo, hi = (float(ramped_lag(dt, 20.0, 20.0, 30.0, 0.1, 60.0)[0]) for dt in (before - cmd_to, after - cmd_from))
     assert lo - 5 * PV_NOISE_C <= pv <= hi + 5 * PV_NOISE_C
     assert "SL 30.00" in emu.commands and "RR 6.00" in emu.commands
 
@@ -161,11 +162,13 @@ def test_sensor_break_and_over_temperature_are_device_faults(rig) -> None:
     with pytest.raises(DeviceFault, match=r"PV = 'S\.br'"):
         chamber.temperature_c()
     with pytest.raises(DeviceFault, match="sensor break"):
-        chamber.check()
+        chamber.check_alarms()
+    assert np.isnan(chamber.status().temperature_c)
     emu.clear_fault(ChamberFault.SENSOR_BREAK)
     emu.inject(ChamberFault.OVER_TEMPERATURE)
     time.sleep(0.05)
     with pytest.raises(DeviceFault, match=r"alarms = 'over-temperature \(AL1\)'"):
-        chamber.check()
+        chamber.check_alarms()
     chamber.acknowledge_alarms()
-    assert chamber.check().alarms == ()
+    chamber.check_alarms()
+    assert chamber.status().alarms == ()
