@@ -143,19 +143,21 @@ class SelfAlignment(Step):
     def key(self) -> str:
         return self.name
 
-    def _measurement(self, station: StationInfo) -> Measurement:
+    def _measurement(self, station: StationInfo, nominal: bool = False) -> Measurement:
         a: Alignment = horizontal_axis_alignment(
             self.rate_90_radps, self.rate_270_radps, station, kz_radps_per_g=self.kz_radps_per_g,
             sigma_rate_radps=self.sigma_rate_radps, sigma_latitude_rad=math.radians(self.sigma_latitude_deg),
             sigma_kz=self.sigma_kz,
         )  # fmt: skip
-        values = {"setup": self.setup, "round": self.round, "misalignment_rad": a.dtheta_h_rad,
-                  "sigma_rad": a.sigma_rad, "k0+ky_radps": a.k0_radps, "zero_before_deg": self.zero_before_deg,
-                  "zero_deg": self.zero_before_deg + math.degrees(a.dtheta_h_rad)}  # fmt: skip
+        theta0 = 0.0 if nominal else a.dtheta_h_rad
+        values = {"setup": self.setup, "round": self.round, "misalignment_rad": theta0, "sigma_rad": a.sigma_rad,
+                  "k0+ky_radps": a.k0_radps, "zero_before_deg": self.zero_before_deg,
+                  "zero_deg": self.zero_before_deg + math.degrees(theta0)}  # fmt: skip
         return Measurement(self.key, gf.ALIGNMENT, values)
 
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
-        return 0.0, self._measurement(ctx.model.station)
+        # The nominal station is aligned (its nominal rates have no earth rate for eq. 55 to remove).
+        return 0.0, self._measurement(ctx.model.station, nominal=True)
 
     def run(self, ctx: RunContext) -> Measurement:
         m = self._measurement(ctx.hw.station)

@@ -1,9 +1,9 @@
 """Position sequences of a multiposition test on the indexing head (seed 003 5, Figs. 4-7).
 
 Equal angle: theta_i = 360 (i - 1) / n. Equal acceleration: adjacent positions
-differ by the same |delta aI| = 4 / n in the input acceleration aI = cos theta,
-going once round the circle (aI from +1 down to -1 and back up), so that a full
-turn visits every acceleration level twice except +-1. Positions are whole
+are 4 / n apart along the path of the input acceleration aI = cos theta once
+round the circle (from +1 down to -1 and back up): for even n every step is
+|delta aI| = 4 / n, for odd n the step that turns at -1 folds. Positions are whole
 counts of the head's encoder, so the angle the station records is the one it sets.
 """
 
