@@ -105,13 +105,12 @@ def _library() -> dict[str, Candidate]:
 LIBRARY: Mapping[str, Candidate] = _library()
 
 
-def library(names: Sequence[str] | None = None, exclude: Sequence[str] = ()) -> list[Candidate]:
-    """Candidates in table order, optionally a subset (for blind validation, an effect left out)."""
-    unknown = [n for n in [*(names or []), *exclude] if n not in LIBRARY]
+def library(exclude: Sequence[str] = ()) -> list[Candidate]:
+    """Candidates in table order, but those excluded (for blind validation: an effect left out)."""
+    unknown = [n for n in exclude if n not in LIBRARY]
     if unknown:
         raise ValueError(f"unknown candidate effect(s) {unknown}; known: {', '.join(LIBRARY)}")
-    chosen = list(names) if names else list(LIBRARY)
-    return [LIBRARY[n] for n in chosen if n not in exclude]
+    return [c for n, c in LIBRARY.items() if n not in exclude]
 
 
 def fixed_params(candidate: Candidate, twin: TwinConfig) -> dict[str, float]:

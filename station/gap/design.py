@@ -1,14 +1,15 @@
 """A recorded session as arrays, checked against the twin it is compared with.
 
-Bad input is refused here with a clear message (issue 3, point 8): a session
-from another station geometry, vibration points without timing capture,
-or too few points to fit the calibrated coefficients.
+Bad input is refused with a clear message (issue 3, point 8): here a session
+from another station geometry, an empty one, or vibration points without
+timing capture; too few points for the calibrated coefficients in
+station.gap.api.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -58,18 +59,6 @@ class PointDesign:
         tau[v] = self.t2_s[v] - self.t1_s[v] + self.Tm_s[v] - self.Np[v] / self.freq_hz[v]
         return tau
 
-    def subset(self, keep: np.ndarray) -> PointDesign:
-        keep = np.asarray(keep, dtype=bool)
-        uniq, index = np.unique(self.pos_index[keep], return_inverse=True)
-        arrays = {f: getattr(self, f)[keep] for f in _ARRAYS}
-        return replace(
-            self,
-            point_ids=tuple(p for p, k in zip(self.point_ids, keep, strict=True) if k),
-            **arrays,
-            pos_index=index,
-            positions_deg=self.positions_deg[uniq],
-        )
-
     @classmethod
     def from_session(cls, session: Session) -> PointDesign:
         pts = session.points
@@ -96,21 +85,6 @@ class PointDesign:
             pos_index=index,
             positions_deg=uniq,
         )
-
-
-_ARRAYS = (
-    "theta_rad",
-    "position_deg",
-    "freq_hz",
-    "vib",
-    "Tm_s",
-    "t1_s",
-    "t2_s",
-    "Np",
-    "start_s",
-    "sequence",
-    "rate_radps",
-)
 
 
 def check_geometry(session: Session, cfg: TwinConfig) -> None:
