@@ -34,6 +34,7 @@ import binascii
 import contextlib
 import errno
 import struct
+import termios
 import time
 from collections import deque
 from collections.abc import Callable
@@ -124,7 +125,7 @@ class SerialLink:
         """Drop whatever the device sent and nobody read yet."""
         try:
             self._ser.reset_input_buffer()
-        except (serial.SerialException, OSError, TypeError) as exc:
+        except (serial.SerialException, OSError, TypeError, termios.error) as exc:  # tcflush on a vanished pty
             raise self._gone(exc) from exc
 
     def close(self) -> None:
