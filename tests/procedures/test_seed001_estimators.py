@@ -10,15 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from station.analysis.seed001 import EQ6, READING, analyse_tumble, position_deg, stroke_sequence
-from station.session import Measurement, Session, StationInfo
-from station.twin.pendulous_accelerometer import (
-    CF_NAMES,
-    AccelerometerModel,
-    branch_after_move,
-    cf_coefficients,
-    output_v,
-)
+from station.analysis.seed001 import EQ6, analyse_tumble, position_deg
+from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel, cf_coefficients, output_v
+from station.twin.tumble_session import tumble_session
 
 THETA = np.radians([position_deg(J) for J in range(1, 10)])
 
@@ -46,49 +40,16 @@ def test_eq6_behaves_as_the_seed_says_under_a_setting_angle() -> None:
     assert est["Mo"] == pytest.approx(-k["K1"] * d0, abs=10 * third_order + k["K3"] * d0)
 
 
-def synthetic_session(m: AccelerometerModel, temperatures_c: list[float], cycles: int, sigma_g: float,
-                      rng: np.random.Generator) -> tuple[Session, list[dict[str, float]]]:  # fmt: skip
-    """The procedure's readings straight from the model (20 s apart, an hour between temperatures), with white
-    noise and 0.01 C of chamber sensor noise; and the true eq. 1 coefficients of each temperature block."""
-    t_s, from_deg, branch = 0.0, -45.0, 0.0
-    launch_g = rng.normal(0.0, m.launch_sigma_g)
-    measurements, truths = [], []
-    for i, T in enumerate(temperatures_c):
-        t_s += 3600.0
-        block_t = []
-        for _, stroke, J in stroke_sequence(cycles):
-            t_s += 20.0
-            to_deg = position_deg(J)
-            branch = branch_after_move(math.radians(from_deg), math.radians(to_deg), branch)
-            volts = output_v(m, math.radians(to_deg), T, branch, launch_g + m.drift_g_per_s * t_s)
-            volts += m.scale_v_per_g * rng.normal(0.0, sigma_g)
-            values = {
-                "block": i,
-                "setpoint_c": T,
-                "temperature_c": T + rng.normal(0.0, 0.01),
-                "J": J,
-                "position_deg": to_deg,
-                "from_deg": from_deg,
-                "stroke": stroke,
-                "t_s": t_s,
-                "volts": volts,
-            }
-            measurements.append(Measurement(f"T{i}-k{stroke}-J{J}", READING, values))
-            block_t.append(t_s)
-            from_deg = to_deg
-        truths.append(cf_coefficients(m, T, launch_g + m.drift_g_per_s * float(np.mean(block_t))))
-    return Session(StationInfo(), [], measurements=measurements), truths
-
-
 def test_stated_uncertainties_match_the_scatter_of_simulated_sessions() -> None:
-    """Normalised errors (estimate - truth) / sigma of N sessions are N(0, 1) if the sigmas are honest: their mean
-    within 4 / sqrt(N) of 0 and their standard deviation within 4 / sqrt(2 N) of 1 (4 standard errors)."""
+    """Normalised errors (estimate - truth) / sigma of N sessions (station.twin.tumble_session: the procedure's
+    readings from the model, returning to T0) are N(0, 1) if the sigmas are honest: their mean within 4 / sqrt(N)
+    of 0 and their standard deviation within 4 / sqrt(2 N) of 1 (4 standard errors)."""
     m = AccelerometerModel()
     rng = np.random.default_rng(1)
     n = 200
     z: dict[str, list[float]] = {}
     for _ in range(n):
-        session, truths = synthetic_session(m, [20.0, 80.0, -40.0, 20.0], 3, sigma_g=8e-6, rng=rng)
+        session, truths = tumble_session(m, [20.0, 80.0, -40.0, 20.0], 3, sigma_g=8e-6, rng=rng)
         _, points, model = analyse_tumble(session, m.reference_c)
         for p, truth in zip(points, truths, strict=True):
             for name in CF_NAMES:
