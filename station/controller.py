@@ -10,6 +10,9 @@ alike.
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,6 +26,9 @@ from station.engine.runner import Engine, State
 from station.store import SessionStore
 
 Publisher = Callable[[str, dict], None]
+
+
+ANALYSIS_TIMEOUT_S = 600.0
 
 
 class ControlError(RuntimeError):
@@ -159,19 +165,25 @@ class StationController:
         if state == State.FINISHED and spec.analyse is not None:
             try:
                 analysis, report = self._analyse(spec, uid)
-            except ValueError as exc:  # FitError and kin: the data cannot give what the analysis asks
+            except (ValueError, subprocess.TimeoutExpired) as exc:  # the data cannot give what the analysis asks
                 faults.append(f"analysis: {exc}")
                 self.store.add_event(uid, "analysis", f"analysis failed: {exc}", "error")
                 self.publish("fault", {"kind": "analysis", "message": str(exc)})
         self._outcome = RunOutcome(uid, state, analysis, report, faults)
 
     def _analyse(self, spec: ProcedureSpec, uid: str) -> tuple[Analysis, Path]:
-        assert spec.analyse is not None
-        analysis = spec.analyse(self.store.load_session(uid, with_raw=False))
-        for method, result in analysis.results.items():
-            self.store.add_result(uid, method, result)
+        """The procedure's analysis in a child process (station.analysis_job), results into the store."""
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         report = self.reports_dir / f"report-{uid}.html"
-        report.write_text(analysis.report_html)
+        job = subprocess.run(
+            [sys.executable, "-m", "station.analysis_job", spec.name, str(self.store.path), uid, str(report)],
+            capture_output=True, text=True, timeout=ANALYSIS_TIMEOUT_S,
+        )  # fmt: skip
+        if job.returncode != 0:
+            raise ValueError(job.stderr.strip().splitlines()[-1] if job.stderr.strip() else f"exit {job.returncode}")
+        doc = json.loads(job.stdout)
+        analysis = Analysis(doc["results"], report.read_text(), doc["summary"])
+        for method, result in analysis.results.items():
+            self.store.add_result(uid, method, result)
         self.publish("analysis", {"session_uid": uid, "summary": analysis.summary, "results": analysis.results})
         return analysis, report

@@ -23,7 +23,8 @@ PROCEDURES = CONFIG_DIR / "procedures"
 
 def _spec(*steps) -> ProcedureSpec:
     def proc(p):
-        yield from steps
+        for s in steps:  # noqa: UP028 - the engine sends results back, which a tuple iterator cannot take
+            yield s
 
     return ProcedureSpec("test.steps", "steps", (), proc)
 
