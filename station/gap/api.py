@@ -157,11 +157,17 @@ def _candidate_table(
     shrinks: dict[str, tuple[float, float | None]],
     twin: TwinConfig,
 ) -> list[dict]:
-    """Every candidate: the chosen effects first, then the identifiable ones by BIC, then the rest."""
+    """Every candidate: the chosen effects first, then the identifiable ones by BIC, then the rest.
+
+    Only identifiable candidates are ranked ("rank", by BIC; "heldout_rank", by the held-out gap
+    with the candidate alone): the others are reported with their fits but not ranked.
+    """
     first = {s.name: s for s in selection.steps[0]} if selection.steps else {}
     chosen = {s.name: s for s in selection.chosen}
     order = list(chosen) + [n for n in first if n not in chosen and ident.candidates[n].identifiable]
     order += [n for n in first if n not in order] + [n for n in ident.candidates if n not in order and n not in first]
+    ranked = [n for n in shrinks if ident.candidates[n].identifiable]
+    by_heldout = sorted(ranked, key=lambda n: np.nan_to_num(shrinks[n][0], nan=np.inf))
     rank = 0
     table = []
     for name in order:
@@ -201,6 +207,7 @@ def _candidate_table(
                 "delta_rss_in_sigma2": s.drss_sigma2,
                 "delta_chi2_timing": s.dchi2_tau,
                 "heldout_gap_with_it": G,
+                "heldout_rank": by_heldout.index(name) + 1 if name in by_heldout else None,
                 "rivals_within_delta_bic": s.rivals,
                 "fit_converged": s.fit.converged,
             }
@@ -265,8 +272,7 @@ def diagnose(
     dof0 = base.dof_rate
     ident = assess(lin, suggest=suggest and dof0 >= MIN_DOF, has_raw=bool(session.raw))
     if dof0 >= MIN_DOF:
-        start = {"frequency_error.eps_f": tn.eps_f_hat}
-        selection = forward_select(lin, base, ident.fittable(), ident.dropped, start, max_effects)
+        selection = forward_select(lin, base, ident.fittable(), ident.dropped, max_effects)
     else:
         selection = Selection([], [], base)
     final = selection.final

@@ -20,7 +20,7 @@ step then says whether a further effect would still have been accepted.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from scipy import stats
@@ -94,14 +94,13 @@ def _step(
     chosen: Sequence[str],
     names: Sequence[str],
     drop: frozenset[str],
-    start: Mapping[str, float],
 ) -> tuple[list[Scored], Scored | None]:
     """Score every candidate of `names` on top of `current`; the accepted one, if any."""
     d = lin.ch.design
     n_rate, n_tau = d.n_points, int(d.vib.sum())
     scored = []
     for name in names:
-        fit = fit_model(lin, [*chosen, name], drop=drop, start=start)
+        fit = fit_model(lin, [*chosen, name], drop=drop)
         if fit.dof_rate > 0:
             scored.append(score(current, fit, name, n_rate, n_tau))
     scored.sort(key=lambda s: s.bic)
@@ -119,14 +118,13 @@ def forward_select(
     base: ModelFit,
     names: Sequence[str],
     drop: frozenset[str],
-    start: Mapping[str, float],
     max_effects: int = MAX_EFFECTS,
 ) -> Selection:
     """Greedy forward selection of effects over candidates `names`."""
     current, chosen, steps = base, [], []
     remaining = list(names)
     while remaining:
-        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop, start)
+        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop)
         if len(chosen) == max_effects:
             return Selection(chosen, steps, current, capped=best is not None)
         steps.append(scored)

@@ -8,16 +8,17 @@ and of every period identity, tau_i = Np_i (T_true - T_cmd)(p). For given
 effect parameters p the static levels c and K follow by the weighted joint
 least squares of station.analysis.least_squares.fit_joint (weights from
 station.gap.noise), so the calibrated terms are refitted at every p (variable
-projection). p is fitted by scipy.optimize.least_squares (Levenberg-Marquardt)
-with finite-difference columns of the exact forward model: the columns at the
-twin's own values are computed once per session (`Linearisation`) and serve
-as every candidate's first Jacobian.
+projection). p is fitted with finite-difference columns of the exact forward
+model: the columns at the twin's own values are computed once per session
+(`Linearisation`) and give every candidate a first linear step, which is the
+solution when the model is linear over it; otherwise
+scipy.optimize.least_squares (Levenberg-Marquardt) takes over.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,9 @@ from station.twin.config import TwinConfig
 # noise variance) or the parameters by less than 1e-4 of their size.
 _FTOL = 1e-4
 _XTOL = 1e-4
+# A linear step is the solution when the exact sum of squares is its prediction to 1 % of one
+# residual variance: the objective is then quadratic over the step.
+_LINEAR_RTOL = 0.01
 
 
 @dataclass(frozen=True)
@@ -194,13 +198,15 @@ def fit_model(
     lin: Linearisation,
     names: Sequence[str],
     drop: frozenset[str] = frozenset(),
-    start: Mapping[str, float] | None = None,
 ) -> ModelFit:
     """Fit the twin with candidates `names` switched on; parameters in `drop` stay at the twin's value.
 
+    From the twin's own values, one linear least-squares step on the linearisation's columns; if
+    the exact model then meets its linear prediction (within _LINEAR_RTOL of one residual
+    variance), the model is linear there and that step is the solution. Otherwise
     scipy.optimize.least_squares (Levenberg-Marquardt) on the residual with the static levels and K
     refitted at every point (variable projection); its Jacobian is the model columns projected off
-    the levels and K (Kaufman's approximation), taken from `lin` at the twin's own values.
+    the levels and K (Kaufman's approximation).
     """
     ch = lin.ch
     cands = [lin.cands[n] for n in names]
@@ -208,7 +214,7 @@ def fit_model(
     fixed = {c.name: lin.fixed[c.name] for c in cands}
     p0 = np.array([lin.p0[fp.key] for fp in free])
     scale = np.array([fp.scale for fp in free])
-    u0 = np.array([((start or {}).get(fp.key, p) - p) / s for fp, p, s in zip(free, p0, scale, strict=True)])
+    u0 = np.zeros(len(free))
     if not free:
         return _finish(ch, free, p0, scale, u0, lin.state, np.zeros((lin.n_rows, 0)), True)
     states: dict[bytes, State] = {}
@@ -235,7 +241,13 @@ def fit_model(
         J, P = columns_at(u), _projector(state_at(u))
         return -(J - P @ (P.T @ J))
 
-    res = least_squares(lambda u: state_at(u).r_white, u0, jac=jac, method="lm", ftol=_FTOL, xtol=_XTOL)
+    A, r0 = jac(u0), lin.state.r_white
+    u1 = np.linalg.lstsq(A, -r0, rcond=None)[0]
+    predicted = float(np.sum((r0 + A @ u1) ** 2))
+    dof = max(r0.size - lin.state.X_white.shape[1] - u1.size, 1)
+    if abs(state_at(u1).rss_white - predicted) <= _LINEAR_RTOL * predicted / dof:
+        return _finish(ch, free, p0, scale, u1, state_at(u1), columns_at(u0), True)
+    res = least_squares(lambda u: state_at(u).r_white, u1, jac=jac, method="lm", ftol=_FTOL, xtol=_XTOL)
     return _finish(ch, free, p0, scale, res.x, state_at(res.x), columns_at(res.x), bool(res.success))
 
 

@@ -70,6 +70,10 @@ def test_only_identifiable_candidates_are_ranked(seed000_report):
     assert [c["rank"] for c in ranked] == list(range(1, len(ranked) + 1))
     assert all(c["identifiable"] for c in ranked)
     assert all(c["rank"] is None for c in rep.candidates if not c["identifiable"])
+    # the second ranking, by the held-out gap with each candidate alone, covers the same candidates
+    assert sorted(c["evidence"]["heldout_rank"] for c in ranked) == [c["rank"] for c in ranked]
+    best = min(ranked, key=lambda c: c["evidence"]["heldout_gap_with_it"])
+    assert best["evidence"]["heldout_rank"] == 1 and best["name"] == "cross_coupling"
     json_ident = rep.to_json()["identifiability"]["candidates"]
     assert {c["name"] for c in json_ident} == {c["name"] for c in rep.candidates}
 
