@@ -52,6 +52,15 @@ def gamma_blocks(omega_b: np.ndarray, f_b: np.ndarray) -> np.ndarray:
     )
 
 
+def gamma_matrix(omega_b: np.ndarray, f_b: np.ndarray) -> np.ndarray:
+    """Gamma(t) of seed 002 eq. 14, (..., 3, 12): block diagonal of `gamma_blocks`."""
+    blocks = gamma_blocks(omega_b, f_b)
+    out = np.zeros((*blocks.shape[:-2], 3, 12))
+    for i in range(3):
+        out[..., i, 4 * i : 4 * i + 4] = blocks[..., i, :]
+    return out
+
+
 def equivalent_drift(omega_b: np.ndarray, f_b: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """delta omega = M omega = Gamma tau (seed 002 eqs. 11, 13), rad/s, shape (..., 3)."""
     return np.einsum("...ij,ij->...i", gamma_blocks(omega_b, f_b), np.asarray(tau, dtype=float).reshape(3, 4))

@@ -1,0 +1,189 @@
+"""Seed 002: g-sensitive misalignments of an RLG triad from vibration runs, and their compensation.
+
+A run is one IMU recording: static (Step 1 alignment), vibration from t0 to tk in inertial
+navigation, static again (Step 3 realignment). `observe_run` reduces it to the attitude-error
+observation of eqs. 17-22, resolved in the level frame at t0 (whose horizontal components D
+keeps); `estimate_flexure` is the least squares of eq. 21 with uncertainties;
+`navigate` is the pure-inertial velocity error of a run with and without compensation of
+Gamma tau_hat (seed 002 §4, Figs. 6-7, Table 2).
+
+One refinement of eq. 17: at rest the IMU also has a g-sensitive drift, gravity times the
+Earth's rate. Its east component is indistinguishable from a heading error in static
+self-alignment, so both alignments take it up and it never shows in phi_O; it is left out of
+A's east row (as navigation leaves it out of the velocity error). The seed keeps it, a
+1e-3 part of the observation at 1.5 g and 20 Hz, 1e-2 at 0.5 g.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from station.analysis.least_squares import FitError
+from station.analysis.strapdown import (
+    attitude_error,
+    attitude_history,
+    coarse_alignment,
+    earth_rotation,
+    rates_at_stamps,
+    rotated_gamma_sums,
+)
+from station.twin.strapdown_imu import Site, equivalent_drift, gamma_matrix
+
+HORIZONTAL = slice(0, 2)  # D of eq. 22: east and north
+
+
+@dataclass(frozen=True)
+class RunWindow:
+    """Edge indices of a run: increments [0, i0) static, [i0, ik) vibration, [ik, N) static again."""
+
+    i0: int
+    ik: int
+
+    @classmethod
+    def from_times(cls, t_first_edge_s: float, dt_s: float, t0_s: float, tk_s: float) -> RunWindow:
+        """The edge at or before t0 (vibration commanded) and at or after tk (table quiet again)."""
+        return cls(int(np.floor((t0_s - t_first_edge_s) / dt_s + 1e-9)), int(np.ceil((tk_s - t_first_edge_s) / dt_s)))
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What one run tells about tau: A tau = B in the level frame's horizontal components."""
+
+    A: np.ndarray  # (2, 12) rad per rad/(m/s^2): D C_b^n(t0) [-int C_b^i Gamma dt]
+    B: np.ndarray  # (2,) rad: D C_b^n(t0) phi_O^i
+    c_bn_t0: np.ndarray  # Step 1 alignment
+    c_bn_tk: np.ndarray  # Step 3 realignment
+    mean_products: np.ndarray  # (3, 3) <omega_j f_k> over the vibration, (rad/s)(m/s^2) (eqs. 25-26)
+    duration_s: float
+
+
+def static_means(dtheta: np.ndarray, dv: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean rate and specific force of a static stretch of increments."""
+    span = dtheta.shape[0] * dt_s
+    return dtheta.sum(axis=0) / span, dv.sum(axis=0) / span
+
+
+def absorbed_east(c_bn_t0: np.ndarray, rate_b: np.ndarray, force_b: np.ndarray) -> np.ndarray:
+    """d(east drift at rest)/d tau in the level frame (12,): what the alignments' heading takes up."""
+    return (c_bn_t0 @ gamma_matrix(rate_b, force_b))[0]
+
+
+def observe_run(dtheta: np.ndarray, dv: np.ndarray, dt_s: float, window: RunWindow, site: Site) -> Observation:
+    """The attitude-error observation of one run (seed 002 eqs. 15-22)."""
+    i0, ik = window.i0, window.ik
+    if i0 < 1 or ik >= dtheta.shape[0] or ik <= i0:
+        raise FitError(f"run window [{i0}, {ik}) of {dtheta.shape[0]} increments leaves no static stretch")
+    rest = static_means(dtheta[:i0], dv[:i0], dt_s)
+    c_bn_t0 = coarse_alignment(*rest)
+    c_bn_tk = coarse_alignment(*static_means(dtheta[ik:], dv[ik:], dt_s))
+    omega, force = rates_at_stamps(dtheta, dt_s)[i0:ik], rates_at_stamps(dv, dt_s)[i0:ik]
+    c_bi = attitude_history(dtheta[i0:ik])
+    duration = (ik - i0) * dt_s
+    phi_i = attitude_error(c_bi[-1], c_bn_t0, c_bn_tk, duration, site)
+    a_n = c_bn_t0 @ -rotated_gamma_sums(c_bi[1:], omega, force, dt_s, ik - i0)[0]
+    a_n[0] += duration * absorbed_east(c_bn_t0, *rest)
+    vib = force - force.mean(axis=0)
+    products = omega.T @ vib / (ik - i0)
+    return Observation(a_n[HORIZONTAL], (c_bn_t0 @ phi_i)[HORIZONTAL], c_bn_t0, c_bn_tk, products, duration)
+
+
+@dataclass(frozen=True)
+class FlexureFit:
+    """tau_hat = (A^T A)^-1 A^T B (eq. 21) with sigma^2 (A^T A)^-1 as its covariance."""
+
+    values: np.ndarray  # rad/(m/s^2), in the order of TAU_NAMES
+    cov: np.ndarray
+    residuals: np.ndarray  # rad
+    sigma_residual: float  # rad
+    dof: int
+    condition: float  # of A
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.cov))
+
+
+def estimate_flexure(A: np.ndarray, B: np.ndarray) -> FlexureFit:
+    """Least squares of the stacked observations (seed 002 eqs. 21-22)."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    n, p = A.shape
+    if n <= p:
+        raise FitError(f"{n} attitude-error components cannot fit {p} flexure coefficients: add vibration runs")
+    tau, _, rank, sv = scipy.linalg.lstsq(A, B)
+    if rank < p:
+        raise FitError(f"the runs' design has rank {rank} < {p}: the poses do not observe every coefficient")
+    e = B - A @ tau
+    sigma = float(np.sqrt(e @ e / (n - p)))
+    cov = sigma**2 * scipy.linalg.inv(A.T @ A)
+    return FlexureFit(tau, cov, e, sigma, n - p, float(sv[0] / sv[-1]))
+
+
+def least_squares_tau(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """tau_hat alone (zeros where the design is empty, as in a dry run): what compensation uses."""
+    return scipy.linalg.lstsq(np.asarray(A, dtype=float), np.asarray(B, dtype=float))[0]
+
+
+@dataclass(frozen=True)
+class Navigation:
+    """Horizontal velocity error of a run in pure inertial mode, one value per block (seed 002 Figs. 6-7)."""
+
+    t_s: np.ndarray  # block mid-times from t0
+    v_uncompensated_mps: np.ndarray  # (n_blocks, 2) east, north
+    v_compensated_mps: np.ndarray  # (n_blocks, 2), gyros compensated by Gamma tau_hat
+    sensitivity: np.ndarray  # (n_blocks, 2, 12): d v / d tau, m/s per rad/(m/s^2)
+
+    @property
+    def decrease(self) -> float:
+        """Percentage of velocity error decrease at the end of the run (seed 002 Table 2), 0..100."""
+        u, c = np.linalg.norm(self.v_uncompensated_mps[-1]), np.linalg.norm(self.v_compensated_mps[-1])
+        return float(100.0 * (1.0 - c / u)) if u > 0 else 0.0
+
+
+def navigate(
+    dtheta: np.ndarray, dv: np.ndarray, dt_s: float, window: RunWindow, site: Site, tau_hat: np.ndarray, block: int
+) -> Navigation:
+    """Pure inertial navigation over the vibration from the Step 1 alignment, with and without compensation.
+
+    The velocity is referred to the fixture's mean velocity, zero on the shaker: block means over
+    `block` samples (whole vibration periods) leave the error.
+    """
+    i0, ik = window.i0, window.ik
+    omega_all, force_all = rates_at_stamps(dtheta, dt_s), rates_at_stamps(dv, dt_s)
+    omega, force = omega_all[i0:ik], force_all[i0:ik]
+    t = (np.arange(ik - i0) + 1) * dt_s
+    g_n = np.array([0.0, 0.0, -site.g_mps2])
+    w_ie = site.earth_rate_n
+
+    def velocity(gyro: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        rest = static_means(gyro[:i0], dv[:i0], dt_s)
+        c_bn = earth_rotation(t, site) @ coarse_alignment(*rest) @ attitude_history(gyro[i0:ik])[1:]
+        f_n = np.einsum("kij,kj->ki", c_bn, force)
+        v = np.cumsum(f_n + g_n, axis=0) * dt_s
+        v -= np.cumsum(2.0 * np.cross(w_ie, v), axis=0) * dt_s  # Coriolis, from the first pass
+        nb = v.shape[0] // block
+        return v[: nb * block, HORIZONTAL].reshape(nb, block, 2).mean(axis=1), c_bn, rest
+
+    v_u, c_bn, rest = velocity(dtheta)
+    # The navigation software compensates every sample, the alignment's too.
+    v_c, _, _ = velocity(dtheta - equivalent_drift(omega_all, force_all, np.asarray(tau_hat, dtype=float)) * dt_s)
+    sensitivity = _sensitivity(c_bn, omega, force, dt_s, block, absorbed_east(c_bn[0], *rest))
+    return Navigation((np.arange(v_u.shape[0]) + 0.5) * block * dt_s, v_u, v_c, sensitivity)
+
+
+def _sensitivity(
+    c_bn: np.ndarray, omega: np.ndarray, force: np.ndarray, dt_s: float, block: int, absorbed: np.ndarray
+) -> np.ndarray:
+    """d v^n / d tau at block mid-times: v' = f^n x phi^n, phi^n = -int C_b^n Gamma dt tau (eqs. 16-17),
+    less the east drift at rest that the alignment takes up."""
+    step = rotated_gamma_sums(c_bn, omega, force, dt_s, block)  # (nb, 3, 12)
+    step[:, 0] -= absorbed * block * dt_s
+    nb = step.shape[0]
+    phi_end = -np.cumsum(step, axis=0)
+    phi_mid = phi_end + 0.5 * step
+    f_n = np.einsum("kij,kj->ki", c_bn[: nb * block], force[: nb * block]).reshape(nb, block, 3).sum(axis=1) * dt_s
+    dv = np.cross(f_n[:, :, None], phi_mid, axis=1)
+    s_end = np.cumsum(dv, axis=0)
+    return (s_end - 0.5 * dv)[:, HORIZONTAL]
