@@ -16,7 +16,6 @@ from drivers.sim.chamber_emulator import ChamberFault
 from drivers.sim.voltmeter_emulator import accelerometer
 from drivers.station import simulated_station
 from drivers.station_config import load_station_config
-from procedures.seed001 import SOAK_POLL_S
 from station.analysis.seed001 import READING, SOAK
 from station.controller import StationController
 from station.engine.planning import StationModel, ValidationError, plan_procedure
@@ -35,11 +34,11 @@ CONFIG = dataclasses.replace(
     TUMBLE, extras=TUMBLE.extras | {"temperature_chamber": dataclasses.replace(
         TUMBLE.extras["temperature_chamber"], time_constant_s=60.0)})  # fmt: skip
 PROCEDURE = "seed001.tumble"
-# Three temperatures and the return to T0, two cycles: every coefficient of eqs. 4 and 6 (and the drift between
-# temperatures) identifiable; about 1.5 h of station time.
-QUICK = {"temperatures_c": [20, 45, -5, 20], "cycles": 2, "ramp_c_per_min": 5, "soak_s": 300, "dwell_s": 2,
+# Three temperatures and the return to T0, one forward and one back stroke: every coefficient of eqs. 4 and 6 (and
+# the drift between temperatures) identifiable; about 1 h of station time.
+QUICK = {"temperatures_c": [20, 45, -5, 20], "cycles": 1, "ramp_c_per_min": 5, "soak_s": 300, "dwell_s": 2,
          "nplc": 10, "samples": 4}  # fmt: skip
-SPEED = 3000.0
+SPEED = 500.0  # the indexing head settles within 120 s of station time: 240 ms of wall time, loaded machine or not
 # A 4-sigma miss has probability 6e-5 for an honest estimate; over the ~40 comparisons below, 0.3 %.
 Z_MAX = 4.0
 
@@ -79,7 +78,7 @@ def test_dry_run_estimates_the_soaks() -> None:
     spec = get_procedure(PROCEDURE)
     plan = plan_procedure(spec, spec.validate(QUICK), StationModel.from_config(CONFIG))
     est = plan.key_estimates_s()
-    assert len(est) == 4 + 4 * 2 * 18
+    assert len(est) == 4 + 4 * 18
     section = CONFIG.extras["temperature_chamber"]
     for key, (start_c, to_c) in {"soak-T2": (20, 45), "soak-T3": (45, -5)}.items():
         settle_s = time_to_band_s(start_c, to_c, 5 / 60, section.time_constant_s, section.stable_band_c)
@@ -123,7 +122,7 @@ def test_session_recovers_the_twins_coefficients_within_their_uncertainties(stat
         assert abs(c["value"] - truth) < Z_MAX * c["sigma"], (law, term, c, truth)
     soaks = {s.key: s for s in session.measurements if s.kind == SOAK}
     assert soaks["soak-T3"].values["settled_s"] > 600  # 50 C at 5 C/min, then the lag
-    assert np.all(np.abs(np.diff(soaks["soak-T3"].arrays["t_s"])) < 2 * SOAK_POLL_S + 60)
+    assert soaks["soak-T3"].arrays["temperature_c"][-1] == pytest.approx(-5.0, abs=0.1)
     report = outcome.report_path.read_text()
     assert report.count("<svg") == 3 and "Y_JK at T4 20 °C" in report and "λ" in report
     assert not any(tag in report for tag in ("<script", "<link", 'src="http', 'href="http'))  # self-contained
