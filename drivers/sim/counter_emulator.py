@@ -35,6 +35,7 @@ SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary e
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
 REF_FRAME_BYTES = 7 + c.REF_PAYLOAD.size
 EVENT_RESERVE_BYTES = 256  # room kept for OPEN/CLOSE/DONE/HEARTBEAT/ACK frames
+MAX_STAMP_GAP_S = 100.0  # consecutive stamps well within a wrap of the 32-bit tick counter (214.7 s)
 
 
 class CounterEmulator(PtyEmulator):
@@ -127,6 +128,16 @@ class CounterEmulator(PtyEmulator):
     # ---- window
 
     def on_poll(self, now_s: float) -> None:
+        # A stalled host process (or a fast virtual clock) can skip more station time between two
+        # polls than the 32-bit stamps span; the board never skips: it catches up in steps, so
+        # that the driver's sequential unwrapping sees stamps less than a wrap apart.
+        t_s = self._last_heartbeat_s
+        while now_s - t_s > MAX_STAMP_GAP_S and self.state in (ARMED, COUNTING, CLOSING):
+            t_s += MAX_STAMP_GAP_S
+            self._advance(t_s)
+        self._advance(now_s)
+
+    def _advance(self, now_s: float) -> None:
         if self.state not in (ARMED, COUNTING, CLOSING):
             return
         if self.faults.active(Fault.NO_ANSWER):
