@@ -97,6 +97,24 @@ def test_faults_during_a_window_are_typed_errors_in_bounded_time(channel, fault,
     assert time.monotonic() - t0 < SILENCE_S + 1.0
 
 
+def test_a_host_stall_longer_than_a_tick_wrap_leaves_the_window_intact(channel) -> None:
+    """A static window of B with its input axis horizontal (the head at 0) lasts a quarter of an hour of
+    station time; stalls of the host process skip 650 s at once (0.65 s of wall time at 1000x, seen on this
+    shared machine), three wraps of the 32-bit 50 ns stamps. The stamps must still unwrap to the true length."""
+    world, emulator, board = channel
+    stalls = []
+
+    def stall(ev) -> None:
+        if ev.kind in ("open", "heartbeat") and len(stalls) < 2:
+            stalls.append(ev.kind)
+            world.clock.advance_s(650.0)
+
+    board.arm(512)
+    result = board.wait_window(on_event=stall)
+    assert result.Tm_s > 650.0
+    assert result.Tm_s == pytest.approx(emulator.window.close_s - emulator.window.open_s, abs=1e-7)
+
+
 def test_silent_board_is_a_timeout(channel) -> None:
     _, emulator, board = channel
     emulator.inject(Fault.NO_ANSWER, count=None)
