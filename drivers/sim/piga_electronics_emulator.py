@@ -22,10 +22,9 @@ from typing import Any
 from drivers.errors import DriverError
 from drivers.piga_electronics import OFFSET_DECIMALS, checksum, encode_line
 from drivers.sim.pty_link import Fault, PtyEmulator, garble, truncate
-from station.twin.nonlinear_error import ARCSEC_RAD, FloatModel
+from station.twin.nonlinear_error import ARCSEC_RAD, MASS_REMOVAL, FloatModel
 
 IDENTITY = "BIACD,PIGA-PCB,SIM-0001,2.1"
-MASS_REMOVAL = "float_mass_removal"
 NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)")
 
 
@@ -41,9 +40,10 @@ class PigaElectronicsEmulator(PtyEmulator):
         float_model: FloatModel | None = None,
         offset_range_arcsec: float = 30.0,
         settle_s: float = 2.0,
+        poll_wall_s: float = 0.05,  # nothing streams: the worker wakes on each command, the polls only check faults
         **kw: Any,
     ) -> None:
-        super().__init__(world.clock, baud=baud, **kw)
+        super().__init__(world.clock, baud=baud, poll_wall_s=poll_wall_s, **kw)
         self.world = world
         self.float_model = float_model or FloatModel.seed004(world.twin.instrument.kz)
         self.offset_range_arcsec = offset_range_arcsec

@@ -43,6 +43,7 @@ SEED004_KZ_RADPS_PER_G = 0.56
 # the seed's 77.8 mg for its 3.7e-7/g0 with that H and kz.
 ANGULAR_MOMENTUM_KGM2PS = 0.1
 END_RADIUS_M = 0.020607
+MASS_REMOVAL = "float_mass_removal"  # the operator action on the float: {"mass_mg", "radius_mm", "angle_deg"}
 
 
 def quadratic_from_inertia(inertia_kgm2, kz_radps_per_g: float, angular_momentum_kgm2ps: float):

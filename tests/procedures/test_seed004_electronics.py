@@ -13,12 +13,12 @@ import pytest
 
 from drivers import piga_electronics as pe
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
-from drivers.sim.piga_electronics_emulator import MASS_REMOVAL, PigaElectronicsEmulator
+from drivers.sim.piga_electronics_emulator import PigaElectronicsEmulator
 from drivers.sim.pty_link import Fault
 from drivers.sim.world import SimStation
 from drivers.station_config import ConfigError, load_station_config
 from station.clock import VirtualClock
-from station.twin.nonlinear_error import ARCSEC_RAD, FloatModel
+from station.twin.nonlinear_error import ARCSEC_RAD, MASS_REMOVAL, FloatModel
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -6,19 +6,24 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from drivers.station import simulated_station
 from drivers.station_config import load_station_config
 from station.analysis.seed004 import spline_minimum
 from station.cli import main
+from station.controller import StationController
 from station.engine.params import ParameterError
 from station.engine.planning import StationModel, ValidationError, plan_procedure
 from station.engine.registry import get_procedure, load_procedure_file
+from station.engine.runner import State
 from station.store import SessionStore
-from station.twin.nonlinear_error import ARCSEC_RAD, FloatModel
+from station.twin.config import default_twin
+from station.twin.nonlinear_error import ARCSEC_RAD, FloatModel, removal_inertia_product_kgm2
 
 CONFIG = Path(__file__).parents[2] / "config"
 STATION = CONFIG / "station-electronics-sim.toml"
@@ -38,8 +43,9 @@ def test_dry_run_plans_the_seeds_sweep() -> None:
     keys = [s.step.key for s in plan.steps if s.step.key]
     offsets = [s.step.offset_arcsec for s in plan.steps if type(s.step).__name__ == "SetServoOffset"]
     assert offsets[:21] == [round(-5 + 0.5 * i, 1) for i in range(21)]  # seed 004 section 5.1
-    assert len(keys) == 21 * 13 + 1 + 13 + 1 + 13  # per offset: the offset and 12 points; fit; B; correction; A
-    assert {"sweep-fit", "correction", "B-offset", "A-offset"} <= set(keys)
+    # per offset: its record and 12 points; the fit; B; the correction; the mass removal; A
+    assert len(keys) == 21 * 13 + 1 + 13 + 1 + 1 + 13
+    assert {"sweep-fit", "correction", "mass-removal", "B-offset", "A-offset"} <= set(keys)
     # 21 x ~13 min of calibrations, two ~50 min calibrations at the best offset, 4 h to remount after the removal
     assert 9.5 * 3600 < plan.total_s < 11.5 * 3600
 
@@ -107,3 +113,47 @@ def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
     report = next(tmp_path.glob("report-*.html")).read_text()
     assert "<svg" in report and "Headline against seed 004" in report and "eq. 22" in report
     assert json.loads(next(tmp_path.glob("result-*.json")).read_text())["suppression"]["seed004"]["reduction"] > 9
+
+
+def _abort_when(controller: StationController, done: int) -> None:
+    t0 = time.monotonic()
+    while controller.status()["done"] < done:
+        assert controller.busy, f"the session ended early: {controller.wait(1)}"
+        assert time.monotonic() - t0 < 60, f"the session did not get that far: {controller.status()}"
+        time.sleep(0.01)
+    controller.abort()
+    assert controller.wait(30).state == State.ABORTED
+
+
+@pytest.mark.timeout(120)
+def test_a_resumed_session_sets_the_offset_again_and_never_removes_mass_twice(tmp_path) -> None:
+    """Aborted during the second offset's calibration (and the servo meanwhile set elsewhere), then during the
+    last calibration after the mass removal: each resume sets the group's offset again before its remaining
+    points, and the operator is asked for the removal once. At 300 x real time, as the engine's own resume test:
+    at 1000 x a resumed window sometimes fails the grating cross-check (seen without this procedure too)."""
+    config = load_station_config(STATION)
+    params = {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0], "freqs_hz": [8.0, 10.0], "window_s": 20.0,
+              "verify_window_s": 20.0}  # fmt: skip
+    with simulated_station(config, default_twin(), seed=3, speed=300.0) as sim, SessionStore(tmp_path / "s.db") as db:
+        controller = StationController(sim.devices, db, StationModel.from_config(config), reports_dir=tmp_path)
+        emu = sim.emulators["piga_electronics"]
+        j0 = emu.float_model.inertia_product_kgm2
+        uid, _ = controller.start("seed004.nonlinear_suppression", params)
+        _abort_when(controller, 13)  # S01: record + 9 points; S02: record + 2 points
+        sim.devices.device("piga_electronics").set_offset_arcsec(4.0)  # someone used the board meanwhile
+        n = len(emu.commands)
+        controller.resume_session(uid)
+        _abort_when(controller, 4 * 10 + 1 + 10 + 1 + 1 + 3)  # into the calibration after the removal
+        assert "SERV:OFFS -1.000" in emu.commands[n:]  # S02's offset, set again on resume
+        controller.resume_session(uid)
+        out = controller.wait(60)
+        assert out.state == State.FINISHED and out.faults == []
+        session = db.load_session(uid, with_raw=False)
+    removal = next(m for m in session.measurements if m.key == "mass-removal").values
+    removed = removal_inertia_product_kgm2(removal["mass_mg"] * 1e-6, removal["radius_mm"] * 1e-3,
+                                           math.radians(removal["angle_deg"]))  # fmt: skip
+    assert emu.float_model.inertia_product_kgm2 == pytest.approx(j0 - removed, rel=1e-12)  # removed once
+    assert len(session.points) == 4 * 9 + 9 + 9 and len({p.point_id for p in session.points}) == len(session.points)
+    records = {m.key: m.values["offset_arcsec"] for m in session.measurements if m.kind == "servo_offset"}
+    assert [records[f"S0{i}-offset"] for i in range(1, 5)] == params["offsets_arcsec"]
+    assert out.analysis is not None and out.analysis.results["suppression"]["headline"]["reduction"] > 0
