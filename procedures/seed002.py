@@ -199,7 +199,8 @@ class VibrationRun(Step):
                     t_end = tk_s + self.align_s
                     ctx.event("shaker", f"{self.name}: ramped down")
                 if running and now >= next_check:
-                    shaker.check()
+                    st = shaker.check()
+                    ctx.publish("shaker", {"key": self.name, "state": st.state, "level_g": st.level_g, "t_s": now})
                     next_check = now + STATUS_EVERY_S
             return t0_s, tk_s
         except BaseException as exc:

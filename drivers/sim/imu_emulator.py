@@ -10,8 +10,8 @@ quantised to the LSBs of the INFO reply with the remainder carried, as a real IM
 Pacing: each poll makes the samples whose time has come on world.clock. What does not fit the
 transmit FIFO is dropped with its seq counted (a visible gap), as an IMU whose FIFO overflows
 would; the driver records with station time capped to what the line carries
-(`StrapdownImu.max_lossless_speed`), since strapdown integration needs every sample. More than
-`MAX_SAMPLES_PER_POLL` due at once (a reader that stopped) are dropped without being made.
+(`StrapdownImu.max_lossless_speed`), since strapdown integration needs every sample. Samples
+that would not fit (a reader that stopped) are dropped without being made.
 
 Faults: NO_ANSWER (commands ignored, `count` of them; the stream goes silent while armed),
 GARBLE / TRUNCATE / CRC_ERROR (the next frame), DISCONNECT; device-specific `sensor_fault(bits)`
@@ -37,16 +37,15 @@ from station.twin.strapdown_imu import Site, StrapdownImuTwin, fixture_motion, n
 
 GYRO_LSB_RAD = 1e-9
 ACCEL_LSB_MPS = 1e-7
-MAX_SAMPLES_PER_POLL = 2000
-FIFO_BYTES = 1 << 18  # the interface buffer: about 1.7 s of wall time at the capped speed, for host stalls
+# The interface's buffer: some 25 s of wall time at the capped speed. Generous, because what stalls
+# here is the simulation's host (a loaded machine starves reader and emulator alike while the
+# virtual clock runs on), not the IMU.
+FIFO_BYTES = 1 << 22
 SERIAL = b"SINS-RLG-0002"
 _FRAME_DTYPE = np.dtype([("sync", "u1", 2), ("type", "u1"), ("len", "<u2"), ("body", imu.SAMPLE_DTYPE), ("crc", "<u2")])
 
 
-def _at_rest(t_base_s: np.ndarray, offsets_s: np.ndarray, gains: tuple) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The motion an IMU off the shaker sees: none."""
-    zero = np.zeros((np.size(t_base_s), np.size(offsets_s)))
-    return [(zero, zero) for _ in gains]
+_BENCH = ShakerMotion()  # where the IMU lies before it is mounted: a table that never moves
 
 
 def _bad_crc(frame: bytes) -> bytes:
@@ -182,10 +181,16 @@ class ImuEmulator(PtyEmulator):
 
     # ---- stream
 
+    @property
+    def _table(self) -> ShakerMotion:
+        """What the IMU stands on: the shaker once mounted, the bench before."""
+        return self.motion if self.pose is not None else _BENCH
+
     def _angle_at(self, k: int) -> float:
         """The rocking angle at grid edge k (to restart the telescoping sum after a gap)."""
-        response = self.motion.response if self.pose is not None else _at_rest
-        ((theta, _),) = response(np.array([k / self.rate_hz]), np.zeros(1), (self.twin.dampers.rocking_gain,))
+        ((theta, _),) = self._table.response(
+            np.array([k / self.rate_hz]), np.zeros(1), (self.twin.dampers.rocking_gain,)
+        )
         return float(theta[0, 0])
 
     def on_poll(self, now_s: float) -> None:
@@ -195,26 +200,26 @@ class ImuEmulator(PtyEmulator):
         if n_due <= 0:
             return
         silent = self.faults.active(Fault.NO_ANSWER)
+        forced = min(self._drop, n_due)
+        self._drop -= forced
         room = 0 if silent else max(self.tx_room() // imu.SAMPLE_FRAME_BYTES - 1, 0)
-        skip = max(n_due - min(room, MAX_SAMPLES_PER_POLL), 0) + min(self._drop, n_due)
-        skip = min(skip, n_due)
-        self._drop -= min(self._drop, n_due)
+        send = min(n_due - forced, room)
+        skip = n_due - send  # the oldest due samples, never made: seq counts them
         if skip:
             self._next_k += skip
             self._seq += skip
             self.dropped += 0 if silent else skip
             self._theta_rad = self._angle_at(self._next_k - 1)
-        if n_due > skip:
-            self.send(self._encode(n_due - skip), n_due - skip)
+        if send:
+            self.send(self._encode(send), send)
 
     def _increments(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """The next n samples' increments in LSB counts (twin, sensor errors, quantisation)."""
         dt = 1.0 / self.rate_hz
         edges = (self._next_k - 1 + np.arange(n + 1)) * dt
         twin = self.twin
-        response = self.motion.response if self.pose is not None else _at_rest
         k = nodes_for(self.motion.max_freq_hz(), dt)
-        motion = fixture_motion(response, edges, self._theta_rad, twin.dampers, k)
+        motion = fixture_motion(self._table.response, edges, self._theta_rad, twin.dampers, k)
         self._theta_rad = motion.theta_end_rad
         d_theta, d_v = true_increments(edges, motion, self._c_bn, SLIP_AXIS_N, ROCKING_AXIS_N, np.asarray(twin.tau),
                                        self.site)  # fmt: skip

@@ -52,7 +52,7 @@ class RunWindow:
 class Observation:
     """What one run tells about tau: A tau = B in the level frame's horizontal components."""
 
-    A: np.ndarray  # (2, 12) rad per rad/(m/s^2): D C_b^n(t0) [-int C_b^i Gamma dt]
+    A: np.ndarray  # (2, 12) rad per rad/(m/s^2): D C_b^n(t0) [-int C_b^i Gamma dt], less the east drift at rest
     B: np.ndarray  # (2,) rad: D C_b^n(t0) phi_O^i
     c_bn_t0: np.ndarray  # Step 1 alignment
     c_bn_tk: np.ndarray  # Step 3 realignment

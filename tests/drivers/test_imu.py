@@ -12,7 +12,7 @@ import pytest
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
 from drivers.imu import ImuRecording, StrapdownImu
-from drivers.sim.imu_emulator import ImuEmulator
+from drivers.sim.imu_emulator import FIFO_BYTES, ImuEmulator
 from drivers.sim.pty_link import Fault
 from station.clock import speed_at_most
 from station.twin.shaker_motion import ShakerMotion, sine_drive
@@ -28,9 +28,9 @@ Rig = tuple[object, ImuEmulator, StrapdownImu]
 def imu_rig() -> Iterator[Callable[..., Rig]]:
     opened: list[tuple[ImuEmulator, StrapdownImu]] = []
 
-    def make(speed: float = 5.0, silence_s: float = 0.5) -> Rig:
+    def make(speed: float = 5.0, silence_s: float = 0.5, fifo_bytes: int = FIFO_BYTES) -> Rig:
         world = make_world(speed=speed, vibrate_hz=0.0)
-        emu = ImuEmulator(world)
+        emu = ImuEmulator(world, fifo_bytes=fifo_bytes)
         emu.start()
         imu = StrapdownImu(emu.port, rate_hz=200, timeout_s=0.3, silence_s=silence_s, clock=world.clock)
         opened.append((emu, imu))
@@ -111,10 +111,10 @@ def test_a_gap_is_counted_and_a_recording_refuses_it(imu_rig) -> None:
 def test_a_line_faster_than_its_share_drops_samples_visibly(imu_rig) -> None:
     """At 400x real time 200 Hz frames need 3.2 MB/s, beyond the 3 Mbaud line: the IMU drops, the
     driver counts the gap; capped at max_lossless_speed the same stream loses nothing."""
-    world, emu, imu = imu_rig(speed=400.0)
+    world, emu, imu = imu_rig(speed=400.0, fifo_bytes=1 << 16)
     assert imu.max_lossless_speed == pytest.approx(0.5 * 300_000 / (40 * 200))
     imu.start_stream()
-    lost, end = 0, time.monotonic() + 4.0  # the gap shows once the IMU's buffer (0.9 s of line) is read
+    lost, end = 0, time.monotonic() + 4.0  # the gap shows once the IMU's buffer (0.2 s of line) is read
     while lost == 0 and time.monotonic() < end:
         lost += imu.read_block().lost
     imu.stop_stream()
