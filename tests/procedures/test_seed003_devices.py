@@ -5,6 +5,7 @@ input refused before anything moves."""
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,7 +14,9 @@ import pytest
 
 from drivers.devices import device_kinds
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError
+from drivers.indexing_head import IndexingHead
 from drivers.sim.dual_fixture import FIXTURE, INSTRUMENT_B, SEAT_ERRORS_RAD
+from drivers.sim.indexing_emulator import IndexingEmulator
 from drivers.sim.pty_link import Fault
 from drivers.sim.world import SimStation
 from drivers.station import simulated_station
@@ -113,6 +116,22 @@ def test_a_host_stall_longer_than_a_tick_wrap_leaves_the_window_intact(channel) 
     result = board.wait_window(on_event=stall)
     assert result.Tm_s > 650.0
     assert result.Tm_s == pytest.approx(emulator.window.close_s - emulator.window.open_s, abs=1e-7)
+
+
+def test_a_host_stall_during_a_head_move_is_not_a_settling_timeout() -> None:
+    """A seed-003 session moves the head some 140 times; a host stall during a move skips 200 s of station
+    time (0.2 s at 1000x), more than the head's 120 s move timeout. The head is then idle at its target,
+    which is settling, not a timeout."""
+    world = SimStation(TWIN, VirtualClock(10.0), seed=1)
+    with IndexingEmulator(world) as emulator:
+        head = IndexingHead(emulator.port, settle_time_s=2.0, clock=world.clock).open()
+        try:
+            timer = threading.Timer(0.1, world.clock.advance_s, (200.0,))  # 1 s into the 5 s move
+            timer.start()
+            assert head.move_to(100.0) == pytest.approx(100.0)
+            timer.join()
+        finally:
+            head.close()
 
 
 def test_silent_board_is_a_timeout(channel) -> None:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.analysis.alignment import earth_rate_along_ia
+from station.analysis.least_squares import FitError
 from station.analysis.multiposition.lsq import Fit, solve
 from station.analysis.multiposition.static_model import fit_static, rate_slope_radps, regressors
 from station.session import StationInfo
@@ -107,6 +108,8 @@ def offset_name(instrument: str, setup: int) -> str:
 
 def fit_four_pose(windows: list[PoseWindow], terms: tuple[str, ...], order: int, station: StationInfo) -> FourPoseFit:
     """Harmonics, coefficients and mounting offsets from the windows of both instruments in both setups."""
+    if not windows:
+        raise FitError("no four-pose windows")
     inst = np.array([w.instrument for w in windows])
     theta = np.array([w.theta_rad for w in windows])
     rate = np.array([w.rate_radps for w in windows])

@@ -74,6 +74,7 @@ class GravityFieldResult:
     four_pose: FourPoseFit | None
     four_pose_error: str
     calibrations: list[Calibration]
+    calibration_errors: list[str] = field(default_factory=list)
     windows: list[PoseWindow] = field(default_factory=list)
 
     def to_json(self) -> dict:
@@ -90,6 +91,7 @@ class GravityFieldResult:
             "alignment": self.alignments,
             "four_pose": fp,
             "calibration": {c.scheme: c.to_json() for c in self.calibrations},
+            "calibration_errors": self.calibration_errors,
         }
 
 
@@ -125,14 +127,18 @@ def analyse_gravity_field(session: Session, terms: tuple[str, ...], order: int) 
         fp = fit_four_pose(four, terms, order, session.station)
     except FitError as exc:
         error = f"four-pose identification: {exc}"
-    calibrations = []
+    calibrations, calibration_errors = [], []
     zero_rad = math.radians(final_zero_deg(session, 1))
     for block in dict.fromkeys(w.block for w in windows if w.block.startswith(CALIBRATION)):
         cal = [w for w in windows if w.block == block]
         theta = np.array([w.theta_rad for w in cal])
         rates = np.array([w.rate_radps for w in cal])
         aligned = theta + pose_rad(cal[0].pose) + zero_rad
-        unc = fit_static(aligned, rates, terms, session.station)
+        try:
+            unc = fit_static(aligned, rates, terms, session.station)
+        except FitError as exc:
+            calibration_errors.append(f"{block}: {exc}")
+            continue
         comp = total = None
         if fp is not None:
             setup = cal[0].setup
@@ -143,4 +149,4 @@ def analyse_gravity_field(session: Session, terms: tuple[str, ...], order: int) 
         calibrations.append(Calibration(block.removeprefix(CALIBRATION), np.degrees(theta),
                                         np.array([w.Tm_s for w in cal]), unc, comp, total))  # fmt: skip
     alignments = [m.values for m in session.measurements if m.kind == ALIGNMENT]
-    return GravityFieldResult(terms, order, alignments, fp, error, calibrations, windows)
+    return GravityFieldResult(terms, order, alignments, fp, error, calibrations, calibration_errors, windows)

@@ -43,6 +43,7 @@ def _coefficient_rows(cal: Calibration, terms: tuple[str, ...]) -> list[tuple]:
 def _calibration_section(res: GravityFieldResult) -> list[str]:
     parts = ["<h2>Calibration of PIGA A without and with the angle-error compensation (Tables 3-4, 7)</h2>",
              f"<p>{esc(IDENTIFIABILITY)}</p>"]  # fmt: skip
+    parts += [f"<p class=bad>{esc(e)}</p>" for e in res.calibration_errors]
     if not res.calibrations:
         return [*parts, "<p>No calibration sequence in this session.</p>"]
     fig, axes = plt.subplots(1, len(res.calibrations), figsize=(5.5 * len(res.calibrations), 3.4), squeeze=False)
