@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +34,10 @@ from station.engine.steps import CaptureGrating, MeasureFrequency, Note, SetVibr
 from station.error_source_report import rotation_report, stability_report, translation_report
 from station.session import Measurement, Session
 from station.twin.table_tilt import ARCSEC_RAD
+
+if TYPE_CHECKING:
+    from station.engine.planning import PlanContext
+    from station.engine.runner import RunContext
 
 TABLE5_FREQS_HZ = [1.0, 3.0, 5.0, 7.0, 9.0, 10.0]
 TABLE6_FREQS_HZ = [0.1, *map(float, range(1, 11))]
@@ -211,7 +215,7 @@ class RecordTilt(Step):
     def key(self) -> str:
         return self.name
 
-    def plan(self, ctx) -> tuple[float, Any]:
+    def plan(self, ctx: PlanContext) -> tuple[float, Any]:
         ctx.require("gradiometer")
         f = ctx.state.freq_hz
         if f == 0:
@@ -232,7 +236,7 @@ class RecordTilt(Step):
         return {"freq_hz": freq_hz, "turns": self.turns, "readings_per_turn": self.readings_per_turn,
                 "position_deg": position_deg}  # fmt: skip
 
-    def run(self, ctx) -> Measurement:
+    def run(self, ctx: RunContext) -> Measurement:
         grad = ctx.hw.device("gradiometer")
         period = 1.0 / ctx.freq_hz
         before = ctx.hw.capture_motion(CROSSING_CAPTURE_TURNS * period).reference_t_s

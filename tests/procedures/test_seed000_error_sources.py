@@ -1,13 +1,16 @@
 """Seed 000's error-source experiments end to end: procedure, engine, real drivers against the emulators,
 store, analysis and report; and the analyses on the seed's own Tables 5-7.
 
-Tolerances: a recovered parameter must lie within 3 of its stated standard uncertainties of the
-value the twin was given (a 0.3 % chance of a false alarm per comparison when the uncertainties
-are honest); the seed's own numbers are reproduced to the digits the seed prints.
+Tolerances: a recovered parameter must lie within K = 4 of its stated standard uncertainties of
+the value the twin was given. Every such uncertainty rests on at least 30 residual degrees of
+freedom (thousands for the grating fits), so with honest uncertainties a comparison fails by
+chance with probability at most 3e-4 (Student t, 30 dof; 6e-5 Gaussian), under 1 % for a whole
+test. The seed's own numbers are reproduced to the digits the seed prints.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -40,7 +43,7 @@ pytestmark = pytest.mark.timeout(120)
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
 STATION = load_station_config(CONFIG_DIR / "station-gradiometer-sim.toml")
-K = 3.0  # standard uncertainties allowed between a recovered and an injected value
+K = 4.0  # standard uncertainties allowed between a recovered and an injected value
 
 Z0_M, Z1_M_S = -1.299e-4, 3.2e-6  # seed 000 eq. 32 in metres
 ZC1_M = 5e-6
@@ -161,17 +164,23 @@ def test_parasitic_rotation_reproduces_table7(run) -> None:
     twin = default_twin().with_effect(
         "parasitic_rotation", ax0=x0 * ARCSEC_RAD, axs1=xs1 * ARCSEC_RAD, axc1=xc1 * ARCSEC_RAD
     )
-    params = {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 12, "settle_s": 1.0}
+    # one turn at 0.5 Hz with 36 readings: 33 residual degrees of freedom, about 5 s of wall time
+    params = {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 36, "settle_s": 1.0}
     outcome, _ = run("seed000.parasitic_rotation", params, twin)
     result = outcome.analysis.results["parasitic_rotation"]
     h = result["harmonics"]
     for key, truth in (("ax0", x0), ("axs1", xs1), ("axc1", xc1), ("ay0", 0.0), ("ays1", 0.0), ("azc1", 0.0)):
         axis = h[key[1]]
         _within(axis[f"{key}_arcsec"], truth, axis[f"sigma_{key}_arcsec"], key)
+    assert h["x"]["n_readings"] == 36
     assert round(h["x"]["axs1_arcsec"], 2) == SEED_HARMONICS_ARCSEC["x"][0]  # the seed's -0.92"
-    # readings were polled at psi = 2 pi i / 12: eq. 34 on them agrees with the least squares
-    assert result["eq34_on_slot_means"]["x"]["as1"] == pytest.approx(h["x"]["axs1_arcsec"], abs=0.01)
-    assert all(abs(r["mean_offset_deg"]) < 3.0 for r in result["table7"])
+    # Eq. 34 takes each reading at its nominal phase 2 pi i / N; a reading polled late by d_i
+    # moves as1 and ac1 by at most |a1| max|d_i| (first order) from the least squares at the true phases.
+    a1 = math.hypot(h["x"]["axs1_arcsec"], h["x"]["axc1_arcsec"])
+    late_rad = max(abs(math.radians(r["mean_offset_deg"])) for r in result["table7"])
+    for k in ("s1", "c1"):
+        lsq, sigma = h["x"][f"ax{k}_arcsec"], h["x"][f"sigma_ax{k}_arcsec"]
+        assert abs(result["eq34_on_slot_means"]["x"][f"a{k}"] - lsq) <= a1 * late_rad + K * sigma
     comp = result["compensation"]
     assert comp["axs1_rad"] == pytest.approx(h["x"]["axs1_arcsec"] * ARCSEC_RAD, rel=1e-12)
     _integral_accepts(comp, ("axs1_rad",))
