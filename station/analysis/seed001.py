@@ -278,8 +278,8 @@ class TwoSlope:
     (value, sigma); None where the session cannot tell (no temperature on that side, no repeated temperature)."""
 
     at_reference: tuple[float, float]
-    above: tuple[float, float] | None
-    below: tuple[float, float] | None
+    above: tuple[float, float] | None = None
+    below: tuple[float, float] | None = None
     drift_per_s: tuple[float, float] | None = None
 
     def to_json(self) -> dict:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from station.analysis.seed001 import EQ6, analyse_tumble, position_deg
+from station.analysis.seed001_report import render_tumble_report
 from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel, cf_coefficients, output_v
 from station.twin.tumble_session import tumble_session
 
@@ -69,3 +70,14 @@ def test_stated_uncertainties_match_the_scatter_of_simulated_sessions() -> None:
         e = np.array(errors)
         assert abs(e.mean()) < 4 / math.sqrt(n), (name, e.mean())
         assert abs(e.std(ddof=1) - 1) < 4 / math.sqrt(2 * n), (name, e.std(ddof=1))
+
+
+def test_a_session_on_one_side_of_t0_leaves_the_other_slope_unmeasured() -> None:
+    m = AccelerometerModel()
+    session, _ = tumble_session(m, [20.0, 60.0], 1, sigma_g=8e-6, rng=np.random.default_rng(3))
+    r, points, model = analyse_tumble(session, m.reference_c)
+    assert model.bias_g.below is None and model.scale_factor.below is None and model.bias_g.drift_per_s is None
+    value, sigma = model.bias_g.above
+    assert abs(value - m.lambda_above_g_per_c) < 4 * sigma
+    html = render_tumble_report(session, r, points, model, title="one side")
+    assert html.count("not separable by this session") == 4  # lambda_T2, k0D, beta_T2, gamma_T2
