@@ -74,8 +74,6 @@ class Reading:
     volts: np.ndarray
     start_s: float
     end_s: float
-    range_v: float
-    nplc: float
 
 
 class Voltmeter:
@@ -190,7 +188,7 @@ class Voltmeter:
         if np.any(np.abs(volts) >= OVERLOAD_V):
             raise DeviceFault(DEVICE, "input overload", field="reading", value=float(np.max(np.abs(volts))),
                               allowed=f"within +-{OVERRANGE * range_v:g} V on the {range_v:g} V range")  # fmt: skip
-        return Reading(volts, start_s, self.clock.now_s(), range_v, nplc)
+        return Reading(volts, start_s, self.clock.now_s())
 
     def measure(self, range_v: float, nplc: float, samples: int) -> Reading:
         """configure() if the setting changed, then read()."""

@@ -1,12 +1,13 @@
 """Seed 001: eight-point tumble calibration of a pendulous accelerometer in the gravity field, with temperature models.
 
-`seed001.tumble`: at each temperature (normal, maximum, minimum) the chamber is brought to it and
-soaked; then, in each of three cycles, the indexing head turns the instrument through the nine
-test positions of Fig. 2 (0, 45, ..., 360 deg) on the forward stroke and back on the back
-stroke, and at each one the voltmeter reads the output. The head starts from -45 deg so that
-the first reading, too, is reached on a known hysteresis branch; the chamber returns to the
-reference temperature at the end. Analysed by eq. 6 at each temperature and eq. 4's temperature
-laws and hysteresis across them (station.analysis.seed001).
+`seed001.tumble`: at each temperature (the seed's normal, maximum and minimum; the default then
+returns to normal, which separates the bias drift from the temperature coefficients) the chamber
+is brought to it and soaked; then, in each of three cycles, the indexing head turns the
+instrument through the nine test positions of Fig. 2 (0, 45, ..., 360 deg) on the forward stroke
+and back on the back stroke, and at each one the voltmeter reads the output. The head starts
+from -45 deg so that the first reading, too, is reached on a known hysteresis branch; the
+chamber returns to the reference temperature at the end. Analysed by eq. 6 at each temperature
+and eq. 4's temperature laws and hysteresis across them (station.analysis.seed001).
 """
 
 from __future__ import annotations

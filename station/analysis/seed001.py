@@ -183,7 +183,6 @@ class EightPoint:
     dof: int
     mu: float
     mu_c: float
-    residuals_v: np.ndarray
     Y_sigma_v: np.ndarray
 
     def coefficient(self, name: str) -> tuple[float, float]:
@@ -264,7 +263,6 @@ def eight_point(block: Readings) -> EightPoint:
         fit.dof,
         mu,
         mu_c,
-        fit.residuals,
         np.sqrt(np.diag(cov_Y)),
     )
 
