@@ -113,7 +113,6 @@ class Readings:
     block: np.ndarray  # which visit to a temperature (0, 1, ...): a temperature may be visited twice
     setpoint_c: np.ndarray
     temperature_c: np.ndarray  # chamber product temperature at each reading
-    position_deg: np.ndarray
     J: np.ndarray  # 1 .. 9
     stroke: np.ndarray  # k = 1 .. 6 within its temperature
     t_s: np.ndarray
@@ -146,17 +145,15 @@ def readings(session: Session) -> Readings:
     def col(name: str, dtype: type = float) -> np.ndarray:
         return np.array([m.values[name] for m in ms], dtype=dtype)
 
-    position = col("position_deg")
     return Readings(
         col("block", int),
         col("setpoint_c"),
         col("temperature_c"),
-        position,
         col("J", int),
         col("stroke", int),
         col("t_s"),
         col("volts"),
-        path_branches(col("from_deg"), position),
+        path_branches(col("from_deg"), col("position_deg")),
     )
 
 
