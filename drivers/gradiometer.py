@@ -36,6 +36,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from drivers.devices import DeviceKind
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError
@@ -229,7 +230,8 @@ def open_gradiometer(section: GradiometerSection, clock: Clock) -> Gradiometer:
     return grad
 
 
-def emulate_gradiometer(section: GradiometerSection, world):  # -> GradiometerEmulator
+def emulate_gradiometer(section: GradiometerSection, world: Any) -> Any:
+    """The emulator on the simulated world (a GradiometerEmulator, started), configured as the section says."""
     from drivers.sim.gradiometer_emulator import GradiometerEmulator
 
     emu = GradiometerEmulator(
