@@ -126,7 +126,7 @@ class StationDevices:
                 with contextlib.suppress(Exception):
                     close()
             raise
-        devices = cls(config, clock, servo, grating, reference, counter, head, extra, list(reversed(opened)))
+        devices = cls(config, clock, servo, grating, reference, counter, head, extra=extra, _closers=opened[::-1])
         return devices
 
     def close(self) -> None:
