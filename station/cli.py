@@ -36,6 +36,7 @@ from station.plan import seed000_plan
 from station.store import SessionStore, StoreError
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
 from station.twin.session_sim import simulate_session
+from web.cli import add_commands as add_panel_commands
 
 
 def _load_twin(path: str | None) -> TwinConfig:
@@ -260,6 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=func)
+    add_panel_commands(sub)
     return parser
 
 

@@ -1,0 +1,95 @@
+"""The telemetry relay: bounded per-browser queues, seq accounting, fan-out from several stations' PUB sockets."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+from station.clock import WallClock
+from station.telemetry import TelemetryPublisher
+from web.config import StationEntry
+from web.relay import BrowserQueue, StationFeed, TelemetryRelay
+
+N = 300  # messages per station
+
+
+def entry(name: str, telemetry: str = "tcp://127.0.0.1:1") -> StationEntry:
+    return StationEntry(name=name, control="tcp://127.0.0.1:1", telemetry=telemetry, store=Path("x.sqlite"),
+                        reports=Path("."))  # fmt: skip
+
+
+def doc(seq: int, topic: str = "status", station: str = "a") -> bytes:
+    return json.dumps({"station": station, "topic": topic, "seq": seq, "t_s": 0.0, "wall_s": 0.0, "data": {}}).encode()
+
+
+def test_a_full_queue_drops_its_oldest_and_counts():
+    async def run():
+        queue = BrowserQueue(maxsize=4)
+        for i in range(10):
+            queue.offer(str(i))
+        return queue.dropped, await queue.batch(limit=64)
+
+    assert asyncio.run(run()) == (6, ["6", "7", "8", "9"])
+
+
+def test_a_feed_counts_lost_messages_restarts_and_malformed_ones():
+    feed = StationFeed(entry("a"))
+    for seq in (0, 1, 2, 5, 6):  # 3 and 4 lost
+        assert feed.accept(doc(seq)) is not None
+    feed.accept(doc(0))  # the station started again
+    assert feed.accept(b"{not json") is None
+    assert feed.accept(doc(1, station="b")) is None
+    assert feed.accept(json.dumps({"station": "a"}).encode()) is None
+    s = feed.stats()
+    assert (s["received"], s["lost"], s["restarts"], s["malformed"], s["last_seq"]) == (6, 2, 1, 3, 0)
+
+
+def test_a_feed_replays_recent_notices_then_the_latest_of_each_lasting_topic():
+    feed = StationFeed(entry("a"))
+    for seq, topic in enumerate(["state", "status", "trace", "event", "status", "fault", "progress"]):
+        feed.accept(doc(seq, topic))
+    topics_seqs = [(json.loads(t)["topic"], json.loads(t)["seq"]) for t in feed.replay()]
+    assert topics_seqs == [("event", 3), ("fault", 5), ("state", 0), ("status", 4), ("progress", 6)]
+
+
+async def drain(queue: BrowserQueue, traces: int) -> list[dict]:
+    """Everything the queue gets until `traces` trace messages came (5 s at most between batches)."""
+    out: list[dict] = []
+    while sum(d["topic"] == "trace" for d in out) < traces:
+        out += [json.loads(t) for t in await asyncio.wait_for(queue.batch(64), 5.0)]
+    return out
+
+
+def test_fan_out_from_two_stations_and_a_slow_browser_loses_only_its_own_backlog():
+    pubs = {n: TelemetryPublisher("tcp://127.0.0.1:*", n, WallClock()) for n in ("a", "b")}
+    relay = TelemetryRelay([entry(n, p.endpoint) for n, p in pubs.items()], queue_size=2 * N + 50)
+
+    async def run():
+        relay.start()
+        try:
+            # zmq's slow joiner: publish until both SUBs hear, then start counting.
+            while any(f.received == 0 for f in relay.feeds.values()):
+                for p in pubs.values():
+                    p.publish("hello", {})
+                await asyncio.sleep(0.01)
+            everyone, only_a = relay.subscribe(), relay.subscribe(["a"])
+            slow = relay.subscribe(queue_size=8)  # a browser that never reads: its queue stays full
+            for i in range(N):
+                for p in pubs.values():
+                    p.publish("trace", {"i": i})
+            got = {"everyone": await drain(everyone, 2 * N), "only_a": await drain(only_a, N)}
+            return got, slow
+        finally:
+            await relay.stop()
+            for p in pubs.values():
+                p.close()
+
+    got, slow = asyncio.run(run())
+    trace = {k: [d for d in v if d["topic"] == "trace"] for k, v in got.items()}
+    for station in ("a", "b"):
+        assert [d["data"]["i"] for d in trace["everyone"] if d["station"] == station] == list(range(N))
+    assert [d["data"]["i"] for d in trace["only_a"]] == list(range(N))
+    assert {d["station"] for d in got["only_a"]} == {"a"}
+    assert slow.dropped >= 2 * N - 8
+    assert all(f.lost == 0 and f.malformed == 0 for f in relay.feeds.values())

@@ -1,0 +1,102 @@
+"""`station panel` (serve the web panel) and `station panel-user` (its users); FastAPI is imported only when used."""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+import os
+import sys
+
+from station.console import CONFIG_DIR
+
+DEFAULT_CONFIG = CONFIG_DIR / "panel.toml"
+
+
+def _config(args: argparse.Namespace):
+    from web.config import PanelConfig
+
+    return PanelConfig.from_toml(args.config)
+
+
+def cmd_panel(args: argparse.Namespace) -> int:
+    """Serve the panel with uvicorn until Ctrl-C."""
+    import uvicorn
+
+    from web.app import create_app
+    from web.users import UserBook
+
+    config = _config(args)
+    host = args.host or config.host
+    port = config.port if args.port is None else args.port
+    users = UserBook(config.users)
+    if not len(users):
+        print(f"station panel: no users in {config.users}: add one with "
+              f"`station panel-user add NAME --role operator`", file=sys.stderr)  # fmt: skip
+    names = ", ".join(f"{s.name} ({s.control}, {s.telemetry})" for s in config.stations)
+    print(f"panel on http://{host}:{port}/ for {names}; {len(users)} users in {config.users}", flush=True)
+    uvicorn.run(create_app(config), host=host, port=port, log_level=args.log_level, ws="websockets-sansio")
+    return 0
+
+
+def _password(args: argparse.Namespace) -> str:
+    if args.password_env:
+        password = os.environ.get(args.password_env)
+        if not password:
+            raise ValueError(f"--password-env {args.password_env}: that environment variable is not set")
+        return password
+    first = getpass.getpass(f"password for {args.name}: ")
+    if getpass.getpass("again: ") != first:
+        raise ValueError("the two passwords differ")
+    return first
+
+
+def cmd_panel_user(args: argparse.Namespace) -> int:
+    """Add, replace, remove or list the panel's users (passwords stored as Argon2id hashes only)."""
+    from web.users import UserBook
+
+    book = UserBook(args.users or _config(args).users)
+    if args.action == "list":
+        for user in book.list():
+            print(f"{user.name}\t{user.role}")
+    elif args.action == "remove":
+        book.remove(args.name)
+        print(f"removed {args.name} from {book.path}")
+    else:
+        user = book.add(args.name, args.role, _password(args))
+        print(f"{user.name} ({user.role}) in {book.path}")
+    return 0
+
+
+def _guarded(func):
+    """Bad configuration or input as one line on stderr and exit status 2, like the other commands."""
+
+    def run(args: argparse.Namespace) -> int:
+        from web.config import PanelConfigError
+        from web.users import UserError
+
+        try:
+            return func(args)
+        except (PanelConfigError, UserError, ValueError, OSError) as exc:
+            print(f"station {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+
+    return run
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """The panel's subcommands of `station`."""
+    p = sub.add_parser("panel", help="serve the web panel (live view, history, control)")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="panel configuration (default: config/panel.toml)")
+    p.add_argument("--host", help="address to bind (default: the configuration's, 127.0.0.1)")
+    p.add_argument("--port", type=int, help="port (default: the configuration's)")
+    p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"))
+    p.set_defaults(func=_guarded(cmd_panel))
+
+    p = sub.add_parser("panel-user", help="add, remove or list the web panel's users")
+    p.add_argument("action", choices=("add", "remove", "list"))
+    p.add_argument("name", nargs="?", default="", help="user name (add, remove)")
+    p.add_argument("--role", choices=("operator", "viewer"), default="viewer")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="panel configuration naming the users file")
+    p.add_argument("--users", help="the users file itself (instead of the configuration's)")
+    p.add_argument("--password-env", metavar="VAR", help="take the password from this environment variable")
+    p.set_defaults(func=_guarded(cmd_panel_user))

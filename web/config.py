@@ -1,0 +1,96 @@
+"""The panel's configuration file (config/panel.toml): where it listens, its stations, stores and secrets' places.
+
+Relative paths are taken from the directory the panel is started in, as for
+`station serve --out out`. Secrets are never in this file: passwords live
+hashed in the users file, the stations' control tokens in environment
+variables named here.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+NAME_PATTERN = r"^[A-Za-z0-9_-]{1,40}$"
+
+
+class PanelConfigError(ValueError):
+    """A panel configuration file that is unreadable or holds a bad key or value."""
+
+
+class StationEntry(BaseModel):
+    """One station under `station serve`: its control and telemetry endpoints, store and reports."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = Field(pattern=NAME_PATTERN, description="the --name of `station serve` (telemetry topic prefix)")
+    title: str = ""
+    control: str = Field(pattern=r"^(tcp|ipc|inproc)://", description="zmq REP endpoint of the control channel")
+    telemetry: str = Field(pattern=r"^(tcp|ipc|inproc)://", description="zmq PUB endpoint of its telemetry")
+    store: Path = Field(description="its SQLite session store (the --db of `station serve`)")
+    reports: Path = Field(description="its --out directory, where report-<uid>.html files are written")
+    token_env: str = Field("", description="environment variable holding its control token, if it has one")
+
+
+class PanelConfig(BaseModel):
+    """The whole panel configuration."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    host: str = "127.0.0.1"
+    port: int = Field(8080, ge=0, le=65535)
+    users: Path = Field(Path("out/panel/users.json"), description="users and password hashes (not in the repository)")
+    audit_log: Path = Path("out/panel/audit.jsonl")
+    twin: Path | None = Field(None, description="twin configuration TOML for the gap diagnosis (default: embedded)")
+    secure_cookies: bool = Field(False, description="mark the session cookie Secure (behind HTTPS)")
+    stations: tuple[StationEntry, ...] = Field(min_length=1)
+
+    @field_validator("stations")
+    @classmethod
+    def _unique_names(cls, stations: tuple[StationEntry, ...]) -> tuple[StationEntry, ...]:
+        names = [s.name for s in stations]
+        if len(set(names)) != len(names):
+            raise ValueError(f"station names must be unique, got {names}")
+        return stations
+
+    @model_validator(mode="after")
+    def _twin_exists(self) -> PanelConfig:
+        if self.twin is not None and not self.twin.is_file():
+            raise ValueError(f"twin = {str(self.twin)!r}: no such file")
+        return self
+
+    def station(self, name: str) -> StationEntry | None:
+        return next((s for s in self.stations if s.name == name), None)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> PanelConfig:
+        """Read and validate; PanelConfigError names the file, the key and what is wrong."""
+        path = Path(path)
+        try:
+            doc = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise PanelConfigError(f"{path}: no such file") from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise PanelConfigError(f"{path}: not valid TOML ({exc})") from None
+        panel = doc.pop("panel", {})
+        try:
+            return cls.model_validate(panel | doc)
+        except ValidationError as exc:
+            raise PanelConfigError(f"{path}: {describe_errors(exc.errors())}") from None
+
+
+def describe_errors(errors: list) -> str:
+    """Pydantic's errors as one line each: `where: what (value)`."""
+    lines = []
+    for e in errors:
+        where = ".".join(str(x) for x in e.get("loc", ())) or "(document)"
+        value = f" (got {_short(e['input'])})" if "input" in e and not isinstance(e["input"], dict | list) else ""
+        lines.append(f"{where}: {e['msg']}{value}")
+    return "; ".join(lines)
+
+
+def _short(value, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -1,0 +1,163 @@
+"""Session history across the stations' stores: listing with filters, a session's record, residuals and report.
+
+The stores are the stations' own SQLite files, read while the stations write
+them (WAL). Several stations may share one store; a session is found by its
+uid, which is unique across stores.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass
+from datetime import date
+from pathlib import Path
+
+from fastapi import HTTPException
+
+from station.analysis.identify import METHODS, identify
+from station.engine.registry import ProcedureError, get_procedure
+from station.session import Session
+from station.store import SessionStore, StoreError
+from web.config import StationEntry
+
+OUTCOMES = ("running", "finished", "aborted", "failed", "imported")
+LONG_LIST = 20  # measurement values longer than this are shown by their length
+REPORT_CACHE = 8
+
+
+@dataclass(frozen=True)
+class SessionFilter:
+    serial: str = ""  # part of the instrument serial, any case
+    procedure: str = ""
+    outcome: str = ""
+    since: date | None = None
+    until: date | None = None
+    station: str = ""
+
+    def admits(self, row: dict) -> bool:
+        day = date.fromisoformat(row["created_utc"][:10])
+        return (
+            self.serial.lower() in row["instrument_serial"].lower()
+            and (not self.procedure or row["procedure"] == self.procedure)
+            and (not self.outcome or row["status"] == self.outcome)
+            and (self.since is None or day >= self.since)
+            and (self.until is None or day <= self.until)
+            and (not self.station or self.station in row["stations"])
+        )
+
+
+@dataclass
+class _Store:
+    store: SessionStore
+    stations: list[StationEntry]
+
+
+class History:
+    """Read side of every configured store."""
+
+    def __init__(self, stations: Iterable[StationEntry]) -> None:
+        self._stores: dict[Path, _Store] = {}
+        for entry in stations:
+            key = entry.store.resolve()
+            if key not in self._stores:
+                self._stores[key] = _Store(SessionStore(entry.store), [])
+            self._stores[key].stations.append(entry)
+        self._reports: OrderedDict[str, str] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def close(self) -> None:
+        for s in self._stores.values():
+            s.store.close()
+
+    def sessions(self, where: SessionFilter, limit: int) -> list[dict]:
+        """Matching sessions, newest first."""
+        rows = []
+        for s in self._stores.values():
+            names = [e.name for e in s.stations]
+            rows += [row | {"stations": names} for row in s.store.sessions()]
+        rows = [r for r in rows if where.admits(r)]
+        rows.sort(key=lambda r: r["created_utc"], reverse=True)
+        return rows[:limit]
+
+    def _find(self, uid: str) -> _Store:
+        for s in self._stores.values():
+            try:
+                s.store.session_config(uid)
+            except StoreError:
+                continue
+            return s
+        raise HTTPException(404, f"no session {uid!r} in the stations' stores")
+
+    def load(self, uid: str, *, with_raw: bool = False) -> Session:
+        return self._find(uid).store.load_session(uid, with_raw=with_raw)
+
+    def row(self, uid: str) -> dict:
+        s = self._find(uid)
+        row = next(r for r in s.store.sessions() if r["uid"] == uid)
+        return row | {"stations": [e.name for e in s.stations]}
+
+    def record(self, uid: str) -> dict:
+        """Everything the session page shows but the plots: row, configuration, results, events, points."""
+        s = self._find(uid)
+        session = s.store.load_session(uid, with_raw=False)
+        return {
+            "session": self.row(uid),
+            "config": s.store.session_config(uid),
+            "results": s.store.results(uid),
+            "events": s.store.events(uid),
+            "points": [asdict(p) for p in session.points],
+            "measurements": [
+                {"key": m.key, "kind": m.kind, "values": {k: _shown(v) for k, v in m.values.items()}}
+                for m in session.measurements
+            ],
+            "station": asdict(session.station),
+        }
+
+    def residuals(self, uid: str) -> dict:
+        """Residuals of each identification method by vibration point (the report's Figs. 10-11), or why not."""
+        session = self.load(uid)
+        out = {}
+        for method in METHODS:
+            try:
+                r = identify(session, method)
+            except (ValueError, KeyError, IndexError) as exc:  # FitError and kin: nothing to identify here
+                out[method] = {"error": str(exc) or type(exc).__name__}
+                continue
+            out[method] = {"point_ids": list(r.vib_ids), "residuals_radps": r.Y_residuals.tolist(),
+                           "proportional_residuals": r.proportional_residuals.tolist()}  # fmt: skip
+        return out
+
+    def report_html(self, uid: str) -> str:
+        """The report the station wrote, else the procedure's analysis of the stored session (kept for a while)."""
+        s = self._find(uid)
+        for entry in s.stations:
+            path = entry.reports / f"report-{uid}.html"
+            if path.is_file():
+                return path.read_text()
+        with self._lock:
+            if uid in self._reports:
+                return self._reports[uid]
+        row = self.row(uid)
+        if row["status"] == "running":
+            raise HTTPException(409, f"session {uid} is still running: its report is written when it finishes")
+        try:
+            spec = get_procedure(row["procedure"])
+        except ProcedureError:
+            spec = None
+        if spec is None or spec.analyse is None:
+            raise HTTPException(404, f"session {uid}: procedure {row['procedure']!r} has no analysis report")
+        try:
+            html = spec.analyse(s.store.load_session(uid, with_raw=False)).report_html
+        except ValueError as exc:
+            raise HTTPException(409, f"session {uid}: no report, the analysis failed: {exc}") from None
+        with self._lock:
+            self._reports[uid] = html
+            while len(self._reports) > REPORT_CACHE:
+                self._reports.popitem(last=False)
+        return html
+
+
+def _shown(value):
+    return f"[{len(value)} values]" if isinstance(value, list) and len(value) > LONG_LIST else value

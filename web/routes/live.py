@@ -1,0 +1,100 @@
+"""Live view: the stations, their status and library, and telemetry relayed over a WebSocket."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from typing import Annotated
+from urllib.parse import urlsplit
+
+import anyio
+from fastapi import APIRouter, Depends, Query, Request, WebSocket, WebSocketDisconnect
+
+from web.auth import SESSION_COOKIE, viewer
+from web.relay import BrowserQueue
+from web.schemas import StationSummary, errors
+from web.state import Link, Panel, panel
+
+router = APIRouter(tags=["live"])
+BATCH = 64  # messages per WebSocket frame at most
+RELAY_REPORT_S = 1.0  # how often a browser hears its own drop count and the feeds' health
+NOT_LOGGED_IN, CROSS_SITE = 4401, 4403  # WebSocket close codes
+
+
+@router.get("/api/stations", dependencies=[Depends(viewer)], responses=errors(401))
+def stations(request: Request) -> list[StationSummary]:
+    """The configured stations and what the panel hears from each."""
+    p = panel(request)
+    return [StationSummary(name=s.name, title=s.title or s.name, relay=p.relay.feeds[s.name].stats())
+            for s in p.config.stations]  # fmt: skip
+
+
+@router.get(
+    "/api/stations/{name}/status", dependencies=[Depends(viewer)], responses=errors(401, 404, 409, 422, 502, 504)
+)
+async def status(link: Link) -> dict:
+    """The station's state and progress, asked over its control channel."""
+    return await link.request("status")
+
+
+@router.get(
+    "/api/stations/{name}/library", dependencies=[Depends(viewer)], responses=errors(401, 404, 409, 422, 502, 504)
+)
+async def library(link: Link) -> list[dict]:
+    """The station's procedures with their declared parameters (name, kind, default, min, max, choices, unit)."""
+    return await link.request("library")
+
+
+def _same_origin(ws: WebSocket) -> bool:
+    """Browsers send Origin with a WebSocket handshake; another site's page must not read the telemetry."""
+    origin = ws.headers.get("origin")
+    return origin is None or urlsplit(origin).netloc == ws.headers.get("host")
+
+
+def _relay_report(p: Panel, queue: BrowserQueue) -> str:
+    feeds = {n: f.stats() for n, f in p.relay.feeds.items() if queue.stations is None or n in queue.stations}
+    return json.dumps({"topic": "relay", "data": {"dropped": queue.dropped, "feeds": feeds}})
+
+
+async def _pump(ws: WebSocket, queue: BrowserQueue) -> None:
+    while True:
+        batch = await queue.batch(BATCH)
+        await ws.send_text("[" + ",".join(batch) + "]")
+
+
+async def _report(p: Panel, queue: BrowserQueue) -> None:
+    while True:
+        queue.offer(_relay_report(p, queue))
+        await asyncio.sleep(RELAY_REPORT_S)
+
+
+async def _until_closed(ws: WebSocket) -> None:
+    while True:
+        await ws.receive_text()
+
+
+@router.websocket("/ws/telemetry")
+async def telemetry(ws: WebSocket, station: Annotated[list[str] | None, Query()] = None) -> None:
+    """Every message of the stations (all, or those named by ?station=), as JSON arrays of telemetry documents."""
+    p: Panel = ws.app.state.panel
+    if p.logins.get(ws.cookies.get(SESSION_COOKIE)) is None:
+        await ws.close(NOT_LOGGED_IN, "not logged in")
+        return
+    if not _same_origin(ws):
+        await ws.close(CROSS_SITE, "cross-site WebSocket refused")
+        return
+    await ws.accept()
+    queue = p.relay.subscribe(station)
+    try:
+        async with anyio.create_task_group() as tasks:
+
+            async def until_first_ends(work) -> None:  # a closed socket ends the pump and the reports too
+                with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
+                    await work
+                tasks.cancel_scope.cancel()
+
+            for work in (_pump(ws, queue), _report(p, queue), _until_closed(ws)):
+                tasks.start_soon(until_first_ends, work)
+    finally:
+        p.relay.unsubscribe(queue)

@@ -1,0 +1,47 @@
+"""The panel's side of each station's control channel: requests off the event loop, refusals as HTTP errors."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from typing import Any
+
+from fastapi import HTTPException
+
+from station.control import ControlClient
+from web.config import StationEntry
+
+# The station's error types (station/control.py) as HTTP statuses; any other refusal is a conflict (409).
+HTTP_STATUS = {
+    "ParameterError": 422,  # the message names the parameter, the value and what is allowed
+    "ValidationError": 422,
+    "ProcedureError": 422,
+    "KeyError": 422,
+    "TypeError": 422,
+    "ControlError": 409,  # a run already under way, nothing to resume, ...
+    "Unauthorized": 502,  # the panel's control token is not the station's: a configuration fault
+    "UnknownCommand": 502,
+    "BadRequest": 502,
+    "Timeout": 504,
+}
+
+
+class StationLink:
+    """One station's control client; blocking requests run in a worker thread."""
+
+    def __init__(self, entry: StationEntry, timeout_s: float = 10.0) -> None:
+        self.entry = entry
+        token = os.environ.get(entry.token_env) if entry.token_env else None
+        self.client = ControlClient(entry.control, token=token, timeout_s=timeout_s)
+
+    async def request(self, cmd: str, args: dict[str, Any] | None = None, user: str = "") -> Any:
+        """The station's result; HTTPException with the station's own message if it refuses."""
+        reply = await asyncio.to_thread(self.client.request, cmd, args, user)
+        if reply.get("ok"):
+            return reply.get("result")
+        error = reply.get("error") or {}
+        kind = str(error.get("type", "Error"))
+        raise HTTPException(HTTP_STATUS.get(kind, 409), f"station {self.entry.name}: {error.get('message', kind)}")
+
+    def close(self) -> None:
+        self.client.close()

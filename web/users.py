@@ -1,0 +1,96 @@
+"""The panel's users: names, roles and Argon2id password hashes in a file kept out of the repository.
+
+`station panel-user add NAME --role operator|viewer` writes it; the panel
+only reads it. No plain password is ever stored or logged.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+
+Role = Literal["operator", "viewer"]
+ROLES: tuple[Role, ...] = ("operator", "viewer")
+USER_NAME = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
+MIN_PASSWORD = 8
+_HASHER = PasswordHasher()
+# Verified against when the name is unknown, so that a wrong name costs as long as a wrong password.
+_DUMMY_HASH = _HASHER.hash("not a password of anyone")
+
+
+class UserError(ValueError):
+    """A bad user name, role or password, or an unreadable users file."""
+
+
+@dataclass(frozen=True)
+class User:
+    name: str
+    role: Role
+
+
+class UserBook:
+    """The users file: {"users": {name: {"role": ..., "hash": ...}}}."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._users: dict[str, dict] = self._read()
+
+    def _read(self) -> dict[str, dict]:
+        if not self.path.exists():
+            return {}
+        try:
+            users = json.loads(self.path.read_text())["users"]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise UserError(f"{self.path}: not a users file ({exc})") from None
+        if not isinstance(users, dict) or not all(
+            isinstance(u, dict) and u.get("role") in ROLES and isinstance(u.get("hash"), str) for u in users.values()
+        ):
+            raise UserError(f"{self.path}: every user needs a role ({', '.join(ROLES)}) and a password hash")
+        return users
+
+    def _write(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self.path.with_suffix(".tmp")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            json.dump({"users": self._users}, f, indent=2)
+        os.replace(tmp, self.path)
+
+    def __len__(self) -> int:
+        return len(self._users)
+
+    def list(self) -> list[User]:
+        return [User(name, u["role"]) for name, u in sorted(self._users.items())]
+
+    def add(self, name: str, role: str, password: str) -> User:
+        """Add a user or replace one's role and password."""
+        if not USER_NAME.match(name):
+            raise UserError(f"user name {name!r}: use 1-64 letters, digits and _ . @ -")
+        if role not in ROLES:
+            raise UserError(f"role {role!r}: allowed {', '.join(ROLES)}")
+        if len(password) < MIN_PASSWORD:
+            raise UserError(f"password too short: at least {MIN_PASSWORD} characters")
+        self._users[name] = {"role": role, "hash": _HASHER.hash(password)}
+        self._write()
+        return User(name, role)  # type: ignore[arg-type]
+
+    def remove(self, name: str) -> None:
+        if self._users.pop(name, None) is None:
+            raise UserError(f"no user {name!r} in {self.path}")
+        self._write()
+
+    def verify(self, name: str, password: str) -> User | None:
+        """The user if the password is right; None otherwise (unknown names take as long)."""
+        entry = self._users.get(name)
+        try:
+            _HASHER.verify(entry["hash"] if entry else _DUMMY_HASH, password)
+        except (VerificationError, InvalidHashError):
+            return None
+        return User(name, entry["role"]) if entry else None
