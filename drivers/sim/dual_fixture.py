@@ -3,9 +3,10 @@
 `DualFixture` (one per world, `world.shared`) knows which pose each PIGA sits in; the
 simulated operator re-installs them on the action {"fixture_poses": [pose_a, pose_b]}.
 PIGA A is the world's twin: its mount angle (pose angle, seat error and its own input-axis
-error) goes into the world's `mount_misalignment`. PIGA B is `InstrumentOnHead`: the
-world's clock, crank, head and reference crossings, its own coefficients and mount, and its
-own noise draws. The station's CounterEmulator, fed by it, is B's counter channel.
+error) goes into the world's `mount_misalignment`. PIGA B has its own coefficients and
+mount on the same head; `InstrumentOnHead` is B as a counter sees it: the world's clock,
+crank, head and reference crossings, B's twin and its own noise draws. The station's
+CounterEmulator, fed by it, is B's counter channel.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from drivers.sim.counter_emulator import CounterEmulator
 from drivers.sim.world import SimStation
 from station.twin.config import InstrumentCoefficients, TwinConfig
 from station.twin.fixture import POSES_DEG, SETUPS, mounted_twin, pose_rad
+from station.twin.inputs import instrument_rate_radps
 
 FIXTURE = "dual_fixture"
 # Seat errors of the fixture's four poses (rad): pose 1 is the reference. All within the
@@ -35,10 +37,16 @@ IA_ERROR_B_RAD = -1.0e-5
 class DualFixture:
     """Which pose each PIGA is in; A starts in pose 1 with the world twin's mount as its own input-axis error."""
 
-    def __init__(self, world: SimStation, seat_errors_rad: Mapping[int, float] = SEAT_ERRORS_RAD,
-                 ia_error_b_rad: float = IA_ERROR_B_RAD) -> None:  # fmt: skip
+    def __init__(
+        self,
+        world: SimStation,
+        seat_errors_rad: Mapping[int, float] = SEAT_ERRORS_RAD,
+        instrument_b: InstrumentCoefficients = INSTRUMENT_B,
+        ia_error_b_rad: float = IA_ERROR_B_RAD,
+    ) -> None:
         self.world = world
         self.seat_errors_rad = dict(seat_errors_rad)
+        self.instrument_b = instrument_b
         self.ia_error_rad = {"A": world.twin.param("mount_misalignment", "dtheta_mount"), "B": ia_error_b_rad}
         self.poses = dict(zip(("A", "B"), SETUPS[1], strict=True))
         world.on_operator("fixture_poses", self.reinstall)
@@ -47,6 +55,10 @@ class DualFixture:
         """Pose angle + seat error + the instrument's own input-axis error."""
         pose = self.poses[instrument]
         return pose_rad(pose) + self.seat_errors_rad[pose] + self.ia_error_rad[instrument]
+
+    def twin_b(self) -> TwinConfig:
+        """B's twin as installed now: the station's effects, B's coefficients and mount."""
+        return mounted_twin(self.world.twin, self.mount_rad("B"), self.instrument_b)
 
     def reinstall(self, value: Any, t_s: float) -> None:
         """The operator puts A and B in the poses [pose_a, pose_b]."""
@@ -58,20 +70,27 @@ class DualFixture:
         self.world.set_twin(mounted_twin(self.world.twin, self.mount_rad("A")))
 
 
+def static_rates_radps(twin: TwinConfig, setup: int, heads_rad: np.ndarray) -> dict[str, tuple[int, np.ndarray]]:
+    """Noise-free static rates of PIGAs A (`twin`) and B in a fixture setup at head angles, by instrument:
+    (its pose, its rates). The simulated fixture's physics without the station, for design studies."""
+    fixture = DualFixture(SimStation(twin))
+    fixture.reinstall(list(SETUPS[setup]), 0.0)
+    twins = {"A": fixture.world.twin, "B": fixture.twin_b()}
+    return {i: (fixture.poses[i], np.array([float(instrument_rate_radps(h, 0.0, 0.0, tw)) for h in heads_rad]))
+            for i, tw in twins.items()}  # fmt: skip
+
+
 class InstrumentOnHead(SimStation):
-    """A second instrument on the world's indexing head, as its counter/timer sees it.
+    """PIGA B on the world's indexing head, as its counter/timer sees it.
 
     Built without SimStation.__init__, which would make a crank and a head of its own:
     this one shares the world's, re-anchors whenever the world changes (crank, head,
     fixture or physics) and inherits SimStation's window and pulse-edge machinery.
     """
 
-    def __init__(self, world: SimStation, fixture: DualFixture, instrument: InstrumentCoefficients,
-                 instrument_effects: Mapping[str, Mapping[str, float]] | None = None) -> None:  # fmt: skip
+    def __init__(self, world: SimStation, fixture: DualFixture) -> None:
         self.world = world
         self.fixture = fixture
-        self.instrument = instrument
-        self.instrument_effects = dict(instrument_effects or {})
         self.clock = world.clock
         self.crank = world.crank
         self.rng = np.random.default_rng(int(world.rng.integers(2**63)))
@@ -81,7 +100,7 @@ class InstrumentOnHead(SimStation):
 
     @property
     def twin(self) -> TwinConfig:
-        return mounted_twin(self.world.twin, self.fixture.mount_rad("B"), self.instrument, self.instrument_effects)
+        return self.fixture.twin_b()
 
     @property
     def _version(self) -> int:
@@ -94,7 +113,7 @@ class InstrumentOnHead(SimStation):
 def start_counter_emulator(world: SimStation, baud: int) -> CounterEmulator:
     """PIGA B on the world's fixture (made on first use) behind a counter/timer emulator of its own."""
     fixture = world.shared(FIXTURE, lambda: DualFixture(world))
-    emulator = CounterEmulator(InstrumentOnHead(world, fixture, INSTRUMENT_B), baud=baud)
+    emulator = CounterEmulator(InstrumentOnHead(world, fixture), baud=baud)
     emulator.name = "second-counter-emulator"
     emulator.start()
     return emulator

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.sim.dual_fixture import IA_ERROR_B_RAD, INSTRUMENT_B, SEAT_ERRORS_RAD
+from drivers.sim.dual_fixture import static_rates_radps
 from station.analysis.least_squares import FitError
 from station.analysis.multiposition.alignment import horizontal_axis_alignment
 from station.analysis.multiposition.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
@@ -20,7 +20,7 @@ from station.analysis.multiposition.sequences import HEAD_COUNTS_PER_DEG, sequen
 from station.analysis.multiposition.static_model import MODELS
 from station.session import StationInfo
 from station.twin.config import TwinConfig
-from station.twin.fixture import POSES_DEG, SETUPS, mounted_twin, pose_rad
+from station.twin.fixture import POSES_DEG, SETUPS, mounted_twin
 from station.twin.inputs import instrument_rate_radps
 
 TWIN = TwinConfig.from_toml(Path(__file__).parents[2] / "config" / "twin-seed003.toml")
@@ -105,19 +105,15 @@ def test_self_alignment_eq_55_and_its_uncertainty_eq_56() -> None:
 
 
 def _pose_windows(setups: tuple[int, ...], rng: np.random.Generator) -> list[PoseWindow]:
-    ia_a = TWIN.param("mount_misalignment", "dtheta_mount")
+    """Both PIGAs' windows of the four-pose sequences with 2e-7 rad/s of noise each."""
     out = []
     for setup in setups:
-        pa, pb = SETUPS[setup]
-        twins = {
-            "A": (pa, mounted_twin(TWIN, pose_rad(pa) + SEAT_ERRORS_RAD[pa] + ia_a)),
-            "B": (pb, mounted_twin(TWIN, pose_rad(pb) + SEAT_ERRORS_RAD[pb] + IA_ERROR_B_RAD, INSTRUMENT_B)),
-        }
-        for psi in sequence_deg("equal_acceleration" if setup == 1 else "equal_angle", 22):
-            head = math.radians((psi - POSES_DEG[pa]) % 360)
-            for inst, (pose, twin) in twins.items():
-                rate = float(instrument_rate_radps(head, 0.0, 0.0, twin)) + rng.normal(0.0, 2e-7)
-                out.append(PoseWindow(inst, setup, pose, head, rate))  # fmt: skip
+        pose_a = SETUPS[setup][0]
+        positions = sequence_deg("equal_acceleration" if setup == 1 else "equal_angle", 22)
+        heads = np.radians((np.array(positions) - POSES_DEG[pose_a]) % 360)
+        for inst, (pose, rates) in static_rates_radps(TWIN, setup, heads).items():
+            noisy = rates + rng.normal(0.0, 2e-7, rates.size)
+            out += [PoseWindow(inst, setup, pose, h, r) for h, r in zip(heads, noisy, strict=True)]
     return out
 
 
