@@ -2,11 +2,11 @@
 
 Runs config/procedures/seed004_suppression.toml (21 offsets, -5" .. 5" by 0.5", each calibrated by integral
 precession; the best offset; eqs. 21-22; the operator's mass removal; K2 once more) on
-config/station-electronics-sim.toml for N station seeds at the default 1000 x real time, through the same
-CLI path an operator uses, and prints each session's headline, the mean and spread over the sessions, and
-the wall time per session.
+config/station-electronics-sim.toml for N station seeds at SPEED x real time (the CLI's 1000 by default; 500
+keeps a loaded machine's late readers within half a time-stamp wrap), through the same CLI path an operator
+uses, and prints each session's headline, the mean and spread over the sessions, and the wall time per session.
 
-    .venv/bin/python bench/bench_seed004.py [N]
+    .venv/bin/python bench/bench_seed004.py [N] [SPEED]
 """
 
 from __future__ import annotations
@@ -29,12 +29,25 @@ PROCEDURE = CONFIG / "procedures" / "seed004_suppression.toml"
 STATION = CONFIG / "station-electronics-sim.toml"
 
 
-def run_session(seed: int) -> tuple[dict | None, float, float]:
+def run_session(seed: int, speed: float) -> tuple[dict | None, float, float]:
     """The headline of one simulated session (None if it did not finish), its station hours and wall seconds."""
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
-            code = station(["run", str(PROCEDURE), "--station", str(STATION), "--out", out, "--seed", str(seed)])
+            code = station(
+                [
+                    "run",
+                    str(PROCEDURE),
+                    "--station",
+                    str(STATION),
+                    "--out",
+                    out,
+                    "--seed",
+                    str(seed),
+                    "--speed",
+                    str(speed),
+                ]
+            )
         wall_s = time.perf_counter() - t0
         with SessionStore(Path(out) / "station.sqlite") as store:
             (row,) = store.sessions()
@@ -43,10 +56,10 @@ def run_session(seed: int) -> tuple[dict | None, float, float]:
     return (results[0]["headline"] if code == 0 else None), station_h, wall_s
 
 
-def main(n: int) -> None:
+def main(n: int, speed: float) -> None:
     rows = []
     for seed in range(n):
-        headline, station_h, wall_s = run_session(seed)
+        headline, station_h, wall_s = run_session(seed, speed)
         if headline is None:
             print(f"seed {seed}: did not finish (a driver fault; see above), {station_h:.2f} h in {wall_s:.1f} s wall")
             continue
@@ -62,4 +75,4 @@ def main(n: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5)
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5, float(sys.argv[2]) if len(sys.argv) > 2 else 1000.0)

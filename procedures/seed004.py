@@ -176,10 +176,12 @@ class FitSweep(Step):
         )
 
     def run(self, ctx: RunContext) -> Measurement:
-        cals = [
-            analysis.calibrate(ctx.hw.station, g, sweep_prefix(i), analysis.SWEEP, x)
-            for i, (g, x) in enumerate(zip(self.groups, self.offsets_arcsec, strict=True))
-        ]
+        cals = analysis.pooled(
+            [
+                analysis.calibrate(ctx.hw.station, g, sweep_prefix(i), analysis.SWEEP, x)
+                for i, (g, x) in enumerate(zip(self.groups, self.offsets_arcsec, strict=True))
+            ]
+        )
         fit = analysis.fit_sweep(self.offsets_arcsec, [c.k2_per_g for c in cals], [c.sigma_k2_per_g for c in cals])
         return self._measurement(fit)
 
@@ -238,7 +240,7 @@ def analyse_suppression(session: Session) -> Analysis:
             "seed004": analysis.SEED_FIGURES,
             "sweep": s.sweep.to_json(),
             "correction": vars(s.correction) if s.correction else None,
-            "calibrations": [vars(c) for c in s.calibrations],
+            "calibrations": [c.to_json() for c in s.calibrations],
         }
     }
     return Analysis(results, analysis.report_html(s, title), analysis.summary(s))

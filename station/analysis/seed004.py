@@ -3,7 +3,8 @@
 A session of `seed004.nonlinear_suppression` holds calibrations: groups of integral precession points (seed 000,
 identified by `station.analysis.identify`) whose ids start with a group prefix, each after a `servo_offset`
 measurement that names the prefix, the digital offset in force and the stage (sweep, best offset, after the mass
-removal). K2 in 1/g0 is kzz / kz, as the seed quotes it.
+removal). K2 in 1/g0 is kzz / kz, as the seed quotes it. Calibrations of one design and window length (the
+sweep's; those at the best offset) share one residual sigma, pooled over them.
 
 The sweep (section 5.1): K2 at each offset, a cubic spline through them evaluated every 0.001" (step 1), then a
 bounded line search around the lowest grid value (step 2). The seed interpolates; so does this, and the
@@ -19,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -42,47 +43,70 @@ MC_SEED = 4
 
 @dataclass(frozen=True)
 class Calibration:
-    """One integral precession calibration at one digital offset."""
+    """One integral precession calibration at one digital offset.
+
+    `unit_cov` is the covariance of (kz, kzz) per unit residual variance, (var kz, cov, var kzz); the sigmas
+    use `noise_radps`: the calibration's own residual sigma, or one pooled over calibrations that share it.
+    """
 
     prefix: str
     stage: str
     offset_arcsec: float
     kz: float
     kzz: float
-    sigma_kzz: float
-    k2_per_g: float  # kzz / kz, seed 004's K2 in 1/g0
-    sigma_k2_per_g: float
+    unit_cov: tuple[float, float, float]
+    sigma_residual_radps: float
+    dof: int
     n_points: int
     mu: float
     mu_c: float
+    noise_radps: float
+
+    @property
+    def sigma_kzz(self) -> float:
+        return math.sqrt(self.unit_cov[2]) * self.noise_radps
+
+    @property
+    def k2_per_g(self) -> float:
+        """kzz / kz: seed 004's K2 in 1/g0."""
+        return self.kzz / self.kz
+
+    @property
+    def sigma_k2_per_g(self) -> float:
+        a, b = -self.kzz / self.kz**2, 1.0 / self.kz
+        c_kz, c_x, c_kzz = self.unit_cov
+        return math.sqrt(a * a * c_kz + 2 * a * b * c_x + b * b * c_kzz) * self.noise_radps
+
+    def to_json(self) -> dict:
+        return asdict(self) | {"sigma_kzz": self.sigma_kzz, "k2_per_g": self.k2_per_g,
+                               "sigma_k2_per_g": self.sigma_k2_per_g}  # fmt: skip
 
 
 def calibrate(
     station: StationInfo, points: Sequence[PointRecord], prefix: str, stage: str, offset_arcsec: float
 ) -> Calibration:
-    """kzz of one group of points by integral precession (seed 000 eqs. 19-22), and K2 = kzz / kz with its sigma."""
+    """kz and kzz of one group of points by integral precession (seed 000 eqs. 19-22)."""
     r = identify(Session(station, list(points)))
     i, j = r.names.index("kz"), r.names.index("kzz")
-    kz, kzz = float(r.values[i]), float(r.values[j])
-    grad = np.array([-kzz / kz**2, 1.0 / kz])
-    cov = r.cov[np.ix_([i, j], [i, j])]
-    return Calibration(
-        prefix,
-        stage,
-        offset_arcsec,
-        kz,
-        kzz,
-        float(r.sigmas[j]),
-        kzz / kz,
-        float(math.sqrt(grad @ cov @ grad)),
-        len(points),
-        r.mu,
-        r.mu_c,
-    )
+    unit = r.cov / r.sigma_residual**2
+    return Calibration(prefix, stage, offset_arcsec, float(r.values[i]), float(r.values[j]),
+                       (float(unit[i, i]), float(unit[i, j]), float(unit[j, j])), r.sigma_residual, r.dof,
+                       len(points), r.mu, r.mu_c, r.sigma_residual)  # fmt: skip
+
+
+def pooled(cals: Sequence[Calibration]) -> list[Calibration]:
+    """The calibrations with one residual sigma pooled over them all: sqrt(sum dof s^2 / sum dof).
+
+    For calibrations of one design and window length (the sweep's; those at the best offset), which see the
+    same rate noise: a calibration's own sigma has only n - p = 5 degrees of freedom (seed 000 eq. 21).
+    """
+    dof = sum(c.dof for c in cals)
+    noise = math.sqrt(sum(c.dof * c.sigma_residual_radps**2 for c in cals) / dof) if dof else math.nan
+    return [replace(c, noise_radps=noise) for c in cals]
 
 
 def calibrations(session: Session) -> list[Calibration]:
-    """Every calibration of the session, in order."""
+    """Every calibration of the session, in order; noise pooled over the sweep and over the rest."""
     out = []
     for m in session.measurements:
         if m.kind != SERVO_OFFSET_KIND:
@@ -91,7 +115,9 @@ def calibrations(session: Session) -> list[Calibration]:
         points = [p for p in session.points if p.point_id.startswith(prefix + "-")]
         if points:
             out.append(calibrate(session.station, points, prefix, m.values["stage"], m.values["offset_arcsec"]))
-    return out
+    by_prefix = {c.prefix: c for c in pooled([c for c in out if c.stage == SWEEP])}
+    by_prefix |= {c.prefix: c for c in pooled([c for c in out if c.stage != SWEEP])}
+    return [by_prefix[c.prefix] for c in out]
 
 
 def design_defect(station: StationInfo, positions_deg: Sequence[float], freqs_hz: Sequence[float]) -> str | None:

@@ -67,8 +67,12 @@ def test_bad_input_is_refused_before_anything_moves() -> None:
 @pytest.mark.timeout(240)
 def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
     """The default procedure file, end to end on the simulated station (seed 5). Every figure is checked
-    against the twin's float within 4 sigma of the session's own uncertainties."""
-    assert main(["run", str(PROCEDURE), "--station", str(STATION), "--out", str(tmp_path), "--seed", "5"]) == 0
+    against the twin's float within 4 sigma of the session's own uncertainties. At 500 x real time: on a
+    loaded machine a reader that lags 107 ms of wall time at 1000 x (half a wrap of the 50 ns time stamps,
+    214.7 s of station time) puts time stamps on the wrong wrap (a TimingFault of exactly 48 364.8 us at
+    10 Hz); 500 x doubles that margin. About 100 s of wall time."""
+    args = ["run", str(PROCEDURE), "--station", str(STATION), "--out", str(tmp_path), "--seed", "5", "--speed", "500"]
+    assert main(args) == 0
     printed = capsys.readouterr().out
     assert "remove" in printed and "reduced" in printed
     with SessionStore(tmp_path / "station.sqlite") as store:
@@ -99,7 +103,7 @@ def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
     corr = r["correction"]
     mass_true_mg = corr["mass_mg"] * true_k2(at_best["offset_arcsec"]) / at_best["k2_per_g"]  # eq. 22 is linear
     assert abs(corr["mass_mg"] - mass_true_mg) < 4 * corr["sigma_mass_mg"]
-    assert 60.0 < corr["mass_mg"] < 110.0  # the seed removed 77.8 mg
+    assert 0.6 * 77.8 < corr["mass_mg"] < 1.5 * 77.8  # the seed's 77.8 mg; 4 sigma is about 30 mg here
 
     removed = next(m for m in session.measurements if m.key == "correction").values["mass_mg"]
     after_model = float_model.after_mass_removal(round(removed, 1) * 1e-6, corr["radius_mm"] * 1e-3,
@@ -109,7 +113,8 @@ def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
 
     headline = r["headline"]
     assert headline["k2_after_removal_per_g"] == after["k2_per_g"]
-    assert after["k2_per_g"] < no_offset["k2_per_g"] / 5  # about an order of magnitude (seed: 1.9e-6 -> 1.91e-7)
+    # about an order of magnitude (seed 004: 1.9e-6 -> 1.91e-7, 9.9 x); at least 5 x, within a factor 2 of that
+    assert after["k2_per_g"] < no_offset["k2_per_g"] / 5
     report = next(tmp_path.glob("report-*.html")).read_text()
     assert "<svg" in report and "Headline against seed 004" in report and "eq. 22" in report
     assert json.loads(next(tmp_path.glob("result-*.json")).read_text())["suppression"]["seed004"]["reduction"] > 9
