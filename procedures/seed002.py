@@ -26,7 +26,7 @@ import numpy as np
 from drivers.errors import DriverError, LimitError
 from drivers.imu import ImuRecording
 from drivers.shaker import check_ramp, check_random, check_sine
-from station.analysis.seed002 import RunWindow, least_squares_tau, navigate, observe_run
+from station.analysis.seed002 import RunRecord, least_squares_tau, navigate, observe_run
 from station.analysis.seed002_report import analyse_session
 from station.clock import speed_at_most
 from station.engine.params import Param
@@ -148,22 +148,28 @@ class VibrationRun(Step):
         else:
             shaker.set_random(self.level_g, *self.band_hz)
         rec = ImuRecording(imu.dt_s)
+        # Station time runs no faster than the line while recording, nor while the run is reduced (a second
+        # of computing is not a thousand seconds of the station's time).
         with speed_at_most(ctx.clock, imu.max_lossless_speed):
             t0_s, tk_s = self._record(ctx, imu, shaker, rec)
+            return self._reduce(ctx, rec, imu.rate_hz, t0_s, tk_s)
+
+    def _reduce(self, ctx: Any, rec: ImuRecording, rate_hz: int, t0_s: float, tk_s: float) -> Measurement:
+        """The run's observation (eqs. 17-22) and, for a verification run, its navigation."""
         t_s, dtheta, dv = rec.arrays()
-        dt = imu.dt_s
-        window = RunWindow.from_times(float(t_s[0]) - dt, dt, t0_s, tk_s)
+        dt = rec.dt_s
+        run = RunRecord.from_times(dtheta, dv, dt, float(t_s[0]) - dt, t0_s, tk_s)
         site = _site(ctx)
-        obs = observe_run(dtheta, dv, dt, window, site)
-        values = self._values(self.pose, imu.rate_hz, float(t_s[-1] - t_s[0] + dt))
-        mid = (window.i0 + window.ik) // 2
+        obs = observe_run(run, site)
+        values = self._values(self.pose, rate_hz, float(t_s[-1] - t_s[0] + dt))
+        mid = (run.i0 + run.ik) // 2
         snip = slice(mid, mid + max(round(SNIPPET_S / dt), 2))
         values |= {"A": obs.A.tolist(), "B": obs.B.tolist(), "c_bn_t0": obs.c_bn_t0.tolist(),
                    "c_bn_tk": obs.c_bn_tk.tolist(), "mean_products": obs.mean_products.tolist(),
                    "vibration_s": obs.duration_s, "snippet_rate_radps": (dtheta[snip] / dt).tolist(),
                    "snippet_force_mps2": (dv[snip] / dt).tolist()}  # fmt: skip
         if self.tau_hat:
-            nav = navigate(dtheta, dv, dt, window, site, np.array(self.tau_hat), imu.rate_hz)
+            nav = navigate(run, site, np.array(self.tau_hat), rate_hz)
             values |= {"t_s": nav.t_s.tolist(), "v_uncompensated_mps": nav.v_uncompensated_mps.tolist(),
                        "v_compensated_mps": nav.v_compensated_mps.tolist(),
                        "sensitivity_end": nav.sensitivity[-1].tolist(), "decrease_pct": nav.decrease}  # fmt: skip

@@ -17,6 +17,7 @@ A's east row (as navigation leaves it out of the velocity error). The seed keeps
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -36,16 +37,43 @@ HORIZONTAL = slice(0, 2)  # D of eq. 22: east and north
 
 
 @dataclass(frozen=True)
-class RunWindow:
-    """Edge indices of a run: increments [0, i0) static, [i0, ik) vibration, [ik, N) static again."""
+class RunRecord:
+    """One run's increments: [0, i0) static, [i0, ik) vibration, [ik, N) static again (edge indices)."""
 
+    dtheta: np.ndarray  # (N, 3) rad
+    dv: np.ndarray  # (N, 3) m/s
+    dt_s: float
     i0: int
     ik: int
 
     @classmethod
-    def from_times(cls, t_first_edge_s: float, dt_s: float, t0_s: float, tk_s: float) -> RunWindow:
-        """The edge at or before t0 (vibration commanded) and at or after tk (table quiet again)."""
-        return cls(int(np.floor((t0_s - t_first_edge_s) / dt_s + 1e-9)), int(np.ceil((tk_s - t_first_edge_s) / dt_s)))
+    def from_times(
+        cls, dtheta: np.ndarray, dv: np.ndarray, dt_s: float, t_first_edge_s: float, t0_s: float, tk_s: float
+    ) -> RunRecord:
+        """Vibration from the edge at or before t0 (commanded) to the edge at or after tk (table quiet again)."""
+        i0 = int(np.floor((t0_s - t_first_edge_s) / dt_s + 1e-9))
+        ik = int(np.ceil((tk_s - t_first_edge_s) / dt_s))
+        if i0 < 1 or ik >= dtheta.shape[0] or ik <= i0:
+            raise FitError(f"vibration window [{i0}, {ik}) of {dtheta.shape[0]} increments leaves no static stretch")
+        return cls(dtheta, dv, dt_s, i0, ik)
+
+    @cached_property
+    def omega(self) -> np.ndarray:
+        """Rate at every stamp, band-limited (`rates_at_stamps`)."""
+        return rates_at_stamps(self.dtheta, self.dt_s)
+
+    @cached_property
+    def force(self) -> np.ndarray:
+        """Specific force at every stamp."""
+        return rates_at_stamps(self.dv, self.dt_s)
+
+    @property
+    def vibration(self) -> slice:
+        return slice(self.i0, self.ik)
+
+    @property
+    def duration_s(self) -> float:
+        return (self.ik - self.i0) * self.dt_s
 
 
 @dataclass(frozen=True)
@@ -71,23 +99,19 @@ def absorbed_east(c_bn_t0: np.ndarray, rate_b: np.ndarray, force_b: np.ndarray) 
     return (c_bn_t0 @ gamma_matrix(rate_b, force_b))[0]
 
 
-def observe_run(dtheta: np.ndarray, dv: np.ndarray, dt_s: float, window: RunWindow, site: Site) -> Observation:
+def observe_run(run: RunRecord, site: Site) -> Observation:
     """The attitude-error observation of one run (seed 002 eqs. 15-22)."""
-    i0, ik = window.i0, window.ik
-    if i0 < 1 or ik >= dtheta.shape[0] or ik <= i0:
-        raise FitError(f"run window [{i0}, {ik}) of {dtheta.shape[0]} increments leaves no static stretch")
-    rest = static_means(dtheta[:i0], dv[:i0], dt_s)
+    vib = run.vibration
+    rest = static_means(run.dtheta[: run.i0], run.dv[: run.i0], run.dt_s)
     c_bn_t0 = coarse_alignment(*rest)
-    c_bn_tk = coarse_alignment(*static_means(dtheta[ik:], dv[ik:], dt_s))
-    omega, force = rates_at_stamps(dtheta, dt_s)[i0:ik], rates_at_stamps(dv, dt_s)[i0:ik]
-    c_bi = attitude_history(dtheta[i0:ik])
-    duration = (ik - i0) * dt_s
-    phi_i = attitude_error(c_bi[-1], c_bn_t0, c_bn_tk, duration, site)
-    a_n = c_bn_t0 @ -rotated_gamma_sums(c_bi[1:], omega, force, dt_s, ik - i0)[0]
-    a_n[0] += duration * absorbed_east(c_bn_t0, *rest)
-    vib = force - force.mean(axis=0)
-    products = omega.T @ vib / (ik - i0)
-    return Observation(a_n[HORIZONTAL], (c_bn_t0 @ phi_i)[HORIZONTAL], c_bn_t0, c_bn_tk, products, duration)
+    c_bn_tk = coarse_alignment(*static_means(run.dtheta[run.ik :], run.dv[run.ik :], run.dt_s))
+    omega, force = run.omega[vib], run.force[vib]
+    c_bi = attitude_history(run.dtheta[vib])
+    phi_i = attitude_error(c_bi[-1], c_bn_t0, c_bn_tk, run.duration_s, site)
+    a_n = c_bn_t0 @ -rotated_gamma_sums(c_bi[1:], omega, force, run.dt_s, run.ik - run.i0)[0]
+    a_n[0] += run.duration_s * absorbed_east(c_bn_t0, *rest)
+    products = omega.T @ (force - force.mean(axis=0)) / (run.ik - run.i0)
+    return Observation(a_n[HORIZONTAL], (c_bn_t0 @ phi_i)[HORIZONTAL], c_bn_t0, c_bn_tk, products, run.duration_s)
 
 
 @dataclass(frozen=True)
@@ -142,35 +166,32 @@ class Navigation:
         return float(100.0 * (1.0 - c / u)) if u > 0 else 0.0
 
 
-def navigate(
-    dtheta: np.ndarray, dv: np.ndarray, dt_s: float, window: RunWindow, site: Site, tau_hat: np.ndarray, block: int
-) -> Navigation:
+def navigate(run: RunRecord, site: Site, tau_hat: np.ndarray, block: int) -> Navigation:
     """Pure inertial navigation over the vibration from the Step 1 alignment, with and without compensation.
 
     The velocity is referred to the fixture's mean velocity, zero on the shaker: block means over
     `block` samples (whole vibration periods) leave the error.
     """
-    i0, ik = window.i0, window.ik
-    omega_all, force_all = rates_at_stamps(dtheta, dt_s), rates_at_stamps(dv, dt_s)
-    omega, force = omega_all[i0:ik], force_all[i0:ik]
-    t = (np.arange(ik - i0) + 1) * dt_s
+    vib, dt = run.vibration, run.dt_s
+    omega, force = run.omega[vib], run.force[vib]
+    t = (np.arange(run.ik - run.i0) + 1) * dt
     g_n = np.array([0.0, 0.0, -site.g_mps2])
     w_ie = site.earth_rate_n
 
     def velocity(gyro: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
-        rest = static_means(gyro[:i0], dv[:i0], dt_s)
-        c_bn = earth_rotation(t, site) @ coarse_alignment(*rest) @ attitude_history(gyro[i0:ik])[1:]
+        rest = static_means(gyro[: run.i0], run.dv[: run.i0], dt)
+        c_bn = earth_rotation(t, site) @ coarse_alignment(*rest) @ attitude_history(gyro[vib])[1:]
         f_n = np.einsum("kij,kj->ki", c_bn, force)
-        v = np.cumsum(f_n + g_n, axis=0) * dt_s
-        v -= np.cumsum(2.0 * np.cross(w_ie, v), axis=0) * dt_s  # Coriolis, from the first pass
+        v = np.cumsum(f_n + g_n, axis=0) * dt
+        v -= np.cumsum(2.0 * np.cross(w_ie, v), axis=0) * dt  # Coriolis, from the first pass
         nb = v.shape[0] // block
         return v[: nb * block, HORIZONTAL].reshape(nb, block, 2).mean(axis=1), c_bn, rest
 
-    v_u, c_bn, rest = velocity(dtheta)
+    v_u, c_bn, rest = velocity(run.dtheta)
     # The navigation software compensates every sample, the alignment's too.
-    v_c, _, _ = velocity(dtheta - equivalent_drift(omega_all, force_all, np.asarray(tau_hat, dtype=float)) * dt_s)
-    sensitivity = _sensitivity(c_bn, omega, force, dt_s, block, absorbed_east(c_bn[0], *rest))
-    return Navigation((np.arange(v_u.shape[0]) + 0.5) * block * dt_s, v_u, v_c, sensitivity)
+    v_c, _, _ = velocity(run.dtheta - equivalent_drift(run.omega, run.force, np.asarray(tau_hat, dtype=float)) * dt)
+    sensitivity = _sensitivity(c_bn, omega, force, dt, block, absorbed_east(c_bn[0], *rest))
+    return Navigation((np.arange(v_u.shape[0]) + 0.5) * block * dt, v_u, v_c, sensitivity)
 
 
 def _sensitivity(

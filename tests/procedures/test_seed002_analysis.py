@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from station.analysis.seed002 import RunWindow, estimate_flexure, navigate, observe_run
+from station.analysis.seed002 import RunRecord, estimate_flexure, navigate, observe_run
 from station.analysis.strapdown import attitude_history, coarse_alignment, rates_at_stamps
 from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
 from station.twin.fixture_poses import CALIBRATION_POSES, POSES, ROCKING_AXIS_N, SLIP_AXIS_N
@@ -29,7 +29,7 @@ TAU = np.asarray(TWIN.tau)
 def run_of(twin, pose, drive, rng, align_s=30.0, vibrate_s=30.0, rate_hz=200.0):
     run = simulate_run(twin, SITE, POSES[pose], drive, rate_hz=rate_hz, align_s=align_s, vibrate_s=vibrate_s,
                        ramp_s=2.0, rng=rng)  # fmt: skip
-    return run, RunWindow.from_times(0.0, run.dt_s, run.t0_s, run.tk_s)
+    return RunRecord.from_times(run.dtheta, run.dv, run.dt_s, 0.0, run.t0_s, run.tk_s)
 
 
 def test_gamma_tau_is_the_misalignment_matrix_of_eqs_9_and_10() -> None:
@@ -82,8 +82,7 @@ def test_increments_give_back_rates_attitude_and_alignment() -> None:
 def test_a_noise_free_run_obeys_the_observation_equation(pose, amp_g) -> None:
     """B = A tau (eqs. 17-22) to a part in 1e4: what is left are terms second order in the rocking (1e-2 rad)
     times the attitude error (1e-4 of the rocking) and the 200 Hz reconstruction's last bits."""
-    run, window = run_of(QUIET, pose, sine_drive(20.0, amp_g, G_MPS2), np.random.default_rng(2))
-    obs = observe_run(run.dtheta, run.dv, run.dt_s, window, SITE)
+    obs = observe_run(run_of(QUIET, pose, sine_drive(20.0, amp_g, G_MPS2), np.random.default_rng(2)), SITE)
     predicted = obs.A @ TAU
     assert np.abs(obs.B - predicted).max() < 1e-4 * np.abs(predicted).max()
 
@@ -113,8 +112,7 @@ def test_the_estimate_is_right_within_the_noise_the_twin_puts_in() -> None:
     rng = np.random.default_rng(3)
     a, b = [], []
     for k in CALIBRATION_POSES:
-        run, window = run_of(TWIN, k, sine_drive(20.0, 1.5, G_MPS2), rng)
-        obs = observe_run(run.dtheta, run.dv, run.dt_s, window, SITE)
+        obs = observe_run(run_of(TWIN, k, sine_drive(20.0, 1.5, G_MPS2), rng), SITE)
         a.append(obs.A)
         b.append(obs.B)
     fit = estimate_flexure(np.vstack(a), np.concatenate(b))
@@ -138,8 +136,7 @@ def test_compensation_removes_the_velocity_error_the_sensitivity_predicts(pose, 
     """Noise-free verification runs (seed 002 Figs. 6-7): uncompensated, the horizontal velocity error is
     S tau; compensated with an estimate 10 % short, S (tau - tau_hat), a decrease of 90 %. The linearisation
     and the 200 Hz sampling leave 0.5 % of S tau (0.1 % at 1 kHz: it is first order in the interval)."""
-    run, window = run_of(QUIET, pose, drive, np.random.default_rng(5), vibrate_s=60.0)
-    nav = navigate(run.dtheta, run.dv, run.dt_s, window, SITE, 0.9 * TAU, 200)
+    nav = navigate(run_of(QUIET, pose, drive, np.random.default_rng(5), vibrate_s=60.0), SITE, 0.9 * TAU, 200)
     s = nav.sensitivity[-1]
     floor = 5e-3 * np.linalg.norm(s @ TAU)
     assert np.linalg.norm(nav.v_uncompensated_mps[-1] - s @ TAU) < floor

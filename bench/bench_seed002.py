@@ -1,0 +1,130 @@
+"""Seed 002's figures on the simulated station: Table 1's coefficients, the velocity-error decreases of
+Table 2, and the speed of the IMU recordings.
+
+session: `seed002.g_sensitive_misalignment` with config/procedures/seed002_g_sensitive.toml (the seed's
+    15-minute alignments, 10-minute vibrations at 1.5 g, 20 Hz in the nine poses, and its two
+    verification runs) through the engine, the drivers and the emulators; the estimates against the
+    simulated IMU's true coefficients (seed 002 Table 1), wall and station time.
+table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 0.5 g 20 Hz x6, 1 g 20 Hz
+    x6, 2 g 20 Hz x3, random 0.7 g RMS 10-60 Hz x3, along the SINS's diagonal, 15-minute alignment,
+    10-minute vibration) made off line from the twin (station.twin.vibration_run), compensated with the
+    estimate of an off-line calibration of the same lengths: the percentage decrease of each.
+
+    .venv/bin/python bench/bench_seed002.py [session|table2|all] [--seed N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drivers.station import simulated_station
+from drivers.station_config import load_station_config
+from station.analysis.seed002 import RunRecord, estimate_flexure, navigate, observe_run
+from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+from station.controller import StationController
+from station.engine.planning import StationModel
+from station.engine.registry import load_procedure_file
+from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.fixture_poses import CALIBRATION_POSES, POSES
+from station.twin.shaker_motion import random_drive, sine_drive
+from station.twin.strapdown_imu import ARCSEC_PER_G, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
+from station.twin.vibration_run import SimulatedRun, simulate_run
+
+ROOT = Path(__file__).resolve().parents[1]
+SITE = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
+TABLE2 = [("1 g, 10 Hz", 1.0, 10.0, 3), ("1.5 g, 10 Hz", 1.5, 10.0, 6), ("0.5 g, 20 Hz", 0.5, 20.0, 6),
+          ("1 g, 20 Hz", 1.0, 20.0, 6), ("2 g, 20 Hz", 2.0, 20.0, 3), ("random", 0.7, 0.0, 3)]  # fmt: skip
+ALIGN_S, VIBRATE_S, RATE_HZ = 900.0, 600.0, 200.0
+
+
+def record(run: SimulatedRun) -> RunRecord:
+    return RunRecord.from_times(run.dtheta, run.dv, run.dt_s, 0.0, run.t0_s, run.tk_s)
+
+
+def table1(values: np.ndarray, sigmas: np.ndarray) -> None:
+    print("| coefficient | estimate (arcsec/g) | σ | seed Table 1 (the twin's truth) | error / σ |")
+    print("|---|---|---|---|---|")
+    for name, v, s, t in zip(TAU_NAMES, values, sigmas, TABLE1_ARCSEC_PER_G, strict=True):
+        print(f"| τ_{name} | {v:+.4f} | {s:.4f} | {t:+.3f} | {(v - t) / s:+.2f} |")
+
+
+def session(seed: int) -> None:
+    config = load_station_config(ROOT / "config" / "station-shaker-sim.toml")
+    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed002_g_sensitive.toml")
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        simulated_station(config, default_twin(), seed=seed, speed=1000.0) as sim,
+        SessionStore(Path(tmp) / "station.sqlite") as store,
+    ):
+        controller = StationController(sim.devices, store, StationModel.from_config(config), reports_dir=tmp)
+        wall = time.perf_counter()
+        outcome = controller.run(spec.name, params)
+        wall = time.perf_counter() - wall
+        station_s = controller.engine.progress.elapsed_s
+    assert outcome.analysis is not None, outcome.faults
+    r = outcome.analysis.results["flexure"]
+    print(f"session: {outcome.state}, {station_s / 3600:.2f} h of station time in {wall:.0f} s of wall time "
+          f"({station_s / wall:.1f}x); residual σ {r['sigma_residual_arcsec']:.3f} arcsec, {r['dof']} dof, "
+          f"condition {r['condition']:.2f}\n")  # fmt: skip
+    table1(np.array(r["values_arcsec_per_g"]), np.array(r["sigmas_arcsec_per_g"]))
+    print()
+    for c in outcome.analysis.results["verification"]["runs"]:
+        print(f"{c['key']}: |δv| {c['v_end_uncompensated_mps']:.4f} -> {c['v_end_compensated_mps']:.4f} m/s "
+              f"after {c['vibration_s']:.0f} s: -{c['decrease_pct']:.1f} %")  # fmt: skip
+
+
+def offline_calibration(twin: StrapdownImuTwin, rng: np.random.Generator) -> np.ndarray:
+    a, b = [], []
+    for k in CALIBRATION_POSES:
+        run = simulate_run(twin, SITE, POSES[k], sine_drive(20.0, 1.5, G_MPS2), rate_hz=RATE_HZ, align_s=ALIGN_S,
+                           vibrate_s=VIBRATE_S, ramp_s=2.0, rng=rng)  # fmt: skip
+        obs = observe_run(record(run), SITE)
+        a.append(obs.A)
+        b.append(obs.B)
+    fit = estimate_flexure(np.vstack(a), np.concatenate(b))
+    print("off-line calibration (the seed's run lengths):\n")
+    table1(fit.values / ARCSEC_PER_G, fit.sigmas / ARCSEC_PER_G)
+    return fit.values
+
+
+def table2(seed: int) -> None:
+    twin, rng = StrapdownImuTwin(), np.random.default_rng(seed)
+    wall = time.perf_counter()
+    tau_hat = offline_calibration(twin, rng)
+    print("\n| vibration | decrease of the velocity error, % (27 runs along the SINS's diagonal) |")
+    print("|---|---|")
+    decreases = []
+    for label, level, freq, count in TABLE2:
+        row = []
+        for _ in range(count):
+            drive = random_drive(level, 10.0, 60.0, G_MPS2, rng) if freq == 0 else sine_drive(freq, level, G_MPS2)
+            run = simulate_run(twin, SITE, POSES[10], drive, rate_hz=RATE_HZ, align_s=ALIGN_S, vibrate_s=VIBRATE_S,
+                               ramp_s=2.0, rng=rng)  # fmt: skip
+            row.append(navigate(record(run), SITE, tau_hat, round(RATE_HZ)).decrease)
+        decreases += row
+        print(f"| {label} | {', '.join(f'{d:.1f}' for d in row)} |")
+    d = np.array(decreases)
+    print(f"\nabove 30 %: {np.mean(d > 30) * 100:.0f} % of the runs (seed: about 82 %); median {np.median(d):.1f} %; "
+          f"{time.perf_counter() - wall:.0f} s")  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("part", nargs="?", default="all", choices=("session", "table2", "all"))
+    parser.add_argument("--seed", type=int, default=2)
+    args = parser.parse_args()
+    if args.part in ("session", "all"):
+        session(args.seed)
+    if args.part in ("table2", "all"):
+        table2(args.seed)
+
+
+if __name__ == "__main__":
+    main()
