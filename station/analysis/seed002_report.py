@@ -13,6 +13,7 @@ import math
 
 import matplotlib.pyplot as plt
 import numpy as np
+from scipy.stats import chi2
 
 from station.analysis.least_squares import FitError
 from station.analysis.seed002 import FlexureFit, estimate_flexure
@@ -135,8 +136,11 @@ def analyse_session(session: Session) -> Analysis:
     checks = _verification(verification, fit)
     results = {"flexure": flexure, "verification": {"runs": checks}}
     uid = session.meta.get("store_uid", "")
+    low, high = np.sqrt(fit.dof / chi2.ppf([0.95, 0.05], fit.dof))  # the true sigma over the estimate, 90 %
     fit_facts = {
         "residual σ": f"{fit.sigma_residual / ARCSEC_RAD:.3f} arcsec ({fit.dof} degrees of freedom)",
+        "σ's own uncertainty": f"the true σ lies in {low:.2f} .. {high:.2f} times it (90 %, χ² with {fit.dof} dof); "
+        "so do the coefficients' σ",
         "condition number of A": f"{fit.condition:.2f}",
         "observations": f"{len(calibration)} runs × 2 horizontal components",
     }
