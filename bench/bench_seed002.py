@@ -25,6 +25,7 @@ import numpy as np
 
 from drivers.station import simulated_station
 from drivers.station_config import load_station_config
+from procedures.seed002 import VELOCITY_BLOCK_S
 from station.analysis.seed002 import RunRecord, estimate_flexure, navigate, observe_run
 from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
 from station.controller import StationController
@@ -107,7 +108,7 @@ def table2(seed: int) -> None:
             drive = random_drive(level, 10.0, 60.0, G_MPS2, rng) if freq == 0 else sine_drive(freq, level, G_MPS2)
             run = simulate_run(twin, SITE, POSES[10], drive, rate_hz=RATE_HZ, align_s=ALIGN_S, vibrate_s=VIBRATE_S,
                                ramp_s=2.0, rng=rng)  # fmt: skip
-            row.append(navigate(record(run), SITE, tau_hat, round(RATE_HZ)).decrease)
+            row.append(navigate(record(run), SITE, tau_hat, round(VELOCITY_BLOCK_S * RATE_HZ)).decrease)
         decreases += row
         print(f"| {label} | {', '.join(f'{d:.1f}' for d in row)} |")
     d = np.array(decreases)
