@@ -330,6 +330,7 @@ class IndexingHead:
         while True:
             if self._held.is_set():
                 raise InterlockError(DEVICE, f"wait for {target_deg} deg interrupted: head held")
+            asked_s = self.clock.now_s()
             reply = self._query("get pos")
             pos = self._pos_of(reply)
             now = self.clock.now_s()
@@ -340,9 +341,9 @@ class IndexingHead:
                     return pos
             else:
                 since = None
-            # An idle head within tolerance is settling, however late this poll came (a stalled host
-            # on a fast virtual clock): only a head that is not there times out.
-            if now - t0 > limit and since is None:
+            # Only a head seen away from the target (or busy) by a query sent after the deadline times out:
+            # with a stalled host on a fast virtual clock a reading from before the stall arrives after it.
+            if asked_s - t0 > limit and since is None:
                 raise DeviceTimeout(
                     DEVICE,
                     f"not settled at {target_deg} deg within {limit:g} s "
