@@ -50,6 +50,11 @@ SEED003_PRECESSION_REV = 5.0  # 10 pi rad per position (seed 003 5.2)
 # ---- steps ---------------------------------------------------------------------------------------------
 
 
+def _tags(dut: str, setup: int, pose: int, block: str) -> dict[str, str]:
+    """A window's extra columns (piga-session/1 allows dut and pose; setup and block say what it was for)."""
+    return {"dut": dut, "setup": str(setup), "pose": str(pose), "block": block}
+
+
 @dataclass(frozen=True)
 class PosedPoint(MeasurePoint):
     """A static window of PIGA A, tagged with the fixture setup, A's pose and the block it belongs to."""
@@ -59,8 +64,7 @@ class PosedPoint(MeasurePoint):
     block: str = ""
 
     def _tagged(self, record: PointRecord) -> PointRecord:
-        tags = {"dut": "A", "setup": str(self.setup), "pose": str(self.pose), "block": self.block}
-        return replace(record, extra={**record.extra, **tags})
+        return replace(record, extra={**record.extra, **_tags("A", self.setup, self.pose, self.block)})
 
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
         dt, record = super().plan(ctx)
@@ -75,7 +79,10 @@ class PosedPoint(MeasurePoint):
 
 @dataclass(frozen=True)
 class SecondInstrumentWindow(Step):
-    """A static window of PIGA B at the head's position, counted on the second counter/timer channel."""
+    """A static window of PIGA B at the head's position, counted on the second counter/timer channel.
+
+    Result: a PointRecord of B (extra dut = B), stored with A's points.
+    """
 
     name: str
     position_deg: float
@@ -89,11 +96,9 @@ class SecondInstrumentWindow(Step):
     def key(self) -> str:
         return self.name
 
-    def _measurement(self, pulses: int, tm_s: float, start_s: float) -> Measurement:
-        values = {"dut": "B", "position_deg": self.position_deg, "setup": self.setup, "pose": self.pose,
-                  "block": self.block, "preset_pulses": self.preset_pulses, "pulses": pulses, "Tm_s": tm_s,
-                  "start_s": start_s}  # fmt: skip
-        return Measurement(self.key, gf.SECOND_WINDOW, values)
+    def _record(self, sequence: int, start_s: float, pulses: int, tm_s: float) -> PointRecord:
+        return PointRecord(self.key, sequence, start_s, self.position_deg, 0.0, "static", pulses, tm_s,
+                           extra=_tags("B", self.setup, self.pose, self.block))  # fmt: skip
 
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
         ctx.require(SECOND_INSTRUMENT)
@@ -104,9 +109,11 @@ class SecondInstrumentWindow(Step):
             raise ctx.fail("pose", self.pose, "a fixture pose 1, 2, 3 or 4")
         dt = ctx.move_head(self.position_deg) + ctx.set_table(0.0) + self.settle_s
         tm_s = ctx.model.window_s(self.position_deg + POSES_DEG[self.pose], self.preset_pulses)
-        return dt + tm_s, self._measurement(self.preset_pulses, tm_s, ctx.state.t_s + dt)
+        record = self._record(ctx.state.sequence, ctx.state.t_s + dt, self.preset_pulses, tm_s)
+        ctx.state.sequence += 1
+        return dt + tm_s, record
 
-    def run(self, ctx: RunContext) -> Measurement:
+    def run(self, ctx: RunContext) -> Recorded:
         ctx.move_head(self.position_deg)
         ctx.set_table(0.0, self.settle_s)
         ctx.check_abort()
@@ -121,7 +128,7 @@ class SecondInstrumentWindow(Step):
             with contextlib.suppress(DriverError):
                 board.abort()
             raise
-        return self._measurement(result.pulses, result.Tm_s, result.open_s - ctx.t0_s)
+        return Recorded(self._record(ctx.sequence, result.open_s - ctx.t0_s, result.pulses, result.Tm_s))
 
 
 @dataclass(frozen=True)

@@ -184,8 +184,8 @@ def test_abort_during_a_second_instrument_window_leaves_its_board_idle(dual_stat
     controller.abort()
     assert controller.wait(30).state == State.ABORTED
     assert sim.devices.device("second_instrument").status()["state"] == "idle"
-    stored = [m.key for m in controller.store.load_session(uid, with_raw=False).measurements]
-    assert not any(k.endswith("-B") for k in stored)  # the abort came inside B's window
+    stored = [p.point_id for p in controller.store.load_session(uid, with_raw=False).points]
+    assert stored and not any(k.endswith("-B") for k in stored)  # the abort came inside B's window
 
 
 # ---- bad input, before anything moves ------------------------------------------------------------------

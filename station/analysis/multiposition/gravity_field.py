@@ -1,9 +1,9 @@
 """What a seed-003 gravity-field session identifies: harmonics, then the coefficients with and without them.
 
-The session holds PIGA A's static windows as points (tagged in `extra` with the fixture
-setup, A's pose and the block: alignment, four_pose, calibration <scheme>), PIGA B's
-windows as measurements of kind SECOND_WINDOW, and each self-alignment's result as a
-measurement of kind ALIGNMENT (the head zero the procedure applied from then on).
+The session holds both PIGAs' static windows as points, tagged in `extra` with the
+instrument (dut A or B), the fixture setup, its pose and the block (alignment, four_pose,
+calibration <scheme>), and each self-alignment's result as a measurement of kind
+ALIGNMENT (the head zero the procedure applied from then on).
 
 1. The four-pose windows of both instruments in both setups give the head's angle-error
    harmonics (four_pose.fit_four_pose).
@@ -32,7 +32,6 @@ from station.analysis.multiposition.static_model import (
 from station.session import Session
 from station.twin.fixture import pose_rad
 
-SECOND_WINDOW = "second_instrument_window"
 ALIGNMENT = "self_alignment"
 CALIBRATION = "calibration "  # block prefix, followed by the scheme
 IDENTIFIABILITY = (
@@ -98,19 +97,12 @@ class GravityFieldResult:
 def session_windows(session: Session) -> list[PoseWindow]:
     """Every static window of both instruments, in the order measured."""
     ppr = session.station.pulses_per_rev
-    out = [
-        PoseWindow("A", int(p.extra["setup"]), int(p.extra["pose"]), math.radians(p.position_deg),
+    return [
+        PoseWindow(p.extra["dut"], int(p.extra["setup"]), int(p.extra["pose"]), math.radians(p.position_deg),
                    p.measured_rate_radps(ppr), p.extra["block"], p.Tm_s)
         for p in session.points
-        if p.extra.get("dut") == "A"
+        if p.extra.get("dut") in ("A", "B")
     ]  # fmt: skip
-    for m in session.measurements:
-        if m.kind == SECOND_WINDOW:
-            v = m.values
-            rate = 2 * math.pi * v["pulses"] / (ppr * v["Tm_s"])
-            out.append(PoseWindow("B", v["setup"], v["pose"], math.radians(v["position_deg"]), rate, v["block"],
-                                  v["Tm_s"]))  # fmt: skip
-    return out
 
 
 def final_zero_deg(session: Session, setup: int) -> float:
