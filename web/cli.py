@@ -18,11 +18,20 @@ def _config(args: argparse.Namespace):
     return PanelConfig.from_toml(args.config)
 
 
-def cmd_panel(args: argparse.Namespace) -> int:
-    """Serve the panel with uvicorn until Ctrl-C."""
+def panel_server(config, host: str, port: int, log_level: str = "warning"):
+    """The panel under uvicorn, as `station panel` serves it (uvicorn.Server; .run() blocks)."""
     import uvicorn
 
     from web.app import create_app
+
+    deflate = config.websocket_compression
+    app = create_app(config)
+    return uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level, ws="websockets-sansio",
+                                         ws_per_message_deflate=deflate))  # fmt: skip
+
+
+def cmd_panel(args: argparse.Namespace) -> int:
+    """Serve the panel with uvicorn until Ctrl-C."""
     from web.users import UserBook
 
     config = _config(args)
@@ -32,9 +41,10 @@ def cmd_panel(args: argparse.Namespace) -> int:
     if not len(users):
         print(f"station panel: no users in {config.users}: add one with "
               f"`station panel-user add NAME --role operator`", file=sys.stderr)  # fmt: skip
+    server = panel_server(config, host, port, args.log_level)
     names = ", ".join(f"{s.name} ({s.control}, {s.telemetry})" for s in config.stations)
     print(f"panel on http://{host}:{port}/ for {names}; {len(users)} users in {config.users}", flush=True)
-    uvicorn.run(create_app(config), host=host, port=port, log_level=args.log_level, ws="websockets-sansio")
+    server.run()
     return 0
 
 
@@ -71,12 +81,13 @@ def _guarded(func):
     """Bad configuration or input as one line on stderr and exit status 2, like the other commands."""
 
     def run(args: argparse.Namespace) -> int:
+        from web.app import PanelSetupError
         from web.config import PanelConfigError
         from web.users import UserError
 
         try:
             return func(args)
-        except (PanelConfigError, UserError, ValueError, OSError) as exc:
+        except (PanelConfigError, PanelSetupError, UserError, ValueError, OSError) as exc:
             print(f"station {args.command}: error: {exc}", file=sys.stderr)
             return 2
 

@@ -45,6 +45,9 @@ class PanelConfig(BaseModel):
     audit_log: Path = Path("out/panel/audit.jsonl")
     twin: Path | None = Field(None, description="twin configuration TOML for the gap diagnosis (default: embedded)")
     secure_cookies: bool = Field(False, description="mark the session cookie Secure (behind HTTPS)")
+    # Compressing every frame for every browser costs the panel 3-4 times the CPU of relaying (BENCHMARKS.md),
+    # CPU that the station's real-time work on the same machine needs; it pays only over slow links.
+    websocket_compression: bool = Field(False, description="permessage-deflate for remote browsers on slow links")
     stations: tuple[StationEntry, ...] = Field(min_length=1)
 
     @field_validator("stations")
@@ -60,9 +63,6 @@ class PanelConfig(BaseModel):
         if self.twin is not None and not self.twin.is_file():
             raise ValueError(f"twin = {str(self.twin)!r}: no such file")
         return self
-
-    def station(self, name: str) -> StationEntry | None:
-        return next((s for s in self.stations if s.name == name), None)
 
     @classmethod
     def from_toml(cls, path: str | Path) -> PanelConfig:

@@ -9,7 +9,7 @@ from typing import Any
 from fastapi import HTTPException
 
 from station.control import ControlClient
-from web.config import StationEntry
+from web.config import PanelConfigError, StationEntry
 
 # The station's error types (station/control.py) as HTTP statuses; any other refusal is a conflict (409).
 HTTP_STATUS = {
@@ -32,6 +32,8 @@ class StationLink:
     def __init__(self, entry: StationEntry, timeout_s: float = 10.0) -> None:
         self.entry = entry
         token = os.environ.get(entry.token_env) if entry.token_env else None
+        if entry.token_env and not token:
+            raise PanelConfigError(f"station {entry.name}: token_env {entry.token_env}: that variable is not set")
         self.client = ControlClient(entry.control, token=token, timeout_s=timeout_s)
 
     async def request(self, cmd: str, args: dict[str, Any] | None = None, user: str = "") -> Any:

@@ -19,11 +19,11 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-import uvicorn
 from fastapi.testclient import TestClient
 
 from station.control import ControlClient
 from web.app import create_app
+from web.cli import panel_server
 from web.config import PanelConfig, StationEntry
 from web.users import UserBook
 
@@ -130,7 +130,8 @@ def login(client: TestClient, name: str) -> TestClient:
 @pytest.fixture(scope="session")
 def tools() -> SimpleNamespace:
     """This file's helpers, for the test modules (which cannot import conftest)."""
-    return SimpleNamespace(start_station=start_station, stop_process=stop_process, free_port=free_port)
+    return SimpleNamespace(start_station=start_station, stop_process=stop_process, free_port=free_port,
+                           write_users=write_users)  # fmt: skip
 
 
 @pytest.fixture(scope="session")
@@ -159,8 +160,7 @@ def as_user(app_client) -> Callable[[str], TestClient]:
 def served_panel(panel_config) -> Iterator[str]:
     """The module's panel served by uvicorn on a free port (in a thread); its base URL."""
     port = free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app(panel_config), host="127.0.0.1", port=port, log_level="warning",
-                                           ws="websockets-sansio"))  # fmt: skip
+    server = panel_server(panel_config, "127.0.0.1", port)
     thread = threading.Thread(target=server.run, name="panel", daemon=True)
     thread.start()
     deadline = time.monotonic() + 20

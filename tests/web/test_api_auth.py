@@ -41,9 +41,10 @@ def test_login_with_a_missing_field_is_422_naming_it(anonymous):
     assert reply.json()["detail"] == "body.password: Field required"
 
 
-def test_me_needs_a_login(anonymous):
-    reply = anonymous.get("/api/me")
-    assert reply.status_code == 401 and "log" in reply.json()["detail"]
+@pytest.mark.parametrize(("method", "path"), [("GET", "/api/me"), ("POST", "/api/logout")])
+def test_me_and_logout_need_a_login(anonymous, method, path):
+    reply = anonymous.request(method, path)
+    assert reply.status_code == 401 and reply.json()["detail"] == "not logged in: POST /api/login first"
 
 
 def test_logout_needs_the_csrf_token_then_ends_the_session(as_user):

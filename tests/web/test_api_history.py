@@ -52,6 +52,10 @@ def uids_of(client: TestClient, query: str = "") -> list[str]:
     return [s["uid"] for s in reply.json()]
 
 
+def test_sessions_need_a_login(anonymous):
+    assert anonymous.get("/api/sessions").status_code == 401
+
+
 def test_sessions_are_listed_newest_first_with_their_station(victor, recorded):
     rows = victor.get("/api/sessions").json()
     assert [r["uid"] for r in rows] == [recorded["aborted"], recorded["finished"]]

@@ -91,3 +91,16 @@ def test_a_websocket_for_another_station_gets_none_of_this_ones_telemetry(app_cl
     with app_client.websocket_connect("/ws/telemetry?station=other", headers=browser_headers(app_client)) as ws:
         first = json.loads(ws.receive_text())  # the first relay report comes at once
     assert [d["topic"] for d in first] == ["relay"] and first[0]["data"]["feeds"] == {}
+
+
+def test_a_closed_websocket_leaves_no_queue_behind(app_client, log_in):
+    log_in(app_client, "victor")
+    relay = app_client.app.state.panel.relay
+    before = relay.browsers
+    with app_client.websocket_connect("/ws/telemetry", headers=browser_headers(app_client)) as ws:
+        ws.receive_text()
+        assert relay.browsers == before + 1
+    deadline = time.monotonic() + 5
+    while relay.browsers != before and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert relay.browsers == before

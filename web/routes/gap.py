@@ -33,13 +33,14 @@ Archive = Annotated[UploadFile, File(description="zip of a piga-session/1 direct
 
 @router.get("/api/sessions/{uid}/gap", dependencies=[Depends(viewer)], responses=errors(401, 404, 409, 422))
 async def diagnose_session(request: Request, uid: Uid) -> GapReply:
-    """Diagnose a stored session against the panel's twin (kept: asking again does not run it again)."""
+    """Diagnose a stored session against the panel's twin (kept until the session changes)."""
     p = panel(request)
+    row = await run_in_threadpool(p.history.row, uid)
+    if row["status"] == "running":
+        raise HTTPException(409, f"session {uid} is still running: diagnose it once it ends")
     key = f"session-{uid}"
     report = p.gaps.kept(key)
-    if report is None:
-        if (await run_in_threadpool(p.history.row, uid))["status"] == "running":
-            raise HTTPException(409, f"session {uid} is still running: diagnose it once it ends")
+    if report is None or report.session_info["n_points"] != row["n_points"]:
         session = await run_in_threadpool(p.history.load, uid, with_raw=True)
         key, report = await run_in_threadpool(p.gaps.run, session, key)
     return _reply(key, report)

@@ -77,7 +77,8 @@ class StationView {
     this.speed = new SpeedMeter();
     this.last = {}; // latest data by topic
     this.rates = [];
-    this.notices = [];
+    this.seenFaults = new Set();
+    this.sessionUid = null;
     this.silentS = null;
     this.dirty = true;
     this.build(info);
@@ -129,6 +130,7 @@ class StationView {
 
   handle(doc) {
     const d = doc.data;
+    if (d.session_uid && d.session_uid !== this.sessionUid) this.newSession(d.session_uid);
     switch (doc.topic) {
       case "status":
         this.speed.add(doc);
@@ -167,6 +169,20 @@ class StationView {
         return;
     }
     this.dirty = true;
+  }
+
+  // A new run: what belonged to the last one goes.
+  newSession(uid) {
+    this.sessionUid = uid;
+    this.rates = [];
+    delete this.last.window;
+  }
+
+  // The relay replays recent events and faults to a browser that (re)connects.
+  clearNotices() {
+    this.noticeList.replaceChildren();
+    this.faultList.replaceChildren();
+    this.seenFaults = new Set();
   }
 
   notice(kind, message, level, fault = false) {
@@ -227,7 +243,6 @@ class StationView {
   }
 
   faultOnce(message) {
-    this.seenFaults = this.seenFaults || new Set();
     if (this.seenFaults.has(message)) return;
     this.seenFaults.add(message);
     this.notice("fault", message, "error", true);
@@ -384,7 +399,11 @@ function buildControls(view, library) {
 function connect(views, status) {
   const names = new Map(views.map((v) => [v.name, v]));
   const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/telemetry`);
-  ws.onopen = () => { status.textContent = "connected"; status.className = "ok"; };
+  ws.onopen = () => {
+    status.textContent = "connected";
+    status.className = "ok";
+    for (const v of views) v.clearNotices();
+  };
   ws.onmessage = (event) => {
     for (const doc of JSON.parse(event.data)) {
       if (doc.topic === "relay") {
