@@ -33,26 +33,18 @@ def run_session(seed: int, speed: float) -> tuple[dict | None, float, float]:
     """The headline of one simulated session (None if it did not finish), its station hours and wall seconds."""
     with tempfile.TemporaryDirectory() as out:
         t0 = time.perf_counter()
-        with contextlib.redirect_stdout(io.StringIO()):
-            code = station(
-                [
-                    "run",
-                    str(PROCEDURE),
-                    "--station",
-                    str(STATION),
-                    "--out",
-                    out,
-                    "--seed",
-                    str(seed),
-                    "--speed",
-                    str(speed),
-                ]
-            )
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            args = ["--station", str(STATION), "--out", out, "--seed", str(seed), "--speed", str(speed)]
+            code = station(["run", str(PROCEDURE), *args])
         wall_s = time.perf_counter() - t0
         with SessionStore(Path(out) / "station.sqlite") as store:
             (row,) = store.sessions()
             results = [r["result"] for r in store.results(row["uid"]) if r["method"] == "suppression"]
             station_h = store.load_session(row["uid"], with_raw=False).points[-1].start_s / 3600
+    for line in printed.getvalue().splitlines():
+        if "fault:" in line:
+            print(f"seed {seed}: {line.strip()}")
     return (results[0]["headline"] if code == 0 else None), station_h, wall_s
 
 
@@ -61,7 +53,7 @@ def main(n: int, speed: float) -> None:
     for seed in range(n):
         headline, station_h, wall_s = run_session(seed, speed)
         if headline is None:
-            print(f"seed {seed}: did not finish (a driver fault; see above), {station_h:.2f} h in {wall_s:.1f} s wall")
+            print(f"seed {seed}: did not finish, {station_h:.2f} h in {wall_s:.1f} s wall")
             continue
         rows.append(headline)
         print(f"seed {seed}: " + ", ".join(f"{k} {v:.4g}" for k, v in headline.items())

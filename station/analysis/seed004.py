@@ -167,8 +167,10 @@ def spline_minimum(offsets_arcsec: np.ndarray, k2_per_g: np.ndarray) -> tuple[fl
     return float(found.x), float(found.fun)
 
 
-def fit_sweep(offsets_arcsec: Sequence[float], k2_per_g: Sequence[float], sigma_k2_per_g: Sequence[float]) -> SweepFit:
-    """The sweep's spline minimum, with sigmas from redrawing each K2 within its own sigma."""
+def fit_sweep(
+    offsets_arcsec: Sequence[float], k2_per_g: Sequence[float], sigma_k2_per_g: Sequence[float], draws: int = MC_DRAWS
+) -> SweepFit:
+    """The sweep's spline minimum, with sigmas from `draws` redraws of each K2 within its own sigma."""
     x, y, s = (np.asarray(v, dtype=float) for v in (offsets_arcsec, k2_per_g, sigma_k2_per_g))
     order = np.argsort(x)
     x, y, s = x[order], y[order], s[order]
@@ -176,16 +178,16 @@ def fit_sweep(offsets_arcsec: Sequence[float], k2_per_g: Sequence[float], sigma_
         raise FitError(f"a cubic spline needs at least 4 distinct offsets, got {x.tolist()}")
     best, k2_min = spline_minimum(x, y)
     rng = np.random.default_rng(MC_SEED)
-    draws = np.array([spline_minimum(x, y + s * rng.standard_normal(x.size)) for _ in range(MC_DRAWS)])
+    minima = np.array([spline_minimum(x, y + s * rng.standard_normal(x.size)) for _ in range(draws)])
     lowest = int(np.argmin(y))
     return SweepFit(
         x,
         y,
         s,
         best,
-        float(draws[:, 0].std(ddof=1)),
+        float(minima[:, 0].std(ddof=1)),
         k2_min,
-        float(draws[:, 1].std(ddof=1)),
+        float(minima[:, 1].std(ddof=1)),
         float(x[lowest]),
         float(y[lowest]),
     )

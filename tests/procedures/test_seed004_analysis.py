@@ -60,7 +60,7 @@ def test_sweep_fit_sigmas_describe_the_scatter_of_repeated_sweeps() -> None:
     k2 = _true_k2(OFFSETS)
     sigma = np.full(OFFSETS.size, 8e-8)
     rng = np.random.default_rng(7)
-    fits = [a.fit_sweep(OFFSETS, k2 + sigma * rng.standard_normal(OFFSETS.size), sigma) for _ in range(30)]
+    fits = [a.fit_sweep(OFFSETS, k2 + sigma * rng.standard_normal(OFFSETS.size), sigma, 100) for _ in range(30)]
     best = np.array([f.best_offset_arcsec for f in fits])
     k2_min = np.array([f.k2_min_per_g for f in fits])
     assert np.mean([f.sigma_k2_min_per_g for f in fits]) == pytest.approx(k2_min.std(ddof=1), rel=0.35)
