@@ -10,8 +10,8 @@ The sweep (section 5.1): K2 at each offset, a cubic spline through them evaluate
 bounded line search around the lowest grid value (step 2). The seed interpolates; so does this, and the
 uncertainties of the best offset and of K2 there come from redrawing every K2 within its sigma (for the best
 offset a conservative figure, about 1.3 x the scatter of repeated sweeps of the twin: redrawing around noisy
-calibrations roughens the curve's narrow bottom a second time). A chi^2-smoothing
-spline was tried and rejected: with 0.5" steps it cannot follow the curve's narrow bottom and biases the minimum.
+calibrations roughens the curve's narrow bottom a second time). A chi^2-smoothing spline (s = n) was tried and
+rejected: with 0.5" steps it cannot follow the curve's narrow bottom and puts the minimum 3e-7/g0 too high.
 The correction (section 5.2): the inertia product from K2 calibrated at the best offset (eq. 21) and the mass to
 remove at each of four points (eq. 22).
 """
