@@ -196,6 +196,31 @@ def pulse_edges(
     return np.concatenate(times), np.concatenate(dirs)
 
 
+MAX_RAW_SAMPLES = 60_000_000  # grating samples plus pulse edges: about 1.5 GB of float64 arrays
+
+
+class RawStreamsTooLargeError(ValueError):
+    """Raw streams of a window that would not fit in memory."""
+
+
+def check_raw_size(window: PrecessionWindow, t_end_s: float, pulse_angle_rad: float) -> None:
+    """Refuse raw streams longer than MAX_RAW_SAMPLES (grating samples plus estimated pulse edges)."""
+    n_grating = t_end_s * GRATING_RATE_HZ
+    if window.w_radps and window.rate.k.size:
+        psi = np.linspace(0.0, 2 * np.pi, 256, endpoint=False)
+        probe = PrecessionWindow(window.rate, window.w_radps, 0.0, window.offset_radps)
+        mean_abs_rate = float(np.mean(np.abs(probe.rate_radps(psi / window.w_radps))))
+    else:
+        mean_abs_rate = abs(window.mean_rate_radps)
+    n_edges = mean_abs_rate * t_end_s / pulse_angle_rad
+    if n_grating + n_edges > MAX_RAW_SAMPLES:
+        raise RawStreamsTooLargeError(
+            f"raw streams of a {t_end_s:.0f} s window: {n_grating:.3g} grating samples and about {n_edges:.3g} "
+            f"pulse edges exceed {MAX_RAW_SAMPLES:.3g} (about 1.5 GB); record raw streams of shorter windows "
+            "(positions away from 90 and 270 deg) or without raw=True"
+        )
+
+
 def raw_streams(
     window: PrecessionWindow,
     cfg: TwinConfig,
@@ -205,7 +230,12 @@ def raw_streams(
     rng: np.random.Generator,
     reference_t: np.ndarray | None,
 ) -> RawStreams:
-    """Grating record, pulse edges and reference crossings over the window [0, t_end]."""
+    """Grating record, pulse edges and reference crossings over the window [0, t_end].
+
+    RawStreamsTooLargeError before anything is allocated if they would exceed MAX_RAW_SAMPLES
+    (a static window near 90 deg lasts hours; under vibration its up/down edges are millions).
+    """
+    check_raw_size(window, t_end_s, cfg.station.pulse_angle_rad)
     g_t, g_z = grating_samples(window, cfg, t_end_s, start_s, rng)
     p_t, p_dir = pulse_edges(window, t_end_s, cfg.station.pulse_angle_rad)
     ref = None
