@@ -70,3 +70,12 @@ def test_reference_crossings_are_zero_phase_one_period_apart():
     assert np.max(np.abs(np.sin(psi))) < 1e-9
     np.testing.assert_allclose(np.diff(ref), 1 / 8.0, atol=1e-12)
     assert ref[0] == pytest.approx(sp.record.t1_s, abs=1e-12)
+
+
+def test_raw_streams_too_large_for_memory_are_refused_before_allocation() -> None:
+    # A static window at 90 deg precesses on k0 alone: one revolution lasts 2 pi / k0 = 11.6 h of a
+    # 5 kHz record (2e8 samples, 1.7 GB per array): refused with the sizes, in milliseconds.
+    from station.twin.raw import RawStreamsTooLargeError
+
+    with pytest.raises(RawStreamsTooLargeError, match=r"grating samples .* exceed"):
+        simulate_point(PointSpec(90.0, 0.0, 16384), TwinConfig(), np.random.default_rng(0), raw=True)
