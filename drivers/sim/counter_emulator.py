@@ -130,19 +130,22 @@ class CounterEmulator(PtyEmulator):
     def on_poll(self, now_s: float) -> None:
         # A stalled host process (or a fast virtual clock) can skip more station time between two
         # polls than the 32-bit stamps span; the board never skips: it catches up in steps, so
-        # that the driver's sequential unwrapping sees stamps less than a wrap apart.
-        t_s = self._last_heartbeat_s
+        # that the driver's sequential unwrapping sees stamps less than a wrap apart (and in order:
+        # from the last stamp sent, a heartbeat's or a crossing's).
+        t_s = max(self._last_heartbeat_s, self._last_s) if self.state in (COUNTING, CLOSING) else self._last_heartbeat_s
         while now_s - t_s > MAX_STAMP_GAP_S and self.state in (ARMED, COUNTING, CLOSING):
             t_s += MAX_STAMP_GAP_S
-            self._advance(t_s)
+            if not self._advance(t_s):
+                return
         self._advance(now_s)
 
-    def _advance(self, now_s: float) -> None:
+    def _advance(self, now_s: float) -> bool:
+        """Report the window up to now_s; False if crossings wait for the line (nothing later may go out first)."""
         if self.state not in (ARMED, COUNTING, CLOSING):
-            return
+            return True
         if self.faults.active(Fault.NO_ANSWER):
             self._last_heartbeat_s = now_s
-            return
+            return True
         w = self.window
         if self.state == ARMED and now_s >= w.open_s:
             self._frame(c.OPEN, c.OPEN_PAYLOAD.pack(ticks_of(w.open_s)))
@@ -152,15 +155,19 @@ class CounterEmulator(PtyEmulator):
             if self.faults.take(Fault.COUNTER_OVERFLOW):
                 self.state, self.fault_code = FAULTED, 1
                 self._frame(c.FAULT, c.FAULT_PAYLOAD.pack(1, ticks_of(now_s)))
-                return
+                return True
             t_hi = min(now_s, w.close_s + SNAP_S)
             if t_hi > self._last_s:
                 refs = self.world.reference_crossings_s(self._last_s, t_hi)
+                if self._last_ref_s is not None:
+                    refs = refs[refs > self._last_ref_s + SNAP_S]  # a deferral ends on a crossing already sent
                 fit = max(self.tx_room() - EVENT_RESERVE_BYTES, 0) // REF_FRAME_BYTES
-                if len(refs) > fit:
-                    # The event FIFO holds what the line cannot take yet: the rest follows next poll.
+                deferred = len(refs) > fit
+                if deferred:
+                    # The event FIFO holds what the line cannot take yet: the rest follows next poll,
+                    # and no later stamp (a heartbeat) before it.
                     if fit == 0:
-                        return
+                        return False
                     refs = refs[:fit]
                     t_hi = float(refs[-1])
                 self._refs(refs)
@@ -171,12 +178,14 @@ class CounterEmulator(PtyEmulator):
                     keep = (t > w.open_s + SNAP_S) & (t <= w.close_s + SNAP_S)
                     self._edges(t[keep], d[keep])
                 self._last_s = t_hi
+                if deferred:
+                    return False
             if self._last_s >= w.close_s:
                 self._frame(c.CLOSE, c.CLOSE_PAYLOAD.pack(ticks_of(w.close_s), int(w.pulses)))
                 self.state = CLOSING
                 if self._closing_crossing_seen() or not self.world.table_moving(w.close_s):
                     self._done()
-                    return
+                    return True
         if self.state == CLOSING:
             if now_s > self._last_s:
                 refs = self.world.reference_crossings_s(self._last_s, now_s)
@@ -184,13 +193,14 @@ class CounterEmulator(PtyEmulator):
                 if len(refs):
                     self._refs(refs[:1])
                     self._done()
-                    return
+                    return True
             if now_s > w.close_s + CLOSING_LIMIT_S:
                 self._done()
-                return
+                return True
         if now_s - self._last_heartbeat_s >= c.HEARTBEAT_S:
             self._last_heartbeat_s = now_s
             self._frame(c.HEARTBEAT, c.HEARTBEAT_PAYLOAD.pack(ticks_of(now_s), self.state))
+        return True
 
     def _closing_crossing_seen(self) -> bool:
         return self._last_ref_s is not None and self._last_ref_s >= self.window.close_s
