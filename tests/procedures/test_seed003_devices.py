@@ -10,11 +10,14 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from drivers.counter_timer import CounterTimer
 from drivers.devices import device_kinds
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError
 from drivers.indexing_head import IndexingHead
+from drivers.sim.counter_emulator import CounterEmulator
 from drivers.sim.dual_fixture import FIXTURE, INSTRUMENT_B, SEAT_ERRORS_RAD
 from drivers.sim.indexing_emulator import IndexingEmulator
 from drivers.sim.pty_link import Fault
@@ -116,6 +119,30 @@ def test_a_host_stall_longer_than_a_tick_wrap_leaves_the_window_intact(channel) 
     result = board.wait_window(on_event=stall)
     assert result.Tm_s > 650.0
     assert result.Tm_s == pytest.approx(emulator.window.close_s - emulator.window.open_s, abs=1e-7)
+
+
+def test_a_host_stall_in_a_vibration_window_keeps_its_crossings_in_order_and_once() -> None:
+    """The counter emulator changed for the stall above: in a 10 Hz window the 650 s skipped hold 6500 reference
+    crossings, more than the board's FIFO takes at once. They must still arrive in order, each once, with no
+    heartbeat stamped beyond them: every period 0.1 s and t2 = t1 + Np T - Tm to the 50 ns tick."""
+    world = SimStation(TWIN, VirtualClock(500.0), seed=1)
+    world.crank.command_speed(2 * math.pi * 10.0, 1e6, world.clock.now_s())
+    with CounterEmulator(world, baud=3_000_000) as emulator:
+        board = CounterTimer(emulator.port, clock=world.clock).open()
+        stalled = []
+
+        def stall(ev) -> None:
+            if ev.kind == "open" and not stalled:
+                stalled.append(world.clock.now_s())
+                world.clock.advance_s(650.0)
+
+        try:
+            result = board.measure(2_000_000, on_event=stall, timeout_s=60.0)  # about 1370 s of station time
+        finally:
+            board.close()
+    assert result.Tm_s == pytest.approx(emulator.window.close_s - emulator.window.open_s, abs=1e-7)
+    assert np.allclose(np.diff(result.crossings_s), 0.1, atol=1e-6)
+    assert result.t1_s + result.Np * 0.1 - result.Tm_s == pytest.approx(result.t2_s, abs=2 * 50e-9)
 
 
 def test_a_host_stall_during_a_head_move_is_not_a_settling_timeout() -> None:
