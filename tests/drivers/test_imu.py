@@ -3,6 +3,7 @@ stream, gaps, and every fault becoming a typed error within a bounded time."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -26,21 +27,16 @@ Rig = tuple[object, ImuEmulator, StrapdownImu]
 
 @pytest.fixture
 def imu_rig() -> Iterator[Callable[..., Rig]]:
-    opened: list[tuple[ImuEmulator, StrapdownImu]] = []
+    with contextlib.ExitStack() as stack:  # each rig: driver closed, then its emulator
 
-    def make(speed: float = 5.0, silence_s: float = 0.5, fifo_bytes: int = FIFO_BYTES) -> Rig:
-        world = make_world(speed=speed, vibrate_hz=0.0)
-        emu = ImuEmulator(world, fifo_bytes=fifo_bytes)
-        emu.start()
-        imu = StrapdownImu(emu.port, rate_hz=200, timeout_s=0.3, silence_s=silence_s, clock=world.clock)
-        opened.append((emu, imu))
-        imu.open()
-        return world, emu, imu
+        def make(speed: float = 5.0, silence_s: float = 0.5, fifo_bytes: int = FIFO_BYTES) -> Rig:
+            world = make_world(speed=speed, vibrate_hz=0.0)
+            emu = stack.enter_context(ImuEmulator(world, fifo_bytes=fifo_bytes))
+            imu = StrapdownImu(emu.port, rate_hz=200, timeout_s=0.3, silence_s=silence_s, clock=world.clock)
+            stack.callback(imu.close)
+            return world, emu, imu.open()
 
-    yield make
-    for emu, imu in opened:
-        imu.close()
-        emu.close()
+        yield make
 
 
 def record(imu: StrapdownImu, duration_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
