@@ -258,12 +258,12 @@ class GratingReadHead:
             )
         self.framed.reset()
         self._pending = None
+        self._unwrap.reset()  # before START: the first sample is stamped after it
         self._command(START, START_PAYLOAD.pack(divider), retries=self.retries, timeout_s=self.timeout_s)
         self._divider = divider
         self._last_ticks = None
         self._seq_full = -1
         self._in_signal_loss = False
-        self._unwrap.reset()
         self.streaming = True
 
     def stop_streaming(self) -> None:

@@ -219,9 +219,9 @@ class ReferenceMarks:
         self.lines.link.discard_input()
         self.lines.clear()
         self._backlog.clear()
+        self._unwrap.reset()  # before START: the first crossing is stamped after it
         self._command("START")
         self._last_n = None
-        self._unwrap.reset()
         self.reporting = True
 
     def stop(self) -> None:

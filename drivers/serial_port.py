@@ -33,6 +33,7 @@ from __future__ import annotations
 import binascii
 import contextlib
 import errno
+import math
 import struct
 import termios
 import time
@@ -405,6 +406,7 @@ class FramedPort:
 
 TICK_S = 50e-9
 TICK_BITS = 32
+ANCHOR_SLACK_S = 1.0  # a device clock may run this far behind the host's when a stream starts
 
 
 class TickUnwrapper:
@@ -447,10 +449,14 @@ class TickUnwrapper:
         self.modulus = 1 << bits
         self._last_ticks: int | None = None  # unwrapped
         self._last_host_s = 0.0
+        self._not_before_s: float | None = None
 
     def reset(self) -> None:
-        """Forget the history (next stamp is anchored afresh)."""
+        """Forget the history: the next stamp is anchored afresh, in absolute mode as the first one at
+        or after this moment (less ANCHOR_SLACK_S), so however late the host reads it, it is right
+        as long as it was stamped within a wrap of the command that started the stream."""
         self._last_ticks = None
+        self._not_before_s = self.clock.now_s() - ANCHOR_SLACK_S
 
     def unwrap_ticks(self, raw: int, host_s: float | None = None) -> int:
         """Unwrapped tick count of a raw counter value.
@@ -462,7 +468,12 @@ class TickUnwrapper:
             host_s = self.clock.now_s()
         mod = self.modulus
         if self._last_ticks is None:
-            k = round((host_s / self.tick_s - raw) / mod) if self.absolute else 0
+            if not self.absolute:
+                k = 0
+            elif self._not_before_s is not None:
+                k = math.ceil((self._not_before_s / self.tick_s - raw) / mod)
+            else:
+                k = round((host_s / self.tick_s - raw) / mod)
             full = k * mod + raw
         else:
             delta = (raw - self._last_ticks) % mod

@@ -46,6 +46,7 @@ GRATING_RATE_HZ = 5000.0
 # A grating stretch crosses the serial line as it is sampled: 19-byte frames at 3 Mbaud carry
 # about 15 800 samples per wall second, so station time may run at most 2x while it records.
 GRATING_MAX_SPEED = 2.0
+GRATING_ATTEMPTS = 3  # a host stall of a few hundred ms overflows the board's FIFO: record the stretch again
 # The display trace: at most this many grating samples per wall second over the line, so that a
 # fast virtual clock gets a thinned (equivalent-time) sample of the motion instead of a backlog.
 TRACE_SAMPLES_PER_WALL_S = 250.0
@@ -255,16 +256,23 @@ class StationDevices:
         return MotionRecord(t_s, z_m, ref[(ref >= t_s[0]) & (ref <= t_s[-1])])
 
     def _grating_stretch(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """A gapless stretch; a stretch with lost samples is recorded again (a read: safe to repeat)."""
         n = max(math.ceil(duration_s * GRATING_RATE_HZ), 1)
-        self.grating.start_streaming()
-        try:
-            block = self.grating.read_for(n)
-        finally:
-            with contextlib.suppress(DriverError):
-                self.grating.stop_streaming()
-        if block.lost:
-            raise DriverError("grating read head", f"{block.lost} samples lost in a {duration_s:g} s stretch")
-        return block.t_s, block.z_m
+        for _ in range(GRATING_ATTEMPTS):
+            self.grating.start_streaming()
+            try:
+                block = self.grating.read_for(n)
+            finally:
+                with contextlib.suppress(DriverError):
+                    self.grating.stop_streaming()
+            if not block.lost:
+                return block.t_s, block.z_m
+            log.warning("grating: %d samples lost in a %g s stretch; recording it again", block.lost, duration_s)
+        raise DriverError(
+            "grating read head",
+            f"{block.lost} samples lost in a {duration_s:g} s stretch, {GRATING_ATTEMPTS} times",
+            field="lost_samples", value=block.lost, allowed="0",
+        )  # fmt: skip
 
     def measure_frequency(self, periods: int) -> FrequencyEstimate:
         """Frequency and stability from `periods` consecutive reference-mark periods (seed 000 6.1.2)."""

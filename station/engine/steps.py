@@ -28,7 +28,7 @@ from station.session import Measurement, PointRecord, RawStreams
 
 if TYPE_CHECKING:
     from station.engine.planning import PlanContext
-    from station.engine.runner import RunContext
+    from station.engine.runner import Engine as RunContext
 
 
 class Step:

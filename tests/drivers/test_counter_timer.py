@@ -64,6 +64,20 @@ def test_absolute_anchor_uses_the_clock() -> None:
     assert rel.unwrap_s(ticks_of(1000.0)) == pytest.approx(1000.0 - 4 * WRAP_S, abs=TICK_S)
 
 
+def test_a_stream_read_late_keeps_its_stamps() -> None:
+    """A host stall between starting a stream and reading it: 300 s of station time late is more than
+    half a wrap (1.4 wraps at 1000x is 0.3 s of wall time). The first stamp is the first at or after
+    the reset that preceded the command; each later one lies nearest its predecessor (a heartbeat
+    stream), so the whole stream stays right, which the host-elapsed rule would not."""
+    clock = ManualClock(5000.0)
+    u = TickUnwrapper(clock, absolute=True, sequential=True)
+    u.reset()  # the command that starts the stream goes out now
+    stamps = 5000.2 + np.arange(0.0, 400.0, 0.7)  # stamped from 0.2 s on, heartbeats every 0.7 s
+    clock.t_s = 5000.2 + 300.0  # the host reads the first one 300 s late, then the backlog
+    got = [u.unwrap_s(ticks_of(t)) for t in stamps]
+    assert np.allclose(got, stamps, atol=TICK_S)
+
+
 def test_unwrap_array_across_a_wrap() -> None:
     clock = ManualClock(214.75)
     u = TickUnwrapper(clock, absolute=True)
