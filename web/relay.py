@@ -107,12 +107,18 @@ class TelemetryRelay:
         self.feeds = {s.name: StationFeed(s) for s in stations}
         self.queue_size = queue_size
         self._browsers: set[BrowserQueue] = set()
+        self._dropped_by_gone = 0  # drops of browsers that have disconnected
         self._ctx: zmq.asyncio.Context | None = None
         self._tasks: list[asyncio.Task] = []
 
     @property
     def browsers(self) -> int:
         return len(self._browsers)
+
+    @property
+    def dropped(self) -> int:
+        """Messages dropped for slow browsers since the panel started."""
+        return self._dropped_by_gone + sum(q.dropped for q in self._browsers)
 
     def start(self) -> None:
         """Connect a SUB to every station (on the running event loop)."""
@@ -139,7 +145,9 @@ class TelemetryRelay:
         return queue
 
     def unsubscribe(self, queue: BrowserQueue) -> None:
-        self._browsers.discard(queue)
+        if queue in self._browsers:
+            self._browsers.discard(queue)
+            self._dropped_by_gone += queue.dropped
 
     async def _listen(self, feed: StationFeed) -> None:
         assert self._ctx is not None

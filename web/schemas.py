@@ -64,6 +64,12 @@ class StationSummary(BaseModel):
     relay: dict[str, Any] = Field(description="messages received, lost (seq gaps), restarts, seconds since heard")
 
 
+class RelayHealth(BaseModel):
+    browsers: int = Field(description="browsers connected to /ws/telemetry now")
+    dropped: int = Field(description="messages dropped for slow browsers since the panel started")
+    queue_size: int = Field(description="messages each browser's queue holds")
+
+
 class SessionRow(BaseModel):
     uid: str
     created_utc: str

@@ -5,7 +5,8 @@ the operator would start them; users are made with `station panel-user add`.
 An operator logs in, is stopped by the form on a bad parameter, starts a quick
 session, watches the progress bar move and the displacement trace update,
 pauses and resumes, and opens the finished session's report; a viewer sees no
-controls and is refused by the API. Screenshots go to tests/web/screenshots/.
+controls and is refused by the API, and finds that session in the history.
+Screenshots go to tests/web/screenshots/.
 """
 
 from __future__ import annotations
@@ -172,6 +173,14 @@ def test_operator_runs_a_session_from_the_browser(browser, panel_url, passwords,
     expect(report.locator("h2").first).to_contain_text("Coefficients")
     shot(report, "6-report")
 
+    # The gap diagnosis of the session: verdict, held-out shrink, maps and ranked effects.
+    page.click("#links a[href^='/gap']")
+    expect(page.locator("#verdict")).to_be_visible(timeout=60_000)
+    expect(page.locator("#result table").first).to_contain_text("shrink")
+    expect(page.locator("#result table.map")).to_be_visible()
+    expect(page.locator("#result table").last.locator("tbody tr")).not_to_have_count(0)
+    shot(page, "7-gap")
+
     assert not elsewhere, f"pages loaded things from elsewhere: {elsewhere}"
     assert not errors, errors
     context.close()
@@ -194,7 +203,15 @@ def test_a_viewer_sees_everything_but_may_not_control(browser, panel_url, passwo
         }"""
     )
     assert status == 403
+    # The operator's session (the test above) in the history, found by its instrument serial.
     page.goto(f"{panel_url}/history")
     expect(page.locator("#sessions tbody tr")).not_to_have_count(0)
-    shot(page, "7-viewer-history")
+    page.fill("input[name=serial]", "e2e-")
+    page.click("#filters button[type=submit]")
+    expect(page.locator("#sessions tbody tr")).to_have_count(1)
+    expect(page.locator("#sessions tbody tr")).to_contain_text("E2E-001")
+    shot(page, "8-viewer-history")
+    page.fill("input[name=serial]", "nobody")
+    page.click("#filters button[type=submit]")
+    expect(page.locator("#sessions")).to_have_text("No session matches.")
     context.close()

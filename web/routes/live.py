@@ -13,7 +13,7 @@ from fastapi import APIRouter, Depends, Query, Request, WebSocket, WebSocketDisc
 
 from web.auth import SESSION_COOKIE, viewer
 from web.relay import BrowserQueue
-from web.schemas import StationSummary, errors
+from web.schemas import RelayHealth, StationSummary, errors
 from web.state import Link, Panel, panel
 
 router = APIRouter(tags=["live"])
@@ -30,20 +30,26 @@ def stations(request: Request) -> list[StationSummary]:
             for s in p.config.stations]  # fmt: skip
 
 
-@router.get(
-    "/api/stations/{name}/status", dependencies=[Depends(viewer)], responses=errors(401, 404, 409, 422, 502, 504)
-)
+ASK_ERRORS = errors(401, 404, 409, 422, 502, 504)
+
+
+@router.get("/api/stations/{name}/status", dependencies=[Depends(viewer)], responses=ASK_ERRORS)
 async def status(link: Link) -> dict:
     """The station's state and progress, asked over its control channel."""
     return await link.request("status")
 
 
-@router.get(
-    "/api/stations/{name}/library", dependencies=[Depends(viewer)], responses=errors(401, 404, 409, 422, 502, 504)
-)
+@router.get("/api/stations/{name}/library", dependencies=[Depends(viewer)], responses=ASK_ERRORS)
 async def library(link: Link) -> list[dict]:
     """The station's procedures with their declared parameters (name, kind, default, min, max, choices, unit)."""
     return await link.request("library")
+
+
+@router.get("/api/relay", dependencies=[Depends(viewer)], responses=errors(401))
+def relay(request: Request) -> RelayHealth:
+    """Browsers connected to the telemetry WebSocket, and messages dropped for slow ones since the panel started."""
+    r = panel(request).relay
+    return RelayHealth(browsers=r.browsers, dropped=r.dropped, queue_size=r.queue_size)
 
 
 def _same_origin(ws: WebSocket) -> bool:

@@ -141,6 +141,7 @@ class StationView {
         break;
       case "state":
         this.last.progress = { ...this.last.progress, state: d.state, session_uid: d.session_uid };
+        this.notice("state", d.state, FINAL.includes(d.state) && d.state !== "finished" ? "warning" : "info");
         break;
       case "window":
         this.last.window = d;
@@ -220,10 +221,11 @@ class StationView {
       : fHz === 0 ? "at rest" : `${num(fHz, 6)} Hz` + (m && m.commanded_hz !== m.freq_hz ? ` (commanded ${num(m.commanded_hz, 6)} Hz)` : "");
     const w = this.last.window;
     if (w) {
-      const pct = w.preset_pulses ? Math.min(100, (100 * w.pulses_est) / w.preset_pulses) : 0;
+      const pulses = w.event === "close" ? w.preset_pulses : w.pulses_est; // a window closes on its preset count
+      const pct = w.preset_pulses ? Math.min(100, (100 * pulses) / w.preset_pulses) : 0;
       this.windowBar.style.width = `${pct}%`;
       this.windowProgress.setAttribute("aria-valuenow", pct.toFixed(1));
-      this.f.window.textContent = `${w.key}: ${w.pulses_est} of ${w.preset_pulses} pulses (${w.event})`;
+      this.f.window.textContent = `${w.key}: ${pulses} of ${w.preset_pulses} pulses (${w.event})`;
       this.f.windowTime.textContent = `${duration(w.elapsed_s)} of about ${duration(w.expected_s)}`;
     }
     this.f.rate.textContent = this.rates.length ? `${num(this.rates[0][1], 6)} rad/s (${this.rates[0][0]})` : "—";
