@@ -273,6 +273,14 @@ class ShakerController:
         """Drive off at once (idempotent, retried)."""
         self._query("ABORT")
 
+    def safe_stop(self) -> None:
+        """The station's safe stop: ramp down over the shortest allowed ramp, up to 2 s."""
+        self.stop(min(2.0, self.limits.ramp_max_s))
+
+    def emergency_stop(self) -> None:
+        """The station's emergency stop: drive off at once."""
+        self.abort()
+
     def clear_alarm(self) -> None:
         self._query("ALARM:CLR")
 

@@ -10,8 +10,9 @@ simulation share every line of driver code.
 Interlocks kept here, whatever the procedure asks: the indexing head never
 moves while the crank turns (`motion_permitted`), a drive fault or lost bus
 raised during a window ends it, and the stops are best effort in order
-(counter, crank, head) so that one failed device does not keep the others
-moving.
+(counter, crank, head, then every further device with a `safe_stop` or
+`emergency_stop` of its own, such as a shaker) so that one failed device does
+not keep the others moving.
 """
 
 from __future__ import annotations
@@ -287,7 +288,7 @@ class StationDevices:
     def safe_stop(self) -> None:
         """Abort any window, ramp the crank to rest and disable it; the first error is raised after all."""
         errors: list[DriverError] = []
-        for action in (self.counter.abort, lambda: self.set_vibration(0.0)):
+        for action in (self.counter.abort, lambda: self.set_vibration(0.0), *self._extra_actions("safe_stop")):
             try:
                 action()
             except DriverError as exc:
@@ -297,12 +298,17 @@ class StationDevices:
 
     def emergency_stop(self) -> None:
         """Quick stop of the crank, head stopped and held, window aborted: each tried whatever the others do."""
-        for action in (self.servo.quick_stop, self.head.hold, self.counter.abort):
+        actions = (self.servo.quick_stop, self.head.hold, self.counter.abort, *self._extra_actions("emergency_stop"))
+        for action in actions:
             try:
                 action()
             except DriverError as exc:
                 log.error("emergency stop: %s", exc)
         self._freq_hz = 0.0
+
+    def _extra_actions(self, name: str) -> list[Callable[[], object]]:
+        """A further device's own safe_stop / emergency_stop, for those that move something (a shaker)."""
+        return [getattr(d, name) for d in self.extra.values() if callable(getattr(d, name, None))]
 
 
 class _DisplayTrace:

@@ -75,3 +75,16 @@ def test_a_station_that_is_not_there_fails_to_open_naming_the_device() -> None:
 def test_a_real_configuration_is_not_simulated() -> None:
     with pytest.raises(InterlockError, match="real station's configuration"):
         simulated_station(REAL, default_twin())
+
+
+@pytest.mark.parametrize("stop", ["emergency_stop", "safe_stop"])
+def test_the_station_stops_reach_a_further_device_that_moves(stop: str) -> None:
+    shaker_station = load_station_config(CONFIG_DIR / "station-shaker-sim.toml")
+    with simulated_station(shaker_station, default_twin(), seed=3, speed=20.0) as s:
+        shaker = s.devices.device("shaker")
+        shaker.set_sine(20.0, 1.0)
+        shaker.start(0.5)
+        assert shaker.status().running
+        getattr(s.devices, stop)()
+        s.devices.clock.sleep_s(2.5)  # a safe stop ramps down over up to 2 s
+        assert shaker.status().state == "IDLE" and not shaker.status().running
