@@ -35,7 +35,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import httpx
+import httpx2
 import numpy as np
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
@@ -74,12 +74,12 @@ class Panel:
     headers: dict  # an operator's cookie and CSRF token
 
     def post(self, path: str, body: dict | None = None) -> dict:
-        reply = httpx.post(self.url + path, json=body, headers=self.headers, timeout=30)
+        reply = httpx2.post(self.url + path, json=body, headers=self.headers, timeout=30)
         reply.raise_for_status()
         return reply.json()
 
     def status(self) -> dict:
-        return httpx.get(self.url + "/api/stations/sim/status", headers=self.headers, timeout=30).json()
+        return httpx2.get(self.url + "/api/stations/sim/status", headers=self.headers, timeout=30).json()
 
     def cpu_s(self) -> float:
         """User plus system CPU time of the panel process."""
@@ -108,8 +108,8 @@ def panel_for(telemetry: str, control: str, home: Path) -> Iterator[Panel]:
     url = f"http://127.0.0.1:{port}"
     try:
         for _ in range(200):
-            with contextlib.suppress(httpx.TransportError):
-                reply = httpx.post(url + "/api/login", json={"username": "bench", "password": PASSWORD})
+            with contextlib.suppress(httpx2.TransportError):
+                reply = httpx2.post(url + "/api/login", json={"username": "bench", "password": PASSWORD})
                 break
             time.sleep(0.1)
         headers = {"Cookie": f"{SESSION_COOKIE}={reply.cookies[SESSION_COOKIE]}", CSRF_HEADER: reply.json()["csrf"]}
@@ -297,7 +297,7 @@ def bench_memory(clients: int, speed: float) -> dict:
                 sampler = asyncio.create_task(sample())
                 await run_session(panel, outcome)
                 sampler.cancel()
-                relay.update(httpx.get(panel.url + "/api/relay", headers=panel.headers).json())
+                relay.update(httpx2.get(panel.url + "/api/relay", headers=panel.headers).json())
 
             watched = asyncio.run(watch(panel, clients, run, silent=1))
     t, rss = np.array(samples).T

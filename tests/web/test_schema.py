@@ -13,7 +13,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-import httpx
+import httpx2
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
@@ -51,7 +51,7 @@ def login_headers(served_panel, passwords) -> Callable[[], dict]:
     """Headers of a new operator login, as a browser sends them."""
 
     def headers() -> dict:
-        reply = httpx.post(f"{served_panel}/api/login", json={"username": "olga", "password": passwords["olga"]})
+        reply = httpx2.post(f"{served_panel}/api/login", json={"username": "olga", "password": passwords["olga"]})
         assert reply.status_code == 200, reply.text
         return {"Cookie": f"{SESSION_COOKIE}={reply.cookies[SESSION_COOKIE]}", CSRF_HEADER: reply.json()["csrf"]}
 
