@@ -31,7 +31,7 @@ import numpy as np
 
 from drivers.counter_timer import CounterTimer, Event, WindowResult
 from drivers.devices import device_kinds
-from drivers.errors import DeviceTimeout, DriverError, InterlockError
+from drivers.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError
 from drivers.grating import GratingReadHead
 from drivers.indexing_head import IndexingHead
 from drivers.reference_marks import FrequencyEstimate, ReferenceMarks
@@ -297,14 +297,39 @@ class StationDevices:
             raise errors[0]
 
     def emergency_stop(self) -> None:
-        """Quick stop of the crank, head stopped and held, window aborted: each tried whatever the others do."""
-        actions = (self.servo.quick_stop, self.head.hold, self.counter.abort, *self._extra_actions("emergency_stop"))
+        """Quick stop of the crank, head stopped and held: each tried whatever the others do (any thread)."""
+        # Motion only: the counter's port belongs to the thread that reads its window, which aborts it.
+        actions = (self.servo.quick_stop, self.head.hold, *self._extra_actions("emergency_stop"))
         for action in actions:
             try:
                 action()
             except DriverError as exc:
                 log.error("emergency stop: %s", exc)
         self._freq_hz = 0.0
+
+    def reset(self) -> None:
+        """After an emergency stop or a fault, once its cause is removed: the drive's link reopened if it was
+        lost, its fault reset (confirmed by the statusword), the head released. The table stays at rest."""
+        try:
+            self.servo.check()
+        except (Disconnected, DeviceTimeout):  # a lost bus or heartbeat: only a new connection clears it
+            self.servo.close()
+            self.servo.open()
+        except DeviceFault:
+            self.servo.reset_fault()
+        if self.servo.state == "FAULT":
+            self.servo.reset_fault()
+        self.head.release()
+        self._freq_hz = 0.0
+
+    def status(self) -> dict:
+        """What the panel shows of the devices, from what the drivers already hold (no I/O)."""
+        try:
+            self.servo.check()
+            fault = None
+        except DriverError as exc:
+            fault = str(exc)
+        return {"drive_state": self.servo.state, "drive_fault": fault, "head_held": self.head.held}
 
     def _extra_actions(self, name: str) -> list[Callable[[], object]]:
         """A further device's own safe_stop / emergency_stop, for those that move something (a shaker)."""

@@ -8,7 +8,8 @@ request at a time and gets one JSON reply:
 
 Commands: status, library, plan {procedure, params}, start {procedure, params,
 instrument_serial}, resume_session {uid}, pause, resume, abort, estop,
-acknowledge (the operator did what an OperatorAction step asked). `plan`
+acknowledge (the operator did what an OperatorAction step asked), reset (clear an
+emergency stop or a drive fault once its cause is removed). `plan`
 and `start` validate the parameters and every step before anything moves; a
 bad request gets its validation message back unchanged (it names the field,
 the value and what is allowed). Every control action goes to the session's
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import hmac
 import json
+import logging
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -33,9 +35,13 @@ from station.engine.params import ParameterError
 from station.engine.planning import ValidationError
 from station.engine.registry import ProcedureError
 from station.jsonsafe import json_safe
+from station.store import StoreError
 
-REQUEST_ERRORS = (ControlError, ProcedureError, ParameterError, ValidationError, DriverError, KeyError, TypeError)
-CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge")
+log = logging.getLogger(__name__)
+REQUEST_ERRORS = (
+    ControlError, ProcedureError, ParameterError, ValidationError, DriverError, StoreError, KeyError, TypeError,
+)  # fmt: skip
+CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge", "reset")
 
 
 class ControlServer:
@@ -68,6 +74,7 @@ class ControlServer:
             "resume": lambda a: controller.resume(),
             "abort": lambda a: controller.abort(),
             "acknowledge": lambda a: controller.engine.acknowledge(),
+            "reset": lambda a: controller.reset(),
             "estop": lambda a: controller.emergency_stop(),
         }
 
@@ -102,6 +109,9 @@ class ControlServer:
             result = handler(args)
         except REQUEST_ERRORS as exc:
             return {"ok": False, "error": {"type": type(exc).__name__, "message": str(exc)}}
+        except Exception as exc:  # the channel outlives any request: an unexpected error is a reply, not a dead thread
+            log.exception("control request %r failed", cmd)
+            return {"ok": False, "error": {"type": "InternalError", "message": f"{type(exc).__name__}: {exc}"}}
         if cmd in CONTROL_ACTIONS:
             self._log(cmd, str(request.get("user", "unknown")), args)
         return {"ok": True, "result": result}

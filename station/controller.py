@@ -134,9 +134,16 @@ class StationController:
     def emergency_stop(self) -> None:
         self.engine.emergency_stop()
 
+    def reset(self) -> None:
+        """Clear an emergency stop or a drive fault once its cause is removed (not while a run is under way)."""
+        if self.busy:
+            raise ControlError("a procedure is running: abort it before a reset")
+        self.hw.reset()
+
     def status(self) -> dict:
         p = self.engine.progress.to_json()
-        return p | {"busy": self.busy, "freq_hz": self.engine.freq_hz, "index_deg": self.engine.position_deg}
+        return p | self.hw.status() | {"busy": self.busy, "freq_hz": self.engine.freq_hz,
+                                       "index_deg": self.engine.position_deg}  # fmt: skip
 
     def beacon(self, period_s: float = 0.2) -> threading.Event:
         """Publish `status` every period_s of wall time (the panel's heartbeat) until the returned event is set."""

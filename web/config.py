@@ -8,10 +8,11 @@ variables named here.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from station.tomlfile import read_toml
 
 NAME_PATTERN = r"^[A-Za-z0-9_-]{1,40}$"
 
@@ -68,12 +69,7 @@ class PanelConfig(BaseModel):
     def from_toml(cls, path: str | Path) -> PanelConfig:
         """Read and validate; PanelConfigError names the file, the key and what is wrong."""
         path = Path(path)
-        try:
-            doc = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise PanelConfigError(f"{path}: no such file") from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise PanelConfigError(f"{path}: not valid TOML ({exc})") from None
+        doc = read_toml(path, "panel config", PanelConfigError)
         panel = doc.pop("panel", {})
         try:
             return cls.model_validate(panel | doc)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
-import tomllib
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any
 
 from station.engine.params import Param, ParameterError, validate_params
 from station.session import Session
+from station.tomlfile import read_toml
 
 
 class ProcedureError(ValueError):
@@ -86,12 +86,7 @@ def get_procedure(name: str) -> ProcedureSpec:
 def load_procedure_file(path: str | Path) -> tuple[ProcedureSpec, dict[str, Any]]:
     """Read and validate a TOML procedure file: (procedure, typed parameters)."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ProcedureError(f"procedure file {path}: no such file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ProcedureError(f"procedure file {path}: not valid TOML ({exc})") from None
+    doc = read_toml(path, "procedure file", ProcedureError)
     unknown = sorted(set(doc) - {"procedure", "params", "title", "instrument_serial"})
     if unknown:
         raise ProcedureError(

@@ -144,12 +144,15 @@ class Engine:
         self._acknowledged.set()
 
     def emergency_stop(self) -> None:
-        """Quick-stop the crank and hold the head now, then end the procedure."""
-        self.hw.emergency_stop()
+        """Quick-stop the crank and hold the head now, then end the procedure.
+
+        The flags go up first, so that any device error the stop causes in the engine's own thread
+        is read as the stop's consequence, not as a fault of the run."""
         with self._lock:
             self._estop = True
             self._abort_requested = True
             self._resume.set()
+        self.hw.emergency_stop()
         self.publish("fault", {"kind": "estop", "message": "emergency stop"})
 
     # ---- RunContext: what steps use --------------------------------------------------------

@@ -16,6 +16,7 @@ from types import MappingProxyType
 from typing import Any
 
 from station import constants
+from station.tomlfile import read_toml
 
 
 class TwinConfigError(ValueError):
@@ -228,14 +229,7 @@ class TwinConfig:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TwinConfig:
-        path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise TwinConfigError(f"twin config {path}: no such file") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise TwinConfigError(f"twin config {path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_toml(path, "twin config", TwinConfigError), source=str(path))
 
     def to_toml(self) -> str:
         lines = [f"earth_rate_on = {'true' if self.earth_rate_on else 'false'}", ""]

@@ -9,6 +9,7 @@ import time
 import pytest
 
 from drivers.sim.pty_link import Fault
+from drivers.sim.servo_emulator import ServoEmulator
 from station.engine.runner import State
 from station.twin.config import default_twin
 
@@ -138,3 +139,32 @@ def test_an_aborted_session_resumes_without_losing_or_repeating_points(make_rig)
     assert after[: len(before)] == before
     assert [p.sequence for p in after] == list(range(10))
     assert len({p.point_id for p in after}) == 10
+
+
+def test_after_an_emergency_stop_a_reset_lets_the_next_run_start(make_rig) -> None:
+    rig = make_rig(speed=300.0)
+    rig.controller.start(PROCEDURE, QUICK)
+    wait_until(lambda: rig.controller.engine.freq_hz > 0 and crank_hz(rig) > 9.9, 30)
+    rig.controller.emergency_stop()
+    assert rig.controller.wait(30).state == State.ESTOPPED
+    assert rig.controller.status()["head_held"]
+    rig.controller.reset()
+    status = rig.controller.status()
+    assert not status["head_held"] and status["drive_fault"] is None
+    assert rig.controller.run(PROCEDURE, QUICK).state == State.FINISHED
+
+
+def test_a_drive_whose_bus_was_lost_is_reconnected_by_a_reset(make_rig) -> None:
+    rig = make_rig()
+    servo = rig.sim.devices.servo
+    rig.sim.emulators["servo"].silence_heartbeat()  # the drive falls silent: the watchdog latches the loss
+    wait_until(lambda: rig.controller.status()["drive_fault"] is not None, 10)
+    out = rig.controller.run(PROCEDURE, QUICK)
+    assert out.state == State.FAILED  # refused at the first command, with the latched loss
+    rig.sim.emulators["servo"].stop()  # the cause removed: a drive that works is back on the bus
+    rig.sim.emulators["servo"] = ServoEmulator.from_config(
+        rig.sim.devices.config.servo, servo._clock, rig.sim.world.crank
+    )
+    rig.sim.emulators["servo"].start()
+    rig.controller.reset()
+    assert rig.controller.status()["drive_fault"] is None and servo.state == "SWITCH ON DISABLED"

@@ -8,7 +8,7 @@ import time
 import pytest
 from fastapi.testclient import TestClient
 
-ACTIONS = ("pause", "resume", "abort", "estop")
+ACTIONS = ("pause", "resume", "abort", "estop", "reset")
 PROCEDURE = "seed000.integral_precession"
 STATE_TIMEOUT_S = 30.0
 FINAL = ("finished", "aborted", "estopped", "failed")
@@ -148,11 +148,13 @@ def test_emergency_stop_ends_the_run(olga, quick):
     assert olga.post("/api/stations/sim/estop").status_code == 200
     status = wait_for(olga, FINAL, timeout_s=10, idle=True)
     events = olga.get(f"/api/sessions/{uid}").json()["events"]
-    # The station ends an emergency stop as "estopped"; twice in many runs a driver fault raised by the stop
-    # itself was reported first and the run ended "failed" (a station-side race, reported with issue 6).
-    assert status["state"] in ("estopped", "failed"), events
-    assert status["freq_hz"] == 0.0 and status["busy"] is False
+    assert status["state"] == "estopped", events
+    assert status["freq_hz"] == 0.0 and status["busy"] is False and status["head_held"] is True
     assert any(e["message"] == "estop by olga" for e in events)
+    # The head stays held until an operator resets the station (once the cause is removed).
+    assert olga.post("/api/stations/sim/reset").status_code == 200
+    status = olga.get("/api/stations/sim/status").json()
+    assert status["head_held"] is False and status["drive_fault"] is None
 
 
 def test_the_audit_log_is_readable_by_viewers_not_anonymous(victor, anonymous):

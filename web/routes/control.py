@@ -1,4 +1,4 @@
-"""Control: dry run, start, pause, resume, abort, emergency stop, resume a session; every action in the audit log.
+"""Control: dry run, start, pause, resume, abort, emergency stop, reset, resume a session; all in the audit log.
 
 Only operators act (with their CSRF token); a dry run moves nothing and is
 open to every logged-in user. Each action is forwarded with the operator's
@@ -71,6 +71,7 @@ for _cmd, _doc in (
     ("resume", "Resume a paused run."),
     ("abort", "Abort: the open window is aborted, the table ramps to rest, the session keeps what it measured."),
     ("estop", "Emergency stop: quick stop of the crank and the head held now, then the procedure ends."),
+    ("reset", "After an emergency stop or a drive fault, once its cause is removed: fault reset, head released."),
 ):
     router.add_api_route(f"/api/stations/{{name}}/{_cmd}", _simple(_cmd, _doc), methods=["POST"],
                          responses=STATION_ERRORS, response_model=ActionReply)  # fmt: skip

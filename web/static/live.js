@@ -240,8 +240,10 @@ class StationView {
 
   driveText(state, p) {
     if (state === "estopped") return "EMERGENCY STOP";
-    if (!p.busy) return "idle";
-    return p.freq_hz > 0 ? "vibrating" : "table at rest";
+    if (p.drive_fault) return `fault: ${p.drive_fault}`;
+    const drive = p.drive_state ? ` (${p.drive_state.toLowerCase()})` : "";
+    if (!p.busy) return `idle${drive}`;
+    return (p.freq_hz > 0 ? "vibrating" : "table at rest") + drive;
   }
 
   faultOnce(message) {
@@ -265,6 +267,7 @@ class StationView {
     set("pause", state === "running");
     set("resume", state === "paused" || state === "pausing");
     set("abort", busy && !FINAL.includes(state));
+    set("reset", !busy && (state === "estopped" || state === "failed" || Boolean(p && (p.head_held || p.drive_fault))));
   }
 }
 
@@ -368,6 +371,7 @@ function buildControls(view, library) {
   const act = (name) => async () => {
     form.error.hidden = true;
     if (name === "abort" && !confirm(`Abort the run on ${view.name}? The session keeps what it measured.`)) return;
+    if (name === "reset" && !confirm(`Reset ${view.name}? Only once the cause of the stop or fault is removed.`)) return;
     try {
       await api(`/api/stations/${view.name}/${name}`, { method: "POST" });
       form.result.textContent = `${name}: sent`;
@@ -383,11 +387,12 @@ function buildControls(view, library) {
     resume: button("resume", "Resume", "", act("resume")),
     abort: button("abort", "Abort", "warn", act("abort")),
     estop: button("estop", "EMERGENCY STOP", "estop", act("estop")),
+    reset: button("reset", "Reset", "", act("reset")),
   };
   const b = view.buttons;
   view.controls.replaceChildren(
     el("h3", {}, "Control"),
-    el("div", { class: "run-buttons" }, b.pause, b.resume, b.abort, b.estop),
+    el("div", { class: "run-buttons" }, b.pause, b.resume, b.abort, b.estop, b.reset),
     el("form", { class: "start-form", onsubmit: (e) => e.preventDefault() },
       el("label", {}, el("span", {}, "procedure"), form.procedure),
       el("label", {}, el("span", {}, "instrument serial"), form.serial),
