@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from drivers.serial_port import TICK_S, Frame, FramedPort, TickUnwrapper
+from drivers.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from station.clock import Clock
 
 DEVICE = "counter/timer"
@@ -125,12 +125,14 @@ class Event:
     value: int = 0
 
 
-class CounterTimer:
+class CounterTimer(FramedDevice):
     """Driver of the counter/timer board.
 
     `clock`: if given, the board's time base is the station clock's (as in the
     emulator) and time stamps are station seconds.
     """
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -143,14 +145,12 @@ class CounterTimer:
         clock: Clock | None = None,
         max_preset: int = MAX_PRESET,
     ) -> None:
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.timeout_s = timeout_s
         self.silence_s = silence_s
         self.retries = retries
         self.max_preset = min(max_preset, MAX_PRESET)
         self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
-        self._port: FramedPort | None = None
         self._window: WindowResult | None = None
         self._stream_edges = False
         self._refs: list[float] = []
@@ -160,30 +160,6 @@ class CounterTimer:
         self._next_ref = 0
         self._opened = False
         self._closed = False
-
-    # ---- port
-
-    def open(self) -> CounterTimer:
-        if self._port is None:
-            self._port = FramedPort(DEVICE, self.port, self.baud)
-        return self
-
-    def close(self) -> None:
-        if self._port is not None:
-            self._port.close()
-            self._port = None
-
-    def __enter__(self) -> CounterTimer:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @property
-    def framed(self) -> FramedPort:
-        if self._port is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        return self._port
 
     # ---- commands
 

@@ -33,14 +33,13 @@ repeated RD is simply a newer reading with its own time stamp); faults are not.
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
 
 from drivers.devices import DeviceKind
-from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError
-from drivers.serial_port import LineReader, SerialLink, TickUnwrapper, with_retries
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, FrameError
+from drivers.serial_port import SerialDevice, TickUnwrapper, with_retries
 from drivers.station_config import SerialSection, in_range, spec
 from station.clock import Clock
 
@@ -100,13 +99,15 @@ class TiltReading:
     phi_z_arcsec: float
 
 
-class Gradiometer:
+class Gradiometer(SerialDevice):
     """Driver of the gradiometer: identity and time-stamped readings.
 
     `clock`: the station clock whose timebase the instrument's stamps share; each
     stamp is unwrapped against the clock when its reply arrives (valid while replies
     come within half a wrap, 107 s, of their sample).
     """
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -120,39 +121,16 @@ class Gradiometer:
     ) -> None:
         if not 1 <= address <= 99:
             raise ValueError(f"gradiometer address {address!r}: allowed 1 .. 99")
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.address = address
         self.timeout_s = timeout_s
         self.retries = retries
         self._unwrap = TickUnwrapper(clock, absolute=clock is not None)
-        self._link: SerialLink | None = None
-        self._lines: LineReader | None = None
-        self._io = threading.Lock()
-
-    def open(self) -> Gradiometer:
-        if self._link is None:
-            self._link = SerialLink(DEVICE, self.port, self.baud)
-            self._lines = LineReader(self._link)
-        return self
-
-    def close(self) -> None:
-        if self._link is not None:
-            self._link.close()
-            self._link = self._lines = None
-
-    def __enter__(self) -> Gradiometer:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # ---- transactions
 
     def _transact(self, command: str) -> list[str]:
-        if self._lines is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        lines = self._lines
+        lines = self.lines
         with self._io:
             lines.clear()  # a partial line left by a failed attempt
             lines.link.write(encode_line("#", self.address, command))

@@ -52,7 +52,7 @@ from drivers.errors import (
     FrameError,
     LimitError,
 )
-from drivers.serial_port import TICK_S, Frame, FramedPort, TickUnwrapper
+from drivers.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from station.clock import Clock
 
 DEVICE = "grating read head"
@@ -166,13 +166,15 @@ class GratingStats:
     biss_crc_errors: int = 0
 
 
-class GratingReadHead:
+class GratingReadHead(FramedDevice):
     """Driver of the absolute grating read head's interface board.
 
     `clock`: if given, the board's time base is taken to be the station
     clock's (true for the emulator), so time stamps come out in station
     seconds; otherwise they count from the board's counter zero.
     """
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -184,13 +186,11 @@ class GratingReadHead:
         clock: Clock | None = None,
         max_divider: int = 5000,
     ) -> None:
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.timeout_s = timeout_s
         self.retries = retries
         self.max_divider = max_divider
         self._clock = clock
-        self._port: FramedPort | None = None
         self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
         self._pending: DriverError | None = None
         self._divider = 1
@@ -203,33 +203,12 @@ class GratingReadHead:
 
     # ---- port
 
-    def open(self) -> GratingReadHead:
-        if self._port is None:
-            self._port = FramedPort(DEVICE, self.port, self.baud)
-        return self
-
-    def close(self) -> None:
-        """Stop streaming if possible, then close; never raises."""
-        if self._port is None:
-            return
+    def _before_close(self) -> None:
+        """Stop streaming if possible (never raises)."""
         if self.streaming:
             with contextlib.suppress(DriverError):
                 self._command(STOP, b"", retries=0, timeout_s=min(self.timeout_s, 0.2))
         self.streaming = False
-        self._port.close()
-        self._port = None
-
-    def __enter__(self) -> GratingReadHead:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @property
-    def framed(self) -> FramedPort:
-        if self._port is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        return self._port
 
     # ---- commands
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from drivers.devices import DeviceKind
 from drivers.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from drivers.serial_port import OVERHEAD, TICK_S, Frame, FramedPort, TickUnwrapper
+from drivers.serial_port import OVERHEAD, TICK_S, Frame, FramedDevice, TickUnwrapper
 from drivers.station_config import in_range, spec
 from station.clock import Clock
 
@@ -115,8 +115,10 @@ class ImuRecording:
                 np.concatenate([b.dv_mps for b in parts]))  # fmt: skip
 
 
-class StrapdownImu:
+class StrapdownImu(FramedDevice):
     """Driver of the IMU. `clock`: the station clock, whose time base the IMU's stamps share."""
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -131,14 +133,12 @@ class StrapdownImu:
     ) -> None:
         if rate_hz not in RATES_HZ:
             raise LimitError(DEVICE, "rate not supported", field="rate_hz", value=rate_hz, allowed=str(RATES_HZ))
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.rate_hz = rate_hz
         self.timeout_s = timeout_s
         self.silence_s = silence_s
         self.retries = retries
         self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
-        self._port: FramedPort | None = None
         self._pending: DriverError | None = None
         self._next_seq: int | None = None
         self._last_ticks = 0
@@ -147,34 +147,17 @@ class StrapdownImu:
 
     # ---- port
 
-    def open(self) -> StrapdownImu:
-        """Open the port, set the sample rate and read the IMU's scale factors."""
-        if self._port is None:
-            self._port = FramedPort(DEVICE, self.port, self.baud)
-            try:
-                self._command(STOP, b"")
-                self._command(RATE, RATE_PAYLOAD.pack(self.rate_hz))
-                self.info = self.query_info()
-            except DriverError:
-                self.close()
-                raise
-        return self
+    def _after_open(self) -> None:
+        """Set the sample rate and read the IMU's scale factors."""
+        self._command(STOP, b"")
+        self._command(RATE, RATE_PAYLOAD.pack(self.rate_hz))
+        self.info = self.query_info()
 
-    def close(self) -> None:
-        """Stop the stream if possible, then close; never raises."""
-        if self._port is None:
-            return
+    def _before_close(self) -> None:
+        """Stop the stream if possible (never raises)."""
         if self.streaming:
             with contextlib.suppress(DriverError):
                 self.stop_stream()
-        self._port.close()
-        self._port = None
-
-    @property
-    def framed(self) -> FramedPort:
-        if self._port is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        return self._port
 
     @property
     def dt_s(self) -> float:

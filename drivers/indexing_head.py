@@ -44,7 +44,7 @@ from drivers.errors import (
     InterlockError,
     LimitError,
 )
-from drivers.serial_port import LineReader, SerialLink, with_retries
+from drivers.serial_port import SerialDevice, with_retries
 from station.clock import Clock, WallClock
 
 DEVICE = "indexing head"
@@ -116,7 +116,7 @@ class HeadStatus:
     position_deg: float
 
 
-class IndexingHead:
+class IndexingHead(SerialDevice):
     """Driver of the indexing head.
 
     Safety hooks for the interlock layer: `motion_permitted()` is checked
@@ -125,6 +125,8 @@ class IndexingHead:
     Settling is judged on `clock` (station time): position within
     `settle_tol_deg` of the target, head idle, for `settle_time_s`.
     """
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -147,8 +149,7 @@ class IndexingHead:
     ) -> None:
         if not min_deg < max_deg:
             raise ValueError(f"min_deg {min_deg} must be < max_deg {max_deg}")
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.device = device
         self.axis = axis
         self.counts_per_deg = counts_per_deg
@@ -162,38 +163,14 @@ class IndexingHead:
         self.move_timeout_s = move_timeout_s
         self.motion_permitted = motion_permitted
         self.clock: Clock = clock if clock is not None else WallClock()
-        self._link: SerialLink | None = None
-        self._lines: LineReader | None = None
-        self._io = threading.Lock()
         self._msg_id = 0
         self._held = threading.Event()
-
-    # ---- port
-
-    def open(self) -> IndexingHead:
-        if self._link is None:
-            self._link = SerialLink(DEVICE, self.port, self.baud)
-            self._lines = LineReader(self._link)
-        return self
-
-    def close(self) -> None:
-        if self._link is not None:
-            self._link.close()
-            self._link = self._lines = None
-
-    def __enter__(self) -> IndexingHead:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # ---- transactions
 
     def _transact(self, command: str) -> Reply:
         """One command and its reply (matched by device, axis and message id)."""
-        if self._lines is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        lines = self._lines
+        lines = self.lines
         with self._io:
             self._msg_id = (self._msg_id + 1) % 100
             mid = self._msg_id

@@ -29,12 +29,11 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 from dataclasses import dataclass
 
 from drivers.devices import DeviceKind
-from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from drivers.serial_port import LineReader, SerialLink, with_retries
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, FrameError, LimitError
+from drivers.serial_port import SerialDevice, with_retries
 from drivers.station_config import SerialSection, in_range, spec
 from station.clock import Clock, WallClock
 
@@ -82,8 +81,10 @@ class PigaElectronicsSection(SerialSection):
     lock_timeout_s: float = spec(in_range(0.0, 600.0, lo_open=True))
 
 
-class PigaElectronics:
+class PigaElectronics(SerialDevice):
     """Driver of the PIGA's electronics: identity, angle-servo offset and state."""
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -97,40 +98,19 @@ class PigaElectronics:
         poll_s: float = 0.2,
         clock: Clock | None = None,
     ) -> None:
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.offset_max_arcsec = offset_max_arcsec
         self.lock_timeout_s = lock_timeout_s
         self.timeout_s = timeout_s
         self.retries = retries
         self.poll_s = poll_s
         self.clock: Clock = clock if clock is not None else WallClock()
-        self._lines: LineReader | None = None
-        self._io = threading.Lock()
-
-    def open(self) -> PigaElectronics:
-        if self._lines is None:
-            self._lines = LineReader(SerialLink(DEVICE, self.port, self.baud))
-        return self
-
-    def close(self) -> None:
-        if self._lines is not None:
-            self._lines.link.close()
-            self._lines = None
-
-    def __enter__(self) -> PigaElectronics:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # ---- transactions
 
     def _transact(self, command: str) -> str:
         """One command and its reply body; ERR replies raise DeviceFault."""
-        if self._lines is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        lines = self._lines
+        lines = self.lines
         with self._io:
             lines.link.write(encode_line(command) + b"\n")
             try:

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError
-from drivers.serial_port import LineReader, SerialLink, TickUnwrapper, with_retries
+from drivers.serial_port import SerialDevice, TickUnwrapper, with_retries
 from station.clock import Clock
 
 DEVICE = "reference mark monitor"
@@ -125,12 +125,14 @@ class Crossing:
     t_s: float  # time stamp (station time when the clock is synchronised)
 
 
-class ReferenceMarks:
+class ReferenceMarks(SerialDevice):
     """Driver of the reference-mark monitor: crossings, alarms, measured frequency.
 
     `clock`: if given, the device time base is the station clock's (as in the
     emulator) and time stamps are in station seconds.
     """
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -142,14 +144,11 @@ class ReferenceMarks:
         retries: int = 2,
         clock: Clock | None = None,
     ) -> None:
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.timeout_s = timeout_s
         self.silence_s = silence_s
         self.retries = retries
         self._unwrap = TickUnwrapper(clock, absolute=clock is not None, sequential=True)
-        self._link: SerialLink | None = None
-        self._lines: LineReader | None = None
         self._last_n: int | None = None
         self._backlog: deque[bytes] = deque()  # event lines read while awaiting a reply
         self.alarm = 0
@@ -158,33 +157,11 @@ class ReferenceMarks:
 
     # ---- port
 
-    def open(self) -> ReferenceMarks:
-        if self._link is None:
-            self._link = SerialLink(DEVICE, self.port, self.baud)
-            self._lines = LineReader(self._link)
-        return self
-
-    def close(self) -> None:
-        if self._link is None:
-            return
+    def _before_close(self) -> None:
         if self.reporting:
             with contextlib.suppress(DriverError):
                 self._command("STOP", retries=0)
-        self._link.close()
-        self._link = self._lines = None
         self.reporting = False
-
-    def __enter__(self) -> ReferenceMarks:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @property
-    def lines(self) -> LineReader:
-        if self._lines is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        return self._lines
 
     # ---- commands
 

@@ -36,11 +36,12 @@ import errno
 import math
 import struct
 import termios
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Self, TypeVar
 
 import numpy as np
 import serial
@@ -136,6 +137,73 @@ class SerialLink:
 
 
 # ---------------------------------------------------------------- ASCII lines
+
+
+class SerialDevice:
+    """The port's life cycle that every serial driver shares: open and close (both idempotent), use as
+    a context manager, one transaction at a time under `_io`. A subclass names itself in DEVICE, may
+    talk to the device once the port is open (`_after_open`; a failure there closes the port again)
+    and say goodbye before it closes (`_before_close`, best effort). This class reads lines
+    (`lines`); FramedDevice reads binary frames (`framed`)."""
+
+    DEVICE = "serial device"
+
+    def __init__(self, port: str, baud: int) -> None:
+        self.port = port
+        self.baud = baud
+        self._link: SerialLink | None = None
+        self._lines: LineReader | None = None
+        self._io = threading.Lock()
+
+    @property
+    def is_open(self) -> bool:
+        return self._link is not None
+
+    def _connect(self) -> None:
+        self._link = SerialLink(self.DEVICE, self.port, self.baud)
+        self._lines = LineReader(self._link)
+
+    def _disconnect(self) -> None:
+        assert self._link is not None
+        self._link.close()
+        self._link = self._lines = None
+
+    def open(self) -> Self:
+        if not self.is_open:
+            self._connect()
+            try:
+                self._after_open()
+            except DriverError:
+                self.close()
+                raise
+        return self
+
+    def close(self) -> None:
+        if not self.is_open:
+            return
+        self._before_close()
+        self._disconnect()
+
+    def _after_open(self) -> None:
+        """Talk to the device once its port is open (nothing by default)."""
+
+    def _before_close(self) -> None:
+        """Best-effort goodbye to the device before the port closes (nothing by default)."""
+
+    def __enter__(self) -> Self:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _not_open(self) -> DriverError:
+        return DriverError(self.DEVICE, f"port {self.port} is not open")
+
+    @property
+    def lines(self) -> LineReader:
+        if self._lines is None:
+            raise self._not_open()
+        return self._lines
 
 
 class LineReader:
@@ -407,6 +475,32 @@ class FramedPort:
 TICK_S = 50e-9
 TICK_BITS = 32
 ANCHOR_SLACK_S = 1.0  # a device clock may run this far behind the host's when a stream starts
+
+
+class FramedDevice(SerialDevice):
+    """A SerialDevice that speaks the binary frames of FramedPort."""
+
+    def __init__(self, port: str, baud: int) -> None:
+        super().__init__(port, baud)
+        self._port: FramedPort | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
+
+    def _connect(self) -> None:
+        self._port = FramedPort(self.DEVICE, self.port, self.baud)
+
+    def _disconnect(self) -> None:
+        assert self._port is not None
+        self._port.close()
+        self._port = None
+
+    @property
+    def framed(self) -> FramedPort:
+        if self._port is None:
+            raise self._not_open()
+        return self._port
 
 
 class TickUnwrapper:

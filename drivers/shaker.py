@@ -37,12 +37,11 @@ from __future__ import annotations
 
 import contextlib
 import math
-import threading
 from dataclasses import dataclass
 
 from drivers.devices import DeviceKind
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from drivers.serial_port import LineReader, SerialLink, crc16, with_retries
+from drivers.serial_port import SerialDevice, crc16, with_retries
 from drivers.station_config import in_range, spec
 from station.clock import Clock
 
@@ -172,42 +171,28 @@ class ShakerStatus:
         return self.state in ("RAMP_UP", "RUN", "RAMP_DOWN")
 
 
-class ShakerController:
+class ShakerController(SerialDevice):
     """Driver of the vibration controller; `limits` is the table's envelope (its config section)."""
+
+    DEVICE = DEVICE
 
     def __init__(
         self, port: str, limits: ShakerSection, *, baud: int = 115_200, timeout_s: float = 0.5, retries: int = 2
     ) -> None:
-        self.port = port
+        super().__init__(port, baud)
         self.limits = limits
-        self.baud = baud
         self.timeout_s = timeout_s
         self.retries = retries
-        self._link: SerialLink | None = None
-        self._lines: LineReader | None = None
-        self._io = threading.Lock()
 
-    def open(self) -> ShakerController:
-        if self._link is None:
-            self._link = SerialLink(DEVICE, self.port, self.baud)
-            self._lines = LineReader(self._link)
-        return self
-
-    def close(self) -> None:
-        """Bring a running table to rest (best effort, one try), then close."""
-        if self._link is None:
-            return
+    def _before_close(self) -> None:
+        """Bring a running table to rest (best effort, one try) before the port closes."""
         with contextlib.suppress(DriverError):
             self._transact(f"STOP {min(2.0, self.limits.ramp_max_s):.3f}")
-        self._link.close()
-        self._link = self._lines = None
 
     # ---- transactions
 
     def _transact(self, text: str) -> str:
-        if self._lines is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        lines = self._lines
+        lines = self.lines
         with self._io:
             lines.clear()
             lines.link.discard_input()

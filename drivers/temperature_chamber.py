@@ -24,7 +24,6 @@ effect and writes set absolute values, so repeating one is harmless.
 
 from __future__ import annotations
 
-import threading
 import time
 from dataclasses import dataclass
 from functools import reduce
@@ -33,7 +32,7 @@ from typing import Any
 
 from drivers.devices import DeviceKind
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from drivers.serial_port import SerialLink, with_retries
+from drivers.serial_port import SerialDevice, with_retries
 from drivers.station_config import SerialSection, in_range, spec
 from station.clock import Clock
 
@@ -134,8 +133,10 @@ class ChamberStatus:
     ramping: bool
 
 
-class TemperatureChamber:
+class TemperatureChamber(SerialDevice):
     """Driver of the chamber controller; `set_*` refuse values outside the station's limits before sending."""
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -151,8 +152,7 @@ class TemperatureChamber:
         timeout_s: float = 0.5,
         retries: int = 2,
     ) -> None:
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.address = address
         self.setpoint_min_c = setpoint_min_c
         self.setpoint_max_c = setpoint_max_c
@@ -161,24 +161,6 @@ class TemperatureChamber:
         self.time_constant_s = time_constant_s
         self.timeout_s = timeout_s
         self.retries = retries
-        self._link: SerialLink | None = None
-        self._io = threading.Lock()
-
-    def open(self) -> TemperatureChamber:
-        if self._link is None:
-            self._link = SerialLink(DEVICE, self.port, self.baud)
-        return self
-
-    def close(self) -> None:
-        if self._link is not None:
-            self._link.close()
-            self._link = None
-
-    def __enter__(self) -> TemperatureChamber:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # ---- transactions
 

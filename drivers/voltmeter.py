@@ -22,7 +22,6 @@ are retried (READ? measures again, which is harmless); settings are checked thro
 from __future__ import annotations
 
 import re
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -31,7 +30,7 @@ import numpy as np
 
 from drivers.devices import DeviceKind
 from drivers.errors import DeviceFault, DriverError, FrameError, LimitError
-from drivers.serial_port import LineReader, SerialLink, with_retries
+from drivers.serial_port import SerialDevice, with_retries
 from drivers.station_config import SerialSection, in_range, spec
 from station.clock import Clock, WallClock
 
@@ -76,8 +75,10 @@ class Reading:
     end_s: float
 
 
-class Voltmeter:
+class Voltmeter(SerialDevice):
     """Driver of the DMM; `configure` refuses what the instrument does not have before sending."""
+
+    DEVICE = DEVICE
 
     def __init__(
         self,
@@ -89,47 +90,23 @@ class Voltmeter:
         retries: int = 2,
         clock: Clock | None = None,
     ) -> None:
-        self.port = port
-        self.baud = baud
+        super().__init__(port, baud)
         self.line_hz = line_hz
         self.timeout_s = timeout_s
         self.retries = retries
         self.clock: Clock = clock if clock is not None else WallClock()
-        self._lines: LineReader | None = None
-        self._io = threading.Lock()
         self._setting: tuple[float, float, int] | None = None  # (range, nplc, samples) in force
 
-    def open(self) -> Voltmeter:
-        if self._lines is None:
-            self._lines = LineReader(SerialLink(DEVICE, self.port, self.baud))
-        return self
-
-    def close(self) -> None:
-        if self._lines is not None:
-            self._lines.link.close()
-            self._lines = None
-
-    def __enter__(self) -> Voltmeter:
-        return self.open()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     # ---- transactions
-
-    def _reader(self) -> LineReader:
-        if self._lines is None:
-            raise DriverError(DEVICE, f"port {self.port} is not open")
-        return self._lines
 
     def send(self, command: str) -> None:
         """A command without a reply."""
         with self._io:
-            self._reader().link.write(command.encode("ascii") + b"\n")
+            self.lines.link.write(command.encode("ascii") + b"\n")
 
     def query(self, command: str, parse: Callable[[bytes], T] = bytes, *, wait_s: float = 0.0) -> T:
         """A query's reply line through `parse` (both retried); `wait_s`: station time the instrument needs first."""
-        lines = self._reader()
+        lines = self.lines
         timeout_s = self.timeout_s + wait_s / getattr(self.clock, "speed", 1.0)
 
         def once() -> T:
