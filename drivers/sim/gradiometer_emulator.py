@@ -58,17 +58,10 @@ class GradiometerEmulator(PtyEmulator):
         self.serial = serial
         self.readings = 0
         self._rng = np.random.default_rng(int(world.rng.integers(2**63)))
-        self._rx = bytearray()
 
     def on_bytes(self, data: bytes) -> None:
-        self._rx += data
-        while (i := self._rx.find(b"\n")) >= 0:
-            line = bytes(self._rx[:i]).rstrip(b"\r")
-            del self._rx[: i + 1]
-            if line and not self.faults.take(Fault.NO_ANSWER):
-                self._handle(line)
-        if len(self._rx) > 256:
-            self._rx.clear()
+        for line in self.command_lines(data):
+            self._handle(line)
 
     def _handle(self, line: bytes) -> None:
         try:

@@ -41,18 +41,11 @@ class IndexingEmulator(PtyEmulator):
         self.counts_per_deg = counts_per_deg
         self.limit_counts = round(limit_deg * counts_per_deg)
         self.warnings: set[str] = set() if homed else {"WR"}
-        self._rx = bytearray()
         self.commands: list[str] = []  # log of received command texts, for tests
 
     def on_bytes(self, data: bytes) -> None:
-        self._rx += data
-        while (i := self._rx.find(b"\n")) >= 0:
-            line = bytes(self._rx[:i]).strip()
-            del self._rx[: i + 1]
-            if line and not self.faults.take(Fault.NO_ANSWER):
-                self._handle(line)
-        if len(self._rx) > 512:
-            self._rx.clear()
+        for line in self.command_lines(data):
+            self._handle(line)
 
     def _reply(self, axis: int, mid: int | None, ok: bool, data: str) -> None:
         now = self.clock.now_s()

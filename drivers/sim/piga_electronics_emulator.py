@@ -55,7 +55,6 @@ class PigaElectronicsEmulator(PtyEmulator):
         self._step_arcsec = 0.0
         self._changed_s = -math.inf
         self._lock = threading.Lock()
-        self._rx = bytearray()
         world.on_operator(MASS_REMOVAL, self._remove_mass)
         self._apply()
 
@@ -97,14 +96,8 @@ class PigaElectronicsEmulator(PtyEmulator):
     # ---- protocol
 
     def on_bytes(self, data: bytes) -> None:
-        self._rx += data
-        while (i := self._rx.find(b"\n")) >= 0:
-            line = bytes(self._rx[:i]).strip()
-            del self._rx[: i + 1]
-            if line and not self.faults.take(Fault.NO_ANSWER):
-                self._reply(self._handle(line))
-        if len(self._rx) > 512:
-            self._rx.clear()
+        for line in self.command_lines(data):
+            self._reply(self._handle(line))
 
     def _reply(self, body: str) -> None:
         line = encode_line(body)

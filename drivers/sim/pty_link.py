@@ -131,6 +131,7 @@ class PtyEmulator:
         self._burst_bytes = max(64.0, self._bytes_per_wall_s * burst_wall_s)
         self.faults = FaultBox(self.supported_faults)
         self._tx = bytearray()
+        self._line_buf = b""
         self._tokens = self._burst_bytes
         self._last_wall = time.monotonic()
         self._master: int | None = None
@@ -268,6 +269,16 @@ class PtyEmulator:
             self.error = exc
             self._close_fds()
             raise
+
+    # ---- line protocols
+
+    def command_lines(self, data: bytes, max_len: int = 1024) -> list[bytes]:
+        """The command lines that `data` completes: stripped, empty ones dropped, and those that an armed
+        NO_ANSWER fault swallows left out. A partial line longer than max_len is garbage and let go."""
+        self._line_buf += data
+        *lines, rest = self._line_buf.split(b"\n")
+        self._line_buf = rest if len(rest) <= max_len else b""
+        return [line for line in map(bytes.strip, lines) if line and not self.faults.take(Fault.NO_ANSWER)]
 
     # ---- protocol hooks
 

@@ -39,7 +39,6 @@ class ReferenceEmulator(PtyEmulator):
     def __init__(self, world: Any, *, baud: int = 115_200, **kw: Any) -> None:
         super().__init__(world.clock, baud=baud, **kw)
         self.world = world
-        self._rx = bytearray()
         self.reporting = False
         self.count = 0
         self.alarm = 0
@@ -60,15 +59,8 @@ class ReferenceEmulator(PtyEmulator):
     # ---- commands
 
     def on_bytes(self, data: bytes) -> None:
-        self._rx += data
-        while (i := self._rx.find(b"\n")) >= 0:
-            line = bytes(self._rx[:i]).rstrip(b"\r")
-            del self._rx[: i + 1]
-            if self.faults.take(Fault.NO_ANSWER):
-                continue
+        for line in self.command_lines(data):
             self._command(line)
-        if len(self._rx) > 256:
-            self._rx.clear()
 
     def _command(self, line: bytes) -> None:
         try:

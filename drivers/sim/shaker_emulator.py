@@ -40,7 +40,6 @@ class ShakerEmulator(PtyEmulator):
         self.rng = np.random.default_rng(int(world.rng.integers(2**63)))
         self.test: Drive | None = None
         self.latched: str | None = None
-        self._rx = b""
         self.commands: list[str] = []  # log of received command texts, for tests
 
     def alarm(self, name: str) -> None:
@@ -49,11 +48,8 @@ class ShakerEmulator(PtyEmulator):
         self.motion.stop(self.clock.now_s(), ALARM_STOP_S)
 
     def on_bytes(self, data: bytes) -> None:
-        *lines, self._rx = (self._rx + data).split(b"\n")
-        self._rx = self._rx[-512:]  # no command is longer: garbage without a line end is let go
-        for line in filter(None, map(bytes.strip, lines)):
-            if not self.faults.take(Fault.NO_ANSWER):
-                self._handle(line)
+        for line in self.command_lines(data):
+            self._handle(line)
 
     def _reply(self, ok: bool, data: str) -> None:
         line = sh.encode_line(f"{'OK' if ok else 'ER'} {data}")

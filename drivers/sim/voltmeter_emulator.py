@@ -98,7 +98,6 @@ class VoltmeterEmulator(PtyEmulator):
         self.line_hz = line_hz
         self.accelerometer = accelerometer(world)
         self.rng = np.random.default_rng(world.rng.integers(2**63))
-        self._rx = bytearray()
         self._queue: deque[str] = deque()  # commands waiting for a READ? under way
         self._busy_until_s: float | None = None
         self.errors: deque[str] = deque()
@@ -117,14 +116,9 @@ class VoltmeterEmulator(PtyEmulator):
     # ---- input
 
     def on_bytes(self, data: bytes) -> None:
-        self._rx += data
-        while (i := self._rx.find(b"\n")) >= 0:
-            line = bytes(self._rx[:i]).decode("ascii", "replace").strip()
-            del self._rx[: i + 1]
-            if line and not self.faults.take(Fault.NO_ANSWER):
-                self._queue.extend(c.strip() for c in line.split(";") if c.strip())
-        if len(self._rx) > 1024:
-            self._rx.clear()
+        for line in self.command_lines(data):
+            text = line.decode("ascii", "replace")
+            self._queue.extend(c.strip() for c in text.split(";") if c.strip())
         self._run_queue()
 
     def on_poll(self, now_s: float) -> None:
