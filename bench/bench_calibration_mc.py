@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from station.analysis.identify import design, identify
-from station.plan import seed000_plan
-from station.twin.config import default_twin
-from station.twin.session_sim import simulate_session
+from methods.seed000.identify import design, identify
+from models.config import default_twin
+from models.plan import seed000_plan
+from models.session_sim import simulate_session
 
 NAMES = ("kzz", "ky", "k3")
 

@@ -23,9 +23,9 @@ import can
 import canopen
 import numpy as np
 
-from drivers.servo import ServoLimits, VibrationTableServo
-from drivers.sim.servo_emulator import ServoEmulator
-from drivers.station_config import load_station_config
+from devices.config import load_station_config
+from devices.servo.driver import ServoLimits, VibrationTableServo
+from devices.servo.emulator import ServoEmulator
 from station.clock import WallClock
 
 CONFIG = Path(__file__).parents[1] / "config" / "station-sim.toml"

@@ -18,13 +18,13 @@ import tempfile
 import time
 from pathlib import Path
 
-from drivers.station import simulated_station
-from drivers.station_config import load_station_config
-from station.controller import StationController
-from station.engine.planning import StationModel
-from station.engine.registry import load_procedure_file
+from app.controller import StationController
+from devices.config import load_station_config
+from devices.station import simulated_station
+from engine.planning import StationModel
+from engine.registry import load_procedure_file
+from models.config import default_twin
 from station.store import SessionStore
-from station.twin.config import default_twin
 
 ROOT = Path(__file__).resolve().parents[1]
 

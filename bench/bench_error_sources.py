@@ -22,9 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.station import simulated_station
-from drivers.station_config import load_station_config
-from station.analysis.parasitic_rotation import (
+from app.controller import StationController
+from devices.config import load_station_config
+from devices.station import simulated_station
+from engine.planning import StationModel
+from methods.seed000.parasitic_rotation import (
     AXES,
     SEED_HARMONICS_ARCSEC,
     TABLE7_ANGLE_DEG,
@@ -32,12 +34,10 @@ from station.analysis.parasitic_rotation import (
     fit_at_phases,
     table7_psi_rad,
 )
-from station.analysis.table_motion import SEED_TABLE5_M, SEED_Z0_M, SEED_Z1_M_S_PER_RAD, fit_zs1, sampling_delay_error_m
-from station.controller import StationController
-from station.engine.planning import StationModel
+from methods.seed000.table_motion import SEED_TABLE5_M, SEED_Z0_M, SEED_Z1_M_S_PER_RAD, fit_zs1, sampling_delay_error_m
+from models.config import default_twin
+from models.table_tilt import ARCSEC_RAD
 from station.store import SessionStore
-from station.twin.config import default_twin
-from station.twin.table_tilt import ARCSEC_RAD
 
 ROOT = Path(__file__).resolve().parents[1]
 STATION = load_station_config(ROOT / "config" / "station-gradiometer-sim.toml")

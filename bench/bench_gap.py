@@ -26,7 +26,7 @@ CASES = (("null", None), ("effect", "cross_coupling"), ("out_of_library", "bias_
 
 
 def _time(session, twin, suggest: bool) -> tuple[float, float, str]:
-    from station.gap.api import diagnose
+    from gap.api import diagnose
 
     walls, cpus = [], []
     for _ in range(REPEATS):
@@ -40,9 +40,9 @@ def _time(session, twin, suggest: bool) -> tuple[float, float, str]:
 def main() -> None:
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    from station.gap.api import diagnose
-    from station.gap.validate import Case, make_session
-    from station.twin.config import default_twin
+    from gap.api import diagnose
+    from gap.validate import Case, make_session
+    from models.config import default_twin
 
     twin = default_twin()
     rows = []

@@ -5,7 +5,7 @@
     times real time (500: a loaded machine's pauses make the indexing head miss its 120 s settling at 1000x);
     the twin carries the seed's AL-15 estimates. Each figure the seed quotes, the estimate with its
     sigma, and z = (estimate - twin) / sigma (the twin's k0 also holds the launch offset k0L it drew).
-(b) N sessions straight from the model (station.twin.tumble_session): mean and spread of z per coefficient.
+(b) N sessions straight from the model (methods.seed001.tumble_session): mean and spread of z per coefficient.
 
     .venv/bin/python bench/bench_seed001.py [N] [SPEED]
 """
@@ -19,17 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.sim.voltmeter_emulator import accelerometer
-from drivers.station import simulated_station
-from drivers.station_config import load_station_config
-from station.analysis.seed001 import analyse_tumble
-from station.controller import StationController
-from station.engine.planning import StationModel
-from station.engine.registry import load_procedure_file
+from app.controller import StationController
+from devices.config import load_station_config
+from devices.station import simulated_station
+from devices.voltmeter.emulator import accelerometer
+from engine.planning import StationModel
+from engine.registry import load_procedure_file
+from methods.seed001.analysis import analyse_tumble
+from methods.seed001.tumble_session import tumble_session
+from models.config import default_twin
+from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
 from station.store import SessionStore
-from station.twin.config import default_twin
-from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel
-from station.twin.tumble_session import tumble_session
 
 ROOT = Path(__file__).resolve().parents[1]
 HALF_DAY_S = 43200.0

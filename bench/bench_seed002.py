@@ -7,7 +7,7 @@ session: `seed002.g_sensitive_misalignment` with config/procedures/seed002_g_sen
     simulated IMU's true coefficients (seed 002 Table 1), wall and station time.
 table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 0.5 g 20 Hz x6, 1 g 20 Hz
     x6, 2 g 20 Hz x3, random 0.7 g RMS 10-60 Hz x3, along the SINS's diagonal, 15-minute alignment,
-    10-minute vibration) made off line from the twin (station.twin.vibration_run), compensated with the
+    10-minute vibration) made off line from the twin (methods.seed002.vibration_run), compensated with the
     estimate of an off-line calibration of the same lengths: the percentage decrease of each.
 
     .venv/bin/python bench/bench_seed002.py [session|table2|all] [--seed N]
@@ -23,20 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.station import simulated_station
-from drivers.station_config import load_station_config
-from procedures.seed002 import VELOCITY_BLOCK_S
-from station.analysis.seed002 import RunRecord, estimate_flexure, navigate, observe_run
+from app.controller import StationController
+from devices.config import load_station_config
+from devices.station import simulated_station
+from engine.planning import StationModel
+from engine.registry import load_procedure_file
+from methods.seed002.analysis import RunRecord, estimate_flexure, navigate, observe_run
+from methods.seed002.procedure import VELOCITY_BLOCK_S
+from methods.seed002.vibration_run import SimulatedRun, simulate_run
+from models.config import default_twin
+from models.fixture_poses import CALIBRATION_POSES, POSES
+from models.shaker_motion import random_drive, sine_drive
+from models.strapdown_imu import ARCSEC_PER_G, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
 from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
-from station.controller import StationController
-from station.engine.planning import StationModel
-from station.engine.registry import load_procedure_file
 from station.store import SessionStore
-from station.twin.config import default_twin
-from station.twin.fixture_poses import CALIBRATION_POSES, POSES
-from station.twin.shaker_motion import random_drive, sine_drive
-from station.twin.strapdown_imu import ARCSEC_PER_G, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
-from station.twin.vibration_run import SimulatedRun, simulate_run
 
 ROOT = Path(__file__).resolve().parents[1]
 SITE = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))

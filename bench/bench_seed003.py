@@ -22,26 +22,26 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.sim.dual_fixture import static_rates_radps
-from drivers.station import simulated_station
-from drivers.station_config import load_station_config
-from station.analysis.multiposition import gravity_field as gf
-from station.analysis.multiposition.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
-from station.analysis.multiposition.four_pose import PoseWindow, fit_four_pose, harmonic_names
-from station.analysis.multiposition.sequences import SCHEMES, sequence_deg
-from station.analysis.multiposition.static_model import (
+from app.controller import StationController
+from devices.config import load_station_config
+from devices.second_instrument.emulator import static_rates_radps
+from devices.station import simulated_station
+from engine.planning import StationModel
+from methods.seed003 import gravity_field as gf
+from methods.seed003.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
+from methods.seed003.four_pose import PoseWindow, fit_four_pose, harmonic_names
+from methods.seed003.sequences import SCHEMES, sequence_deg
+from methods.seed003.static_model import (
     MODELS,
     fit_static,
     relative_fitting_accuracy_g,
     true_static_terms,
     with_angle_uncertainty,
 )
-from station.controller import StationController
-from station.engine.planning import StationModel
+from models.config import TwinConfig
+from models.fixture import POSES_DEG, SETUPS
 from station.session import StationInfo
 from station.store import SessionStore
-from station.twin.config import TwinConfig
-from station.twin.fixture import POSES_DEG, SETUPS
 
 ROOT = Path(__file__).resolve().parents[1]
 TERMS = MODELS["seed003"]

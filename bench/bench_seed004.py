@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from station.analysis.seed004 import SEED_FIGURES
-from station.cli import main as station
+from app.cli import main as station
+from methods.seed004.analysis import SEED_FIGURES
 from station.store import SessionStore
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"

@@ -21,11 +21,11 @@ import time
 
 import numpy as np
 
-from drivers.grating import GratingReadHead
-from drivers.indexing_head import IndexingHead
-from drivers.sim.grating_emulator import GratingEmulator
-from drivers.sim.indexing_emulator import IndexingEmulator
-from drivers.sim.world import SimStation
+from devices.grating.driver import GratingReadHead
+from devices.grating.emulator import GratingEmulator
+from devices.indexing_head.driver import IndexingHead
+from devices.indexing_head.emulator import IndexingEmulator
+from devices.world import SimStation
 from station.clock import VirtualClock
 
 

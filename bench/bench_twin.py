@@ -21,9 +21,9 @@ import time
 
 
 def session_speed(repeats: int = 7) -> dict:
-    from station.plan import seed000_plan
-    from station.twin.config import default_twin
-    from station.twin.session_sim import simulate_session
+    from models.config import default_twin
+    from models.plan import seed000_plan
+    from models.session_sim import simulate_session
 
     cfg, plan = default_twin(), seed000_plan()
     simulate_session(plan, cfg, seed=0)  # warm-up
@@ -40,8 +40,8 @@ def session_speed(repeats: int = 7) -> dict:
 def _raw_point_child(freq_hz: float) -> None:
     import numpy as np
 
-    from station.twin.config import default_twin
-    from station.twin.measurement import PointSpec, simulate_point
+    from models.config import default_twin
+    from models.measurement import PointSpec, simulate_point
 
     cfg = default_twin()
     simulate_point(PointSpec(0.0, freq_hz, 16384), cfg, np.random.default_rng(0), raw=True)  # warm-up, 11 s

@@ -7,12 +7,12 @@ import shutil
 import numpy as np
 import pytest
 
-from station.cli import main
+from app.cli import main
+from models.config import TwinConfig
+from models.plan import multiposition_plan
+from models.session_sim import simulate_session
 from station.interchange import SessionFormatError, read_session, write_session
-from station.plan import multiposition_plan
 from station.store import SessionStore
-from station.twin.config import TwinConfig
-from station.twin.session_sim import simulate_session
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from station.cli import main
+from app.cli import main
 from station.store import SessionStore
 
 

@@ -19,9 +19,9 @@ import math
 import numpy as np
 import pytest
 
-from station.twin.config import NoiseModel, TwinConfig
-from station.twin.measurement import PointSpec, simulate_point
-from station.twin.precession import PrecessionWindow, periodic_rate
+from models.config import NoiseModel, TwinConfig
+from models.measurement import PointSpec, simulate_point
+from models.precession import PrecessionWindow, periodic_rate
 
 TARGET = 2 * math.pi * 50
 SEED_VIB = {  # (theta_deg, f_hz): (Np, t1_s, Tm_s, t2_s); Np of the garbled first row from t1 + Np T - Tm = t2

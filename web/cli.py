@@ -7,7 +7,7 @@ import getpass
 import os
 import sys
 
-from station.console import CONFIG_DIR
+from app.console import CONFIG_DIR
 
 DEFAULT_CONFIG = CONFIG_DIR / "panel.toml"
 

@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnoses run by the panel (station.gap.api.diagnose), kept for a while for their pages.
+"""Sim-to-real gap diagnoses run by the panel (gap.api.diagnose), kept for a while for their pages.
 
 A diagnosis takes seconds of CPU: one runs at a time, off the event loop,
 and the last few are kept by id (`session-<uid>` or `upload-<random>`).
@@ -13,9 +13,9 @@ from pathlib import Path
 
 from fastapi import HTTPException
 
-from station.gap.api import GapReport, diagnose
+from gap.api import GapReport, diagnose
+from models.config import TwinConfig, default_twin
 from station.session import Session
-from station.twin.config import TwinConfig, default_twin
 
 KEPT = 8
 

@@ -16,8 +16,8 @@ from pathlib import Path
 
 from fastapi import HTTPException
 
-from station.analysis.identify import METHODS, identify
-from station.engine.registry import ProcedureError, get_procedure
+from engine.registry import ProcedureError, get_procedure
+from methods.seed000.identify import METHODS, identify
 from station.session import Session
 from station.store import SessionStore, StoreError
 from web.config import StationEntry

@@ -8,10 +8,10 @@ from typing import Any
 
 from fastapi import HTTPException
 
-from station.control import ControlClient
+from app.control import ControlClient
 from web.config import PanelConfigError, StationEntry
 
-# The station's error types (station/control.py) as HTTP statuses; any other refusal is a conflict (409).
+# The station's error types (app/control.py) as HTTP statuses; any other refusal is a conflict (409).
 HTTP_STATUS = {
     "ParameterError": 422,  # the message names the parameter, the value and what is allowed
     "ValidationError": 422,

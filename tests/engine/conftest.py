@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from drivers.station import SimulatedStation, simulated_station
-from drivers.station_config import load_station_config
-from station.controller import StationController
-from station.engine.planning import StationModel
+from app.controller import StationController
+from devices.config import load_station_config
+from devices.station import SimulatedStation, simulated_station
+from engine.planning import StationModel
+from models.config import TwinConfig, default_twin
 from station.store import SessionStore
-from station.twin.config import TwinConfig, default_twin
 
 CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
 # Five positions at 10 Hz with 30 s windows: every coefficient identifiable, about 0.2 h of

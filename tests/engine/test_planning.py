@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from drivers.station_config import load_station_config
-from station.engine.params import Param, ParameterError
-from station.engine.planning import StationModel, ValidationError, plan_procedure
-from station.engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
-from station.engine.steps import MeasurePoint, MoveIndex, SetVibration
+from devices.config import load_station_config
+from engine.params import Param, ParameterError
+from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
+from engine.steps import MeasurePoint, MoveIndex, SetVibration
 
 from .conftest import CONFIG
 

@@ -8,10 +8,10 @@ import time
 
 import pytest
 
-from drivers.sim.pty_link import Fault
-from drivers.sim.servo_emulator import ServoEmulator
-from station.engine.runner import State
-from station.twin.config import default_twin
+from devices.pty_link import Fault
+from devices.servo.emulator import ServoEmulator
+from engine.runner import State
+from models.config import default_twin
 
 from .conftest import PROCEDURE, QUICK
 

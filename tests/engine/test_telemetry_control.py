@@ -9,8 +9,8 @@ import time
 import pytest
 import zmq
 
+from app.control import ControlClient, ControlServer
 from station.clock import VirtualClock
-from station.control import ControlClient, ControlServer
 from station.telemetry import TelemetryPublisher
 
 from .conftest import PROCEDURE, QUICK

@@ -1,7 +1,7 @@
 """Shared, seeded sessions for the gap-diagnosis tests, each simulated and diagnosed once per run.
 
 The "real" sessions are the twin with an effect injected at a given signal-to-noise
-ratio after the calibrated terms are projected out (station.gap.validate), so
+ratio after the calibrated terms are projected out (gap.validate), so
 every tolerance below can be stated in units of the noise.
 """
 
@@ -11,10 +11,10 @@ import functools
 
 import pytest
 
-from station.gap.api import GapReport, diagnose
-from station.gap.validate import Case, make_session
+from gap.api import GapReport, diagnose
+from gap.validate import Case, make_session
+from models.config import TwinConfig, default_twin
 from station.session import Session
-from station.twin.config import TwinConfig, default_twin
 
 
 @functools.cache

@@ -7,10 +7,10 @@ import re
 
 import pytest
 
-from station.cli import main
+from app.cli import main
+from models.config import TwinConfig
 from station.interchange import write_session
 from station.store import SessionStore
-from station.twin.config import TwinConfig
 
 REQUIRED = {"verdict", "effects", "candidates", "gap_before", "gap_after", "where", "identifiability"}
 CANDIDATE_KEYS = {"name", "parameters", "uncertainty", "evidence", "heldout_shrink", "identifiable"}

@@ -7,12 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from station.gap.design import PointDesign
-from station.gap.forward import CALIBRATED, predict, predict_full
-from station.gap.validate import FIXED_INJECTION, INJECTIONS
-from station.plan import multiposition_plan
-from station.twin.config import NoiseModel
-from station.twin.session_sim import simulate_session
+from gap.design import PointDesign
+from gap.forward import CALIBRATED, predict, predict_full
+from gap.validate import FIXED_INJECTION, INJECTIONS
+from models.config import NoiseModel
+from models.plan import multiposition_plan
+from models.session_sim import simulate_session
 
 PLAN = multiposition_plan([0.0, 72.0, 144.0, 216.0, 288.0], (8.0, 10.0))
 

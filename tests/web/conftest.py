@@ -21,7 +21,7 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 
-from station.control import ControlClient
+from app.control import ControlClient
 from web.app import create_app
 from web.cli import panel_server
 from web.config import PanelConfig, StationEntry
@@ -71,7 +71,7 @@ class StationProcess:
 
 def start_station(out: Path, name: str = "sim", speed: float = 1000.0) -> StationProcess:
     control, telemetry = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
-    cmd = [sys.executable, "-m", "station.cli", "serve", "--out", str(out), "--name", name, "--control", control,
+    cmd = [sys.executable, "-m", "app.cli", "serve", "--out", str(out), "--name", name, "--control", control,
            "--telemetry", telemetry, "--speed", str(speed)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + STATION_START_S

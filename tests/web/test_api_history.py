@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from station.control import ControlClient
+from app.control import ControlClient
 from web.archive import unpack
 
 PROCEDURE = "seed000.integral_precession"

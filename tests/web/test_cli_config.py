@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from station.cli import main
+from app.cli import main
 from web.config import PanelConfig, PanelConfigError
 from web.users import UserBook
 

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from station.cli import main
+from app.cli import main
 from web.app import create_app
 from web.config import PanelConfig, StationEntry
 
@@ -24,7 +24,7 @@ def token_station(tmp_path_factory, tools) -> Iterator[StationEntry]:
     out = tmp_path_factory.mktemp("token-station")
     control, telemetry = f"tcp://127.0.0.1:{tools.free_port()}", f"tcp://127.0.0.1:{tools.free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "station.cli", "serve", "--out", str(out), "--name", "sim", "--control", control,
+        [sys.executable, "-m", "app.cli", "serve", "--out", str(out), "--name", "sim", "--control", control,
          "--telemetry", telemetry, "--token-env", TOKEN_VAR],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=os.environ | {TOKEN_VAR: TOKEN},
     )  # fmt: skip

@@ -1,0 +1,1 @@
+"""The station's applications: the `station` command, the console, the controller and its control channel."""

@@ -1,0 +1,47 @@
+"""A procedure's analysis of a stored session, in a process of its own.
+
+    python -m app.analysis_job PROCEDURE STORE.sqlite UID REPORT.html
+
+The station's controller runs this after each session: fitting and plotting
+can hold the interpreter for hundreds of milliseconds, and the drivers'
+watchdogs in the controller's process (the drive's heartbeat is checked
+every 25 ms) must not starve. The session comes from the store (SQLite WAL:
+readable while the station writes); the report goes to REPORT.html; the
+results and summary are printed as one JSON document on standard output.
+Exit code 3 with the reason on standard error when the data cannot give what
+the analysis asks (a singular design, too few points).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from engine.registry import get_procedure
+from station.jsonsafe import json_safe
+from station.store import SessionStore
+
+CANNOT_ANALYSE = 3
+
+
+def main(argv: list[str] | None = None) -> int:
+    procedure, db_path, uid, report_path = argv if argv is not None else sys.argv[1:]
+    spec = get_procedure(procedure)
+    if spec.analyse is None:
+        print(f"procedure {procedure!r} has no analysis", file=sys.stderr)
+        return CANNOT_ANALYSE
+    with SessionStore(db_path) as store:
+        session = store.load_session(uid, with_raw=False)
+    try:
+        analysis = spec.analyse(session)
+    except ValueError as exc:  # FitError and kin
+        print(str(exc), file=sys.stderr)
+        return CANNOT_ANALYSE
+    with open(report_path, "w") as f:
+        f.write(analysis.report_html)
+    json.dump(json_safe({"results": analysis.results, "summary": analysis.summary}), sys.stdout)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,284 @@
+"""The `station` command: run procedures on a station (the simulated one by default), identify,
+import/export sessions, gap diagnosis."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from app.console import (
+    DEFAULT_PROCEDURE,
+    DEFAULT_SPEED,
+    controller_for,
+    describe_plan,
+    exit_code,
+    load_station,
+    open_station,
+    run_with_progress,
+    write_outputs,
+)
+from app.control import ControlServer
+from app.controller import ControlError
+from devices.config import ConfigError
+from devices.errors import DriverError
+from engine.params import ParameterError
+from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
+from methods.common.least_squares import FitError
+from methods.seed000.identify import METHODS, identify
+from models.config import TwinConfig, TwinConfigError, default_twin
+from models.plan import seed000_plan
+from models.session_sim import simulate_session
+from station.interchange import SessionFormatError, read_session, write_session
+from station.store import SessionStore, StoreError
+from web.cli import add_commands as add_panel_commands
+
+
+def _load_twin(path: str | None) -> TwinConfig:
+    return TwinConfig.from_toml(path) if path else default_twin()
+
+
+def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid: str | None = None) -> int:
+    """Plan (dry run) before anything moves, run on the station of --station (simulated or real), then
+    analyse, report and export."""
+    config = load_station(args.station)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plan = plan_procedure(spec, params, StationModel.from_config(config))
+    if args.dry_run:
+        describe_plan(plan, sys.stdout)
+        return 0
+    with SessionStore(args.db or out / "station.sqlite") as store:
+        kind = f"simulated, seed {args.seed}, {args.speed:g}x real time" if config.simulated else "real"
+        print(f"station: {config.path} ({kind}); store: {store.path}")
+        with (
+            open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
+            controller_for(config, hw, store, out, args.telemetry) as controller,
+        ):
+            outcome = run_with_progress(
+                controller, spec.name, params, instrument_serial=args.serial, resume_uid=resume_uid
+            )
+        write_outputs(store, outcome, out, sys.stdout)
+    return exit_code(outcome)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """The main job: seed 000's session through engine, drivers and emulators; stored, identified, reported."""
+    return _run(args, *load_procedure_file(args.procedure))
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    return _run(args, *load_procedure_file(args.procedure_file))
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    """Continue a crashed or aborted session: the points it holds are kept, the rest measured."""
+    with SessionStore(args.db or Path(args.out) / "station.sqlite") as store:
+        cfg = store.session_config(args.uid)
+    if "procedure" not in cfg:
+        raise ControlError(f"session {args.uid} was not started by the engine: nothing to resume")
+    spec = get_procedure(cfg["procedure"])
+    return _run(args, spec, spec.validate(cfg["params"]), resume_uid=args.uid)
+
+
+DEFAULT_TELEMETRY = "tcp://127.0.0.1:5561"
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """Keep a station under remote control (the web panel): control channel and telemetry until SIGINT/SIGTERM."""
+    config = load_station(args.station)
+    token = os.environ.get(args.token_env) if args.token_env else None
+    if args.token_env and not token:
+        raise ControlError(f"--token-env {args.token_env}: that environment variable is not set")
+    telemetry = args.telemetry or DEFAULT_TELEMETRY
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with (
+        SessionStore(args.db or out / "station.sqlite") as store,
+        open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
+        controller_for(config, hw, store, out, telemetry, args.name) as controller,
+    ):
+        server = ControlServer(controller, args.control, token=token).start()
+        print(f"station {args.name} ({config.path}): control {server.endpoint}, telemetry {telemetry}, "
+              f"store {store.path}", flush=True)  # fmt: skip
+        try:
+            stop.wait()
+        finally:
+            if controller.busy:
+                controller.abort()
+                controller.wait(30.0)
+            server.close()
+    return 0
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    session = read_session(args.session_dir)
+    result = identify(session, args.method).to_json()
+    text = json.dumps(result, indent=2)
+    if args.json:
+        Path(args.json).write_text(text)
+    else:
+        print(text)
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    cfg = _load_twin(args.twin)
+    session = simulate_session(seed000_plan(), cfg, args.seed, raw=args.raw, notes="simulated seed-000 session")
+    write_session(session, args.out_dir, overwrite=args.overwrite)
+    print(f"wrote {len(session.points)} points to {args.out_dir}")
+    return 0
+
+
+def cmd_sessions(args: argparse.Namespace) -> int:
+    with SessionStore(args.db) as store:
+        for s in store.sessions():
+            print(f"{s['uid']}  {s['created_utc']}  {s['procedure']:32s} {s['status']:9s} {s['n_points']:4d} points")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    with SessionStore(args.db) as store:
+        write_session(store.load_session(args.uid), args.out_dir, overwrite=args.overwrite)
+    print(f"exported {args.uid} to {args.out_dir}")
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    session = read_session(args.session_dir)  # validated whole before anything is written
+    with SessionStore(args.db) as store:
+        uid = store.create_session(session.station, "imported", notes=session.notes, status="imported")
+        for p in session.points:
+            store.add_point(uid, p, session.raw.get(p.point_id))
+    print(f"imported {len(session.points)} points as session {uid}")
+    return 0
+
+
+_OWN_PARSERS = ("gap", "gap-validate")
+
+
+def _passed_on(rest: list[str]) -> list[str]:
+    """The arguments of a command that parses its own (main puts a "--" in front of them)."""
+    return rest[1:] if rest[:1] == ["--"] else rest
+
+
+def cmd_gap(args: argparse.Namespace) -> int:
+    from gap.api import main as gap_main
+
+    return gap_main(_passed_on(args.rest))
+
+
+def cmd_gap_validate(args: argparse.Namespace) -> int:
+    from gap.validate import main as validate_main
+
+    return validate_main(_passed_on(args.rest))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="station", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def station_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--station", help="station configuration TOML (default: config/station-sim.toml)")
+        p.add_argument("--out", default="out", help="directory for the store, reports and exports (default: out)")
+        p.add_argument("--db", help="SQLite session store (default: OUT/station.sqlite)")
+        p.add_argument("--twin", help="twin configuration TOML of a simulated station (default: embedded)")
+        p.add_argument("--seed", type=int, default=0, help="random seed of a simulated station")
+        p.add_argument(
+            "--speed",
+            type=float,
+            default=DEFAULT_SPEED,
+            help=f"simulated station seconds per wall second (default {DEFAULT_SPEED:g})",
+        )
+        p.add_argument("--serial", default="SIM-PIGA-0001", help="instrument serial number")
+        p.add_argument("--telemetry", metavar="ENDPOINT", help="publish telemetry on this zmq endpoint")
+        p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
+
+    p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
+    station_options(p)
+    p.add_argument("--procedure", default=str(DEFAULT_PROCEDURE), help="procedure file (default: seed 000)")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("run", help="run a procedure file on a station")
+    p.add_argument("procedure_file")
+    station_options(p)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("resume", help="continue a crashed or aborted session")
+    p.add_argument("uid")
+    station_options(p)
+    p.set_defaults(func=cmd_resume)
+
+    p = sub.add_parser("serve", help="keep a station under remote control (for the web panel)")
+    station_options(p)
+    p.add_argument("--name", default="station", help="station id in telemetry topics (default: station)")
+    p.add_argument("--control", default="tcp://127.0.0.1:5560", help="control endpoint (REP) to bind")
+    p.add_argument("--token-env", metavar="VAR", help="require the control token held in this environment variable")
+    p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("identify", help="identify coefficients from a piga-session/1 directory")
+    p.add_argument("session_dir")
+    p.add_argument("--json", help="write the result here instead of standard output")
+    p.add_argument("--method", choices=METHODS, default="integral")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("simulate", help="write a simulated seed-000 session as piga-session/1")
+    p.add_argument("out_dir")
+    p.add_argument("--twin")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--raw", action="store_true")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("sessions", help="list the sessions in a store")
+    p.add_argument("--db", default="out/station.sqlite")
+    p.set_defaults(func=cmd_sessions)
+
+    p = sub.add_parser("export", help="export a stored session as piga-session/1")
+    p.add_argument("uid")
+    p.add_argument("out_dir")
+    p.add_argument("--db", default="out/station.sqlite")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("import", help="import a piga-session/1 directory into a store")
+    p.add_argument("session_dir")
+    p.add_argument("--db", default="out/station.sqlite")
+    p.set_defaults(func=cmd_import)
+
+    for name, func, text in (
+        ("gap", cmd_gap, "sim-to-real gap diagnosis of a session"),
+        ("gap-validate", cmd_gap_validate, "blind validation of the gap diagnosis"),
+    ):
+        p = sub.add_parser(name, help=text, add_help=False)
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(func=func)
+    add_panel_commands(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] and argv[0] in _OWN_PARSERS:
+        argv = [argv[0], "--", *argv[1:]]  # argparse.REMAINDER alone would refuse a leading option
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (
+        SessionFormatError, TwinConfigError, FitError, StoreError, FileExistsError, ConfigError, ProcedureError,
+        ParameterError, ValidationError, ControlError, DriverError,
+    ) as exc:  # fmt: skip
+        print(f"station {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,196 @@
+"""One station under control: its devices, session store, engine and telemetry.
+
+The controller validates a procedure and its parameters, plans it (dry run
+with time estimates) before anything moves, runs it in a worker thread, and
+once it finishes runs the procedure's analysis, stores the results and
+writes the report. The CLI (`station run`, `station calibrate`, `station
+resume`) and the control server behind the web panel (`station serve`) use it
+alike.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from engine.planning import Plan, StationModel, plan_procedure
+from engine.protocols import StationHardware
+from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
+from engine.runner import Engine, State
+from station.store import SessionStore
+
+Publisher = Callable[[str, dict], None]
+
+
+ANALYSIS_TIMEOUT_S = 600.0
+
+
+class ControlError(RuntimeError):
+    """A control request that the station's state does not allow (a run already under way, ...)."""
+
+
+@dataclass
+class RunOutcome:
+    session_uid: str
+    state: State
+    analysis: Analysis | None
+    report_path: Path | None
+    faults: list[str]
+
+
+class StationController:
+    """Runs one procedure at a time on one station; every method is thread-safe."""
+
+    def __init__(
+        self,
+        hardware: StationHardware,
+        store: SessionStore,
+        model: StationModel,
+        *,
+        reports_dir: str | Path,
+        publish: Publisher | None = None,
+    ) -> None:
+        self.hw = hardware
+        self.store = store
+        self.model = model
+        self.reports_dir = Path(reports_dir)
+        self.publish: Publisher = publish or (lambda topic, msg: None)
+        self.engine = Engine(hardware, store, self.publish)
+        self._lock = threading.Lock()
+        self._worker: threading.Thread | None = None
+        self._outcome: RunOutcome | None = None
+        self._started = threading.Event()
+
+    # ---- library and planning ------------------------------------------------------------
+
+    @staticmethod
+    def library() -> list[dict]:
+        return [spec.describe() for spec in load_library().values()]
+
+    def plan(self, procedure: str, params: dict[str, Any]) -> tuple[ProcedureSpec, Plan]:
+        """Validate parameters and every step (ProcedureError, ParameterError, ValidationError); nothing moves."""
+        spec = get_procedure(procedure)
+        return spec, plan_procedure(spec, spec.validate(params), self.model)
+
+    # ---- runs ---------------------------------------------------------------------------------
+
+    @property
+    def busy(self) -> bool:
+        return self._worker is not None and self._worker.is_alive()
+
+    def start(
+        self, procedure: str, params: dict[str, Any], *, instrument_serial: str = "", resume_uid: str | None = None
+    ) -> tuple[str, Plan]:
+        """Plan, then start the run in a worker thread; (session uid, plan) once the session exists."""
+        spec, plan = self.plan(procedure, params)
+        with self._lock:
+            if self.busy:
+                raise ControlError(f"a procedure is already running (session {self.engine.progress.session_uid})")
+            self._outcome = None
+            self._started.clear()
+            self._worker = threading.Thread(
+                target=self._run, args=(spec, plan, instrument_serial, resume_uid), name="engine", daemon=True
+            )
+            self._worker.start()
+        self._started.wait()
+        return self.engine.progress.session_uid, plan
+
+    def resume_session(self, uid: str) -> tuple[str, Plan]:
+        """Continue a crashed or aborted session with the procedure and parameters it was started with."""
+        cfg = self.store.session_config(uid)
+        if "procedure" not in cfg:
+            raise ControlError(f"session {uid} was not started by the engine: nothing to resume")
+        serial = next((s["instrument_serial"] for s in self.store.sessions() if s["uid"] == uid), "")
+        return self.start(cfg["procedure"], cfg["params"], instrument_serial=serial, resume_uid=uid)
+
+    def wait(self, timeout_s: float | None = None) -> RunOutcome | None:
+        worker = self._worker
+        if worker is not None:
+            worker.join(timeout_s)
+        return self._outcome
+
+    def run(self, procedure: str, params: dict[str, Any], **kw: Any) -> RunOutcome:
+        """start() and wait(); the outcome of the run."""
+        self.start(procedure, params, **kw)
+        outcome = self.wait()
+        assert outcome is not None
+        return outcome
+
+    def pause(self) -> None:
+        self.engine.pause()
+
+    def resume(self) -> None:
+        self.engine.resume()
+
+    def abort(self) -> None:
+        self.engine.abort()
+
+    def emergency_stop(self) -> None:
+        self.engine.emergency_stop()
+
+    def reset(self) -> None:
+        """Clear an emergency stop or a drive fault once its cause is removed (not while a run is under way)."""
+        if self.busy:
+            raise ControlError("a procedure is running: abort it before a reset")
+        self.hw.reset()
+
+    def status(self) -> dict:
+        p = self.engine.progress.to_json()
+        return p | self.hw.status() | {"busy": self.busy, "freq_hz": self.engine.freq_hz,
+                                       "index_deg": self.engine.position_deg}  # fmt: skip
+
+    def beacon(self, period_s: float = 0.2) -> threading.Event:
+        """Publish `status` every period_s of wall time (the panel's heartbeat) until the returned event is set."""
+        stop = threading.Event()
+
+        def loop() -> None:
+            while not stop.wait(period_s):
+                self.publish("status", self.status())
+
+        threading.Thread(target=loop, name="status-beacon", daemon=True).start()
+        return stop
+
+    # ---- worker ---------------------------------------------------------------------------------
+
+    def _run(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
+        engine = self.engine
+        try:
+            uid, _ = engine.run(
+                spec, plan, instrument_serial=serial, resume_uid=resume_uid, on_open=lambda _uid: self._started.set()
+            )
+        finally:
+            self._started.set()
+        state = engine.progress.state
+        analysis = report = None
+        faults = list(engine.progress.faults)
+        if state == State.FINISHED and spec.analyse is not None:
+            try:
+                analysis, report = self._analyse(spec, uid)
+            except (ValueError, subprocess.TimeoutExpired) as exc:  # the data cannot give what the analysis asks
+                faults.append(f"analysis: {exc}")
+                self.store.add_event(uid, "analysis", f"analysis failed: {exc}", "error")
+                self.publish("fault", {"kind": "analysis", "message": str(exc)})
+        self._outcome = RunOutcome(uid, state, analysis, report, faults)
+
+    def _analyse(self, spec: ProcedureSpec, uid: str) -> tuple[Analysis, Path]:
+        """The procedure's analysis in a child process (app.analysis_job), results into the store."""
+        self.reports_dir.mkdir(parents=True, exist_ok=True)
+        report = self.reports_dir / f"report-{uid}.html"
+        job = subprocess.run(
+            [sys.executable, "-m", "app.analysis_job", spec.name, str(self.store.path), uid, str(report)],
+            capture_output=True, text=True, timeout=ANALYSIS_TIMEOUT_S,
+        )  # fmt: skip
+        if job.returncode != 0:
+            raise ValueError(job.stderr.strip().splitlines()[-1] if job.stderr.strip() else f"exit {job.returncode}")
+        doc = json.loads(job.stdout)
+        analysis = Analysis(doc["results"], report.read_text(), doc["summary"])
+        for method, result in analysis.results.items():
+            self.store.add_result(uid, method, result)
+        self.publish("analysis", {"session_uid": uid, "summary": analysis.summary, "results": analysis.results})
+        return analysis, report

@@ -1,0 +1,251 @@
+"""Typed loader for the station configuration (config/station.toml, config/station-sim.toml).
+
+Every section is a frozen dataclass; every key is required, typed and
+range-checked. Bad input raises ConfigError naming the file, the key, the value
+and what is allowed. Paths (the servo EDS) are relative to the config file's
+directory. A simulated station (`simulated = true` at the top level) may leave
+serial ports out: the emulators create them at run time (`with_serial_ports`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, get_type_hints
+
+from devices.registry import device_kinds
+
+SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
+
+
+class ConfigError(ValueError):
+    """A configuration file is unreadable or holds a bad key or value."""
+
+    def __init__(self, path: Path, key: str, value: Any, allowed: str) -> None:
+        self.path = path
+        self.key = key
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"{path}: {key} = {value!r}: not allowed (allowed: {allowed})")
+
+
+Check = tuple[Callable[[Any], bool], str]
+
+
+def in_range(lo: float, hi: float, *, lo_open: bool = False) -> Check:
+    op = "<" if lo_open else "<="
+    return (
+        lambda v: (lo < v if lo_open else lo <= v) and v <= hi,
+        f"{lo:g} {op} value <= {hi:g}",
+    )
+
+
+def _meta(check: Check | None = None, *, optional: bool = False) -> dict[str, Any]:
+    return {"check": check, "optional": optional}
+
+
+def spec(check: Check | None = None, *, optional: bool = False) -> Any:
+    """A checked field of a config section: `check` is (predicate, "what is allowed")."""
+    return field(metadata=_meta(check, optional=optional))
+
+
+@dataclass(frozen=True)
+class StationSection:
+    A0_m: float = spec(in_range(0.0, 0.1, lo_open=True))
+    latitude_deg: float = spec(in_range(-90.0, 90.0))
+    g_mps2: float = spec(in_range(9.7, 9.9))
+    earth_rate_radps: float = spec(in_range(7.0e-5, 7.5e-5))
+    pulses_per_rev: int = spec(in_range(1, 2**31))
+    timer_tick_s: float = spec(in_range(0.0, 1e-3, lo_open=True))
+
+
+@dataclass(frozen=True)
+class LimitsSection:
+    freq_min_hz: float = spec(in_range(0.0, 100.0, lo_open=True))
+    freq_max_hz: float = spec(in_range(0.0, 100.0, lo_open=True))
+    displacement_max_m: float = spec(in_range(0.0, 0.1, lo_open=True))
+    accel_min_g: float = spec(in_range(0.0, 100.0))
+    accel_max_g: float = spec(in_range(0.0, 100.0, lo_open=True))
+    payload_max_kg: float = spec(in_range(0.0, 1000.0, lo_open=True))
+    payload_size_mm: tuple[float, float, float] = spec(in_range(0.0, 2000.0, lo_open=True))
+    ramp_max_hz_per_s: float = spec(in_range(0.0, 100.0, lo_open=True))
+
+
+@dataclass(frozen=True)
+class ServoSection:
+    interface: str = spec((bool, "a python-can interface name, e.g. socketcan or virtual"))
+    channel: str = spec((bool, "a non-empty channel name, e.g. can0"))
+    node_id: int = spec(in_range(1, 127))
+    eds: Path = field(metadata=_meta())
+    heartbeat_ms: int = spec(in_range(10, 10_000))
+    timeout_s: float = spec(in_range(0.0, 10.0, lo_open=True))
+
+
+@dataclass(frozen=True)
+class SerialSection:
+    port: str | None = spec((bool, "a device path such as /dev/ttyUSB0"), optional=True)
+    baud: int = spec(in_range(300, 4_000_000))
+
+
+@dataclass(frozen=True)
+class IndexingHeadSection(SerialSection):
+    speed_deg_s: float = spec(in_range(0.0, 360.0, lo_open=True))
+    settle_tol_deg: float = spec(in_range(0.0, 1.0, lo_open=True))
+    settle_time_s: float = spec(in_range(0.0, 60.0))
+
+
+@dataclass(frozen=True)
+class PayloadSection:
+    mass_kg: float = spec(in_range(0.0, 1000.0))
+    size_mm: tuple[float, float, float] = spec(in_range(0.0, 2000.0, lo_open=True))
+
+
+@dataclass(frozen=True)
+class StationConfig:
+    path: Path
+    simulated: bool
+    station: StationSection
+    limits: LimitsSection
+    servo: ServoSection
+    grating: SerialSection
+    reference: SerialSection
+    counter: SerialSection
+    indexing_head: IndexingHeadSection
+    payload: PayloadSection
+    extras: dict[str, Any] = field(default_factory=dict)  # sections of further devices (devices.registry)
+
+    def with_serial_ports(self, **ports: str) -> StationConfig:
+        """A copy with serial ports filled in (e.g. emulator pty paths), by section name."""
+        changes: dict[str, Any] = {}
+        extras = dict(self.extras)
+        for name, port in ports.items():
+            if name in SERIAL_SECTIONS:
+                changes[name] = dataclasses.replace(getattr(self, name), port=port)
+            elif name in extras:
+                extras[name] = dataclasses.replace(extras[name], port=port)
+            else:
+                raise ConfigError(self.path, name, port, f"one of {', '.join((*SERIAL_SECTIONS, *extras))}")
+        return dataclasses.replace(self, **changes, extras=extras)
+
+
+_SECTIONS: dict[str, type] = {
+    "station": StationSection,
+    "limits": LimitsSection,
+    "servo": ServoSection,
+    "grating": SerialSection,
+    "reference": SerialSection,
+    "counter": SerialSection,
+    "indexing_head": IndexingHeadSection,
+    "payload": PayloadSection,
+}
+
+
+def _convert(path: Path, key: str, value: Any, hint: Any) -> Any:
+    """Check one value's TOML type against the field's type hint; ints are accepted as floats."""
+    if hint is bool:
+        ok = isinstance(value, bool)
+    elif hint is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif hint is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        ok = ok and math.isfinite(value)
+    elif hint in (str, Path, str | None):
+        ok = isinstance(value, str)
+    else:  # tuple[float, float, float]
+        ok = (
+            isinstance(value, list)
+            and len(value) == 3
+            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        )
+        if not ok:
+            raise ConfigError(path, key, value, "a list of 3 numbers")
+        return tuple(float(v) for v in value)
+    if not ok:
+        name = "str" if hint in (Path, str | None) else hint.__name__
+        raise ConfigError(path, key, value, f"a value of type {name}")
+    return float(value) if hint is float else value
+
+
+def _section(path: Path, name: str, table: Any, simulated: bool, cls: type) -> Any:
+    if not isinstance(table, dict):
+        raise ConfigError(path, f"[{name}]", table, "a table")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = get_type_hints(cls)
+    for key in table:
+        if key not in fields:
+            raise ConfigError(path, f"[{name}] {key}", table[key], f"keys {', '.join(fields)}")
+    values: dict[str, Any] = {}
+    for fname, f in fields.items():
+        key = f"[{name}] {fname}"
+        if fname not in table:
+            if f.metadata["optional"] and simulated:
+                values[fname] = None
+                continue
+            why = " (optional only when simulated = true)" if f.metadata["optional"] else ""
+            raise ConfigError(path, key, None, f"a required key{why}")
+        value = _convert(path, key, table[fname], hints[fname])
+        check: Check | None = f.metadata["check"]
+        items = value if isinstance(value, tuple) else (value,)
+        if check is not None and not all(check[0](v) for v in items):
+            raise ConfigError(path, key, table[fname], check[1])
+        values[fname] = value
+    if name == "servo":
+        eds = (path.parent / values["eds"]).resolve()
+        if not eds.is_file():
+            allowed = "an existing file, relative to the config file's directory"
+            raise ConfigError(path, "[servo] eds", values["eds"], allowed)
+        values["eds"] = eds
+    return cls(**values)
+
+
+def _cross_check(cfg: StationConfig) -> None:
+    """Relations between keys: ranges ordered, payload within limits, sim on a virtual bus."""
+    lim, p = cfg.limits, cfg.path
+    if lim.freq_min_hz >= lim.freq_max_hz:
+        raise ConfigError(p, "[limits] freq_min_hz", lim.freq_min_hz, f"< {lim.freq_max_hz:g}")
+    if lim.accel_min_g >= lim.accel_max_g:
+        raise ConfigError(p, "[limits] accel_min_g", lim.accel_min_g, f"< {lim.accel_max_g:g}")
+    if cfg.station.A0_m > lim.displacement_max_m:
+        allowed = f"<= [limits] displacement_max_m = {lim.displacement_max_m:g}"
+        raise ConfigError(p, "[station] A0_m", cfg.station.A0_m, allowed)
+    if cfg.payload.mass_kg > lim.payload_max_kg:
+        allowed = f"<= [limits] payload_max_kg = {lim.payload_max_kg:g}"
+        raise ConfigError(p, "[payload] mass_kg", cfg.payload.mass_kg, allowed)
+    if any(s > m for s, m in zip(cfg.payload.size_mm, lim.payload_size_mm, strict=True)):
+        allowed = f"each <= [limits] payload_size_mm = {list(lim.payload_size_mm)}"
+        raise ConfigError(p, "[payload] size_mm", list(cfg.payload.size_mm), allowed)
+    if cfg.simulated and cfg.servo.interface != "virtual":
+        allowed = "'virtual' when simulated = true"
+        raise ConfigError(p, "[servo] interface", cfg.servo.interface, allowed)
+
+
+def load_station_config(path: str | Path) -> StationConfig:
+    """Read and validate a station TOML file."""
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            doc = tomllib.load(f)
+    except OSError as e:
+        raise ConfigError(path, "<file>", str(path), f"a readable file ({e.strerror})") from e
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(path, "<syntax>", str(e), "valid TOML") from e
+    simulated = doc.pop("simulated", False)
+    if not isinstance(simulated, bool):
+        raise ConfigError(path, "simulated", simulated, "true or false")
+    kinds = device_kinds()
+    for key in doc:
+        if key not in _SECTIONS and key not in kinds:
+            allowed = f"sections {', '.join(_SECTIONS)}, optional devices {', '.join(kinds) or 'none'}, and simulated"
+            raise ConfigError(path, key, doc[key], allowed)
+    for name in _SECTIONS:
+        if name not in doc:
+            raise ConfigError(path, f"[{name}]", None, "a required section")
+    sections = {name: _section(path, name, doc[name], simulated, cls) for name, cls in _SECTIONS.items()}
+    extras = {name: _section(path, name, doc[name], simulated, kinds[name].section) for name in doc if name in kinds}
+    cfg = StationConfig(path=path, simulated=simulated, **sections, extras=extras)
+    _cross_check(cfg)
+    return cfg

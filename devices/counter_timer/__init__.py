@@ -1,0 +1,1 @@
+"""Counter/timer board timing integer-pulse windows: driver and emulator."""

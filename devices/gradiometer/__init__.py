@@ -1,0 +1,1 @@
+"""Electronic gradiometer on the table top: driver and emulator."""

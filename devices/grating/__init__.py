@@ -1,0 +1,1 @@
+"""Absolute grating read head: driver and emulator."""

@@ -1,0 +1,182 @@
+"""Emulator of the absolute grating read head's interface board (protocol in devices.grating.driver).
+
+Samples are taken on the exact 5 kHz grid of station time (t_k = k / 5000 s,
+time stamps multiples of 4000 ticks), positions from world.table_position_m.
+Each poll emits every sample whose time has come on world.clock; if the
+transmit FIFO has no room (virtual clock faster than the line, or a driver
+that stopped reading), the oldest due samples are dropped and seq still
+counts them, so the driver sees the gap. A rate divider (START argument)
+lets a fast virtual session ask for fewer samples instead.
+
+Faults: NO_ANSWER (commands ignored and stream silent while armed; count =
+commands to ignore), GARBLE / TRUNCATE / CRC_ERROR (applied to the next
+frame), SIGNAL_LOSS (nE = 0 on the next `count` samples, or until cleared),
+DISCONNECT.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from devices.grating import driver as g
+from devices.pty_link import Fault, PtyEmulator, garble, truncate
+from devices.serial_port import (
+    OVERHEAD,
+    SYNC,
+    FrameParser,
+    crc16,
+    encode_frame,
+    ticks_of,
+)
+
+SAMPLE_FRAME_LEN = OVERHEAD + g.SAMPLE_PAYLOAD.size
+MAX_SAMPLES_PER_POLL = 4000
+
+# numpy layout of a whole SAMPLE frame, for vectorised encoding
+_FRAME_DTYPE = np.dtype(
+    [
+        ("sync", "u1", 2),
+        ("type", "u1"),
+        ("len", "<u2"),
+        ("seq", "<u2"),
+        ("ticks", "<u4"),
+        ("biss", "u1", 6),
+        ("crc", "<u2"),
+    ]
+)
+assert _FRAME_DTYPE.itemsize == SAMPLE_FRAME_LEN
+
+
+class GratingEmulator(PtyEmulator):
+    name = "grating-emulator"
+    supported_faults = frozenset(
+        {
+            Fault.NO_ANSWER,
+            Fault.GARBLE,
+            Fault.TRUNCATE,
+            Fault.CRC_ERROR,
+            Fault.DISCONNECT,
+            Fault.SIGNAL_LOSS,
+        }
+    )
+
+    def __init__(self, world: Any, *, baud: int = 3_000_000, **kw: Any) -> None:
+        super().__init__(world.clock, baud=baud, **kw)
+        self.world = world
+        self._rx = FrameParser("grating host")
+        self.streaming = False
+        self.divider = 1
+        self._next_k = 0  # index of the next sample on the 5 kHz / divider grid
+        self._seq = 0
+        self.dropped = 0  # samples dropped for lack of FIFO room
+        self.sent = 0
+
+    # ---- commands
+
+    def on_bytes(self, data: bytes) -> None:
+        self._rx.feed(data)
+        while (item := self._rx.next_item()) is not None:
+            if isinstance(item, Exception):
+                continue
+            if self.faults.take(Fault.NO_ANSWER):
+                continue
+            self._command(item.type, item.payload)
+
+    def _reply(self, frame: bytes) -> None:
+        self.send(self._maybe_corrupt(frame))
+
+    def _command(self, cmd: int, payload: bytes) -> None:
+        now = self.clock.now_s()
+        if cmd == g.START and len(payload) == g.START_PAYLOAD.size:
+            (divider,) = g.START_PAYLOAD.unpack(payload)
+            if divider < 1:
+                self._reply(encode_frame(g.ACK, g.ACK_PAYLOAD.pack(cmd, 1)))
+                return
+            self.divider = divider
+            self._tx.clear()  # a restart flushes whatever was still queued
+            self._reply(encode_frame(g.ACK, g.ACK_PAYLOAD.pack(cmd, 0)))
+            self._next_k = math.floor(now / self._period_s) + 1
+            self._seq = 0
+            self.streaming = True
+        elif cmd == g.STOP:
+            self.streaming = False
+            self._reply(encode_frame(g.ACK, g.ACK_PAYLOAD.pack(cmd, 0)))
+        elif cmd == g.STATUS_Q:
+            flags = (0 if self.faults.active(Fault.SIGNAL_LOSS) else 1) | 2
+            body = g.STATUS_PAYLOAD.pack(int(self.streaming), self.divider, ticks_of(now), flags)
+            self._reply(encode_frame(g.STATUS, body))
+        else:
+            self._reply(encode_frame(g.ACK, g.ACK_PAYLOAD.pack(cmd & 0xFF, 1)))
+
+    @property
+    def _period_s(self) -> float:
+        return self.divider / g.BASE_RATE_HZ
+
+    # ---- stream
+
+    def on_poll(self, now_s: float) -> None:
+        if not self.streaming:
+            return
+        last_k = math.floor(now_s / self._period_s)
+        n_due = last_k - self._next_k + 1
+        if n_due <= 0:
+            return
+        if self.faults.active(Fault.NO_ANSWER):  # the board went silent: nothing goes out
+            self._skip(n_due, count_as_dropped=False)
+            return
+        room = min(self.tx_room() // SAMPLE_FRAME_LEN - 1, MAX_SAMPLES_PER_POLL)
+        if n_due > room:
+            self._skip(n_due - max(room, 0), count_as_dropped=True)
+            n_due = max(room, 0)
+        if n_due > 0:
+            self.send(self._encode(n_due))
+
+    def _skip(self, n: int, *, count_as_dropped: bool) -> None:
+        self._next_k += n
+        self._seq = (self._seq + n) & 0xFFFF
+        if count_as_dropped:
+            self.dropped += n
+
+    def _encode(self, n: int) -> bytes:
+        k = np.arange(self._next_k, self._next_k + n, dtype=np.int64)
+        t_s = k * self._period_s
+        z_m = np.asarray(self.world.table_position_m(t_s), dtype=float)
+        n_err = np.ones(n, dtype=np.uint8)
+        for i in range(n):
+            if not self.faults.take(Fault.SIGNAL_LOSS):
+                break
+            n_err[i] = 0
+        pos = np.where(n_err == 1, np.rint(z_m * 1e9 / g.NM_PER_COUNT), 0).astype(np.int64)
+        words = g.biss_words_np(pos, n_err, np.ones(n, dtype=np.uint8))
+        frames = np.zeros(n, dtype=_FRAME_DTYPE)
+        frames["sync"] = np.frombuffer(SYNC, dtype=np.uint8)
+        frames["type"] = g.SAMPLE
+        frames["len"] = g.SAMPLE_PAYLOAD.size
+        frames["seq"] = (self._seq + np.arange(n)) & 0xFFFF
+        ticks = k * (g.TICKS_PER_CYCLE * self.divider)
+        frames["ticks"] = (ticks & 0xFFFFFFFF).astype(np.uint32)
+        for j in range(6):
+            frames["biss"][:, j] = (words >> np.uint64(8 * (5 - j))) & np.uint64(0xFF)
+        raw = frames.view(np.uint8).reshape(n, SAMPLE_FRAME_LEN)
+        crc_span = raw[:, 2 : SAMPLE_FRAME_LEN - 2]
+        frames["crc"] = [crc16(row.tobytes()) for row in crc_span]
+        self._next_k += n
+        self._seq = (self._seq + n) & 0xFFFF
+        self.sent += n
+        out = frames.tobytes()
+        first = self._maybe_corrupt(out[:SAMPLE_FRAME_LEN])
+        return first + out[SAMPLE_FRAME_LEN:]
+
+    def _maybe_corrupt(self, frame: bytes) -> bytes:
+        if self.faults.take(Fault.GARBLE):
+            return garble(frame)
+        if self.faults.take(Fault.TRUNCATE):
+            return truncate(frame)
+        if self.faults.take(Fault.CRC_ERROR):
+            b = bytearray(frame)
+            b[-1] ^= 0x5A
+            return bytes(b)
+        return frame

@@ -1,0 +1,1 @@
+"""Strapdown IMU streaming increments over RS-422: driver and emulator."""

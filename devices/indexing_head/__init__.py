@@ -1,0 +1,1 @@
+"""Indexing head (Zaber-style ASCII rotary stage): driver and emulator."""

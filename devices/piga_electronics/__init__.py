@@ -1,0 +1,1 @@
+"""PIGA electronics and its angle servo's digital offset: driver and emulator."""

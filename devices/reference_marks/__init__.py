@@ -1,0 +1,1 @@
+"""Reference marks and frequency monitor: driver and emulator."""

@@ -1,0 +1,51 @@
+"""Devices beyond the vibration-table core, found by name: voltmeters, chambers, IMUs, shakers, ...
+
+A driver module in `devices/` that defines a module attribute
+
+    DEVICE_KIND = DeviceKind(name="voltmeter", section=VoltmeterSection, open=..., emulate=...)
+
+is a device a station may have. Its configuration section `[name]` is
+optional in a station file; when present it is parsed with `section` (a
+frozen dataclass whose fields carry the checks of devices.config:
+`spec(range_check(lo, hi))`, `optional=True` for a serial port that a
+simulated station fills in), the device is opened with `open(section, clock)`
+and, on a simulated station, its emulator is started first with
+`emulate(section, world)` (an object with `.port` for a serial device, and
+`close()`); `open` then receives the section with the emulator's port.
+Procedures reach it as `ctx.hw.device(name)` and check its limits in planning
+through `ctx.model.section(name)`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+from station.clock import Clock
+
+
+@dataclass(frozen=True)
+class DeviceKind:
+    name: str  # the config section and the device's name
+    section: type  # frozen dataclass of the section
+    open: Callable[[Any, Clock], Any]  # (section, clock) -> opened driver with close()
+    emulate: Callable[[Any, Any], Any]  # (section, SimStation) -> started emulator with .port and close()
+
+
+@cache
+def device_kinds() -> dict[str, DeviceKind]:
+    """Every DEVICE_KIND declared by a device package's driver module, by name."""
+    import devices
+
+    kinds: dict[str, DeviceKind] = {}
+    for mod in pkgutil.iter_modules(devices.__path__):
+        if not mod.ispkg:
+            continue
+        kind = getattr(importlib.import_module(f"devices.{mod.name}.driver"), "DEVICE_KIND", None)
+        if isinstance(kind, DeviceKind):
+            kinds[kind.name] = kind
+    return kinds

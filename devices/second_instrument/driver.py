@@ -1,0 +1,36 @@
+"""A second PIGA on the indexing head with a counter/timer channel of its own (seed 003's dual-instrument method).
+
+The orthogonal 4-pose method (seed 003 section 4) counts two PIGAs on one fixture: the
+second one's output pulses go to a second counter/timer board, the same board and
+protocol as the station's (devices.counter_timer.driver.CounterTimer) on its own port. Station
+file section:
+
+    [second_instrument]
+    port = "/dev/ttyUSB4"   # left out on a simulated station
+    baud = 921600
+
+On a simulated station the emulator is the station's counter/timer emulator fed by the
+second PIGA on the simulated fixture (devices.second_instrument.emulator).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from devices.config import SerialSection
+from devices.counter_timer.driver import CounterTimer
+from devices.registry import DeviceKind
+from station.clock import Clock
+
+
+def open_counter(section: SerialSection, clock: Clock) -> CounterTimer:
+    return CounterTimer(section.port, baud=section.baud, clock=clock).open()
+
+
+def emulate(section: SerialSection, world: Any) -> Any:
+    from devices.second_instrument.emulator import start_counter_emulator
+
+    return start_counter_emulator(world, section.baud)
+
+
+DEVICE_KIND = DeviceKind("second_instrument", SerialSection, open_counter, emulate)

@@ -1,0 +1,440 @@
+"""Emulated vibration-table servo: a CiA 402 drive as a canopen LocalNode on a python-can bus.
+
+The drive side of config/eds/vibration_table_servo.eds, in profile velocity
+mode, turning a models.crank.CrankModel. canopen's LocalNode only answers
+SDOs; this module adds what a drive does on its own (see field notes):
+
+- copies received RPDOs into its object dictionary (NMT OPERATIONAL only);
+- transmits TPDOs from its object dictionary on their event timers
+  (0x1800+n sub 5, re-read whenever PDO parameters are written), only in
+  NMT OPERATIONAL;
+- runs the 402 state machine (controlword 0x6040 -> statusword 0x6041), the mode
+  of operation and its display (0x6060/0x6061), quick stop (option code 2:
+  decelerate on 0x6085, then SWITCH ON DISABLED) and fault reset;
+- produces its heartbeat (0x1017) and consumes the master's (0x1016 sub 1): when
+  the master falls silent the drive faults (EMCY 0x8130) and brings the crank to rest.
+
+Two clocks: `clock` (the station clock, real or virtual) time-stamps everything
+physical (crank commands, speed, phase); `bus_clock` times the bus protocol
+(event timers, heartbeat consumer) and must run in real time like the
+driver's own timeouts, so it defaults to a WallClock.
+
+The drive's feedback is assumed to carry the twin's frequency error: velocity
+0x606C and position 0x6064 report crank motion / (1 + eps_f), i.e. what the
+drive believes; only an independent sensor (the grating) sees the true motion.
+
+Fault injection for tests: inject_fault, silence_sdo, silence_heartbeat,
+ignore_master_heartbeat, go_bus_off, freeze_mode_display.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from pathlib import Path
+
+import can
+import canopen
+from canopen.objectdictionary import ODVariable
+from canopen.pdo import PdoMap
+from canopen.sdo import SdoAbortedError
+
+from devices.config import ServoSection
+from models.crank import CrankModel
+from station.clock import Clock, WallClock
+
+log = logging.getLogger(__name__)
+
+TWO_PI = 2.0 * math.pi
+# Drive units, as documented in the EDS (deliberately not shared with the driver).
+VELOCITY_UNIT_REV_S = 1e-6
+ACCEL_UNIT_REV_S2 = 1e-6
+POSITION_UNITS_PER_REV = 65536
+MODE_PROFILE_VELOCITY = 3
+SUPPORTED_MODES = (0, MODE_PROFILE_VELOCITY)
+EMCY_HEARTBEAT_ERROR = 0x8130
+
+SOD = "SWITCH ON DISABLED"
+RTSO = "READY TO SWITCH ON"
+SO = "SWITCHED ON"
+OE = "OPERATION ENABLED"
+QSA = "QUICK STOP ACTIVE"
+FAULT = "FAULT"
+
+_STATUSWORD = {SOD: 0x0040, RTSO: 0x0031, SO: 0x0033, OE: 0x0037, QSA: 0x0017, FAULT: 0x0008}
+SW_REMOTE = 0x0200
+SW_TARGET_REACHED = 0x0400
+CW_FAULT_RESET = 0x0080
+
+_ABORT_VALUE_INVALID = 0x06090030
+_ABORT_VALUE_TOO_HIGH = 0x06090031
+_ABORT_VALUE_TOO_LOW = 0x06090032
+
+
+def next_state(state: str, cw: int, prev_cw: int) -> str:
+    """CiA 402 device control: the state a controlword leads to (quick stop option 2)."""
+    if state == FAULT:
+        rising = cw & CW_FAULT_RESET and not prev_cw & CW_FAULT_RESET
+        return SOD if rising else state
+    if not cw & 0x02:  # disable voltage: transitions 7, 9, 10, 12
+        return SOD
+    if not cw & 0x04:  # quick stop: transitions 7, 10, 11
+        return {OE: QSA, RTSO: SOD, SO: SOD}.get(state, state)
+    low = cw & 0x0F
+    if low == 0x06 and state in (SOD, SO, OE):  # shutdown: 2, 6, 8
+        return RTSO
+    if low == 0x07 and state in (RTSO, OE):  # switch on / disable operation: 3, 5
+        return SO
+    if low == 0x0F and state in (RTSO, SO):  # enable operation: 3 + 4, 4
+        return OE
+    return state
+
+
+def error_register(code: int) -> int:
+    """CiA 301 error register 0x1001 for an EMCY code: generic bit plus the class bit."""
+    return 0x01 | {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x8: 0x10}.get(code >> 12, 0)
+
+
+class ServoEmulator:
+    """The drive; start() joins the bus, stop() leaves it. Thread-safe."""
+
+    def __init__(
+        self,
+        *,
+        channel: str,
+        node_id: int,
+        eds_path: Path,
+        clock: Clock,
+        crank: CrankModel | None = None,
+        interface: str = "virtual",
+        bus_clock: Clock | None = None,
+        tick_s: float = 0.002,
+    ) -> None:
+        self.channel = channel
+        self.node_id = node_id
+        self.interface = interface
+        self._eds_path = Path(eds_path)
+        self._clock = clock
+        self._bus_clock = bus_clock if bus_clock is not None else WallClock()
+        self.crank = crank if crank is not None else CrankModel(t0_s=clock.now_s())
+        self._tick_s = tick_s
+        self._lock = threading.RLock()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._network: canopen.Network | None = None
+        self._node: canopen.LocalNode | None = None
+        # 402 device state
+        self._state = SOD
+        self._cw = 0
+        self._mode_display = 0
+        self._error_code = 0
+        self._error_register = 0
+        self._fault_persistent = False
+        self._params: dict[int, int] = {}  # 0x60FF, 0x607F, 0x6083, 0x6084, 0x6085
+        # bus-side state
+        self._pdo_config_dirty = True
+        self._event_timer_s: dict[int, float] = {}
+        self._tpdo_due_s: dict[int, float] = {}
+        self._hb_master_id = 0
+        self._hb_timeout_s = 0.0
+        self._hb_last_s: float | None = None
+        # injected faults
+        self._sdo_silent = False
+        self._master_hb_ignored = False
+        self._bus_off = False
+        self._mode_frozen = False
+
+    @classmethod
+    def from_config(cls, servo: ServoSection, clock: Clock, crank: CrankModel | None = None) -> ServoEmulator:
+        return cls(
+            channel=servo.channel,
+            node_id=servo.node_id,
+            eds_path=servo.eds,
+            clock=clock,
+            crank=crank,
+            interface=servo.interface,
+        )
+
+    # ---- life cycle -------------------------------------------------------------------
+
+    def start(self) -> None:
+        bus = can.Bus(interface=self.interface, channel=self.channel)
+        self._network = canopen.Network(bus)
+        self._network.NOTIFIER_CYCLE = 0.05  # a prompt stop()
+        self._network.connect()
+        node = self._network.create_node(self.node_id, str(self._eds_path))
+        self._node = node
+        node.add_read_callback(self._on_read)
+        node.add_write_callback(self._on_write)
+        for index in (0x60FF, 0x607F, 0x6083, 0x6084, 0x6085):
+            self._params[index] = node.sdo[index].raw
+        with self._lock:
+            self._configure_consumer(node.sdo[0x1016][1].raw)
+            self._load_pdo_config()
+        node.nmt.state = "INITIALISING"  # boot-up message
+        node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat producer (0x1017)
+        name = f"servo-emulator-{self.node_id}"
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stopping.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self._network is not None:
+            self._node.nmt.stop_heartbeat()
+            self._network.disconnect()
+            self._network = None
+
+    def __enter__(self) -> ServoEmulator:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ---- inspection -------------------------------------------------------------------
+
+    @property
+    def state(self) -> str:
+        """The 402 state, e.g. 'OPERATION ENABLED'."""
+        with self._lock:
+            return self._state
+
+    @property
+    def nmt_state(self) -> str:
+        return self._node.nmt.state
+
+    # ---- fault injection --------------------------------------------------------------
+
+    def inject_fault(self, code: int = 0x2310, *, persistent: bool = False) -> None:
+        """A drive fault: EMCY, 0x603F, statusword fault bit; crank brought to rest.
+
+        A persistent fault survives fault resets (its cause is still there).
+        """
+        with self._lock:
+            self._fault_persistent = persistent
+            self._enter_fault(code)
+
+    def silence_sdo(self) -> None:
+        """Stop answering SDO requests (PDOs and heartbeat go on)."""
+        with self._lock:
+            if not self._sdo_silent:
+                self._sdo_silent = True
+                self._network.unsubscribe(self._node.sdo.rx_cobid, self._node.sdo.on_request)
+
+    def silence_heartbeat(self) -> None:
+        """Stop producing the heartbeat (everything else goes on)."""
+        self._node.nmt.stop_heartbeat()
+
+    def ignore_master_heartbeat(self) -> None:
+        """Stop hearing the master's heartbeat, as if its frames were lost on the way."""
+        with self._lock:
+            self._master_hb_ignored = True
+
+    def go_bus_off(self) -> None:
+        """Leave the bus (simulated CAN bus-off): no frame is sent or received any more.
+
+        The heartbeat consumer still runs, so the drive faults and stops the crank.
+        """
+        with self._lock:
+            self._bus_off = True
+        self.silence_sdo()
+        self.silence_heartbeat()
+
+    def freeze_mode_display(self) -> None:
+        """0x6061 no longer follows 0x6060 (a mode switch that silently fails)."""
+        with self._lock:
+            self._mode_frozen = True
+
+    # ---- object dictionary callbacks (run in the network's notifier thread) -----------
+
+    def _on_read(self, index: int, subindex: int, od: ODVariable) -> int | None:
+        with self._lock:
+            t_s = self._clock.now_s()
+            if index == 0x6041:
+                return self._statusword(t_s)
+            if index == 0x6061:
+                return self._mode_display
+            if index == 0x603F:
+                return self._error_code
+            if index == 0x1001:
+                return self._error_register
+            belief = 1.0 + self.crank.eps_f
+            if index == 0x606C:
+                return round(self.crank.speed_radps(t_s) / belief / TWO_PI / VELOCITY_UNIT_REV_S)
+            if index == 0x6064:
+                counts = round(self.crank.phase_rad(t_s) / belief / TWO_PI * POSITION_UNITS_PER_REV)
+                return (counts + 2**31) % 2**32 - 2**31
+        return None
+
+    def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
+        """Validate and apply a write (SDO download or copied RPDO) before LocalNode stores it."""
+        if 0x1400 <= index < 0x1C00:
+            with self._lock:
+                self._node.data_store.setdefault(index, {})[subindex] = bytes(data)
+                self._pdo_config_dirty = True
+            return
+        value = od.decode_raw(data)
+        if isinstance(value, int):
+            if od.min is not None and value < od.min:
+                raise SdoAbortedError(_ABORT_VALUE_TOO_LOW)
+            if od.max is not None and value > od.max:
+                raise SdoAbortedError(_ABORT_VALUE_TOO_HIGH)
+        with self._lock:
+            t_s = self._clock.now_s()
+            if index == 0x6040:
+                self._on_controlword(value, t_s)
+            elif index == 0x6060:
+                self._on_mode(value, t_s)
+            elif index == 0x60FF:
+                if abs(value) > self._params[0x607F]:
+                    raise SdoAbortedError(_ABORT_VALUE_TOO_HIGH)
+                self._params[index] = value
+                self._command_velocity(t_s)
+            elif index in (0x6083, 0x6084, 0x6085):
+                self._params[index] = value
+                self._command_velocity(t_s)
+            elif index == 0x1016 and subindex == 1:
+                self._configure_consumer(value)
+
+    def _on_rpdo(self, pdo_map: PdoMap) -> None:
+        with self._lock:
+            if self._bus_off or self._node.nmt.state != "OPERATIONAL":
+                return
+            for var in pdo_map:
+                try:
+                    self._node.set_data(var.index, var.subindex, var.get_data())
+                except SdoAbortedError as e:
+                    log.warning("servo emulator: RPDO value for 0x%04X refused: %s", var.index, e)
+
+    def _on_master_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self._lock:
+            if not (self._bus_off or self._master_hb_ignored):
+                self._hb_last_s = self._bus_clock.now_s()
+
+    # ---- device behaviour (called with the lock held) ---------------------------------
+
+    def _statusword(self, t_s: float) -> int:
+        sw = _STATUSWORD[self._state] | SW_REMOTE
+        pv = self._state == OE and self._mode_display == MODE_PROFILE_VELOCITY
+        if pv and self.crank.at_speed(t_s):
+            sw |= SW_TARGET_REACHED
+        return sw
+
+    def _on_controlword(self, cw: int, t_s: float) -> None:
+        prev, self._cw = self._cw, cw
+        if self._state == FAULT and self._fault_persistent:
+            return
+        new = next_state(self._state, cw, prev)
+        if new == self._state:
+            return
+        if self._state == FAULT:
+            self._error_code = self._error_register = 0
+            if not self._bus_off:
+                self._node.emcy.reset()
+        self._state = new
+        self._command_velocity(t_s)
+
+    def _on_mode(self, mode: int, t_s: float) -> None:
+        if mode not in SUPPORTED_MODES:
+            raise SdoAbortedError(_ABORT_VALUE_INVALID)
+        if not self._mode_frozen and mode != self._mode_display:
+            self._mode_display = mode
+            self._command_velocity(t_s)
+
+    def _command_velocity(self, t_s: float) -> None:
+        """Profile velocity when enabled in mode 3; otherwise brake to rest on 0x6085."""
+        if self._state == OE and self._mode_display == MODE_PROFILE_VELOCITY:
+            w_radps = TWO_PI * self._params[0x60FF] * VELOCITY_UNIT_REV_S
+            speeding_up = abs(w_radps) >= abs(self.crank.speed_radps(t_s))
+            accel = self._params[0x6083 if speeding_up else 0x6084]
+        else:
+            w_radps, accel = 0.0, self._params[0x6085]
+        self.crank.command_speed(w_radps, TWO_PI * accel * ACCEL_UNIT_REV_S2, t_s)
+
+    def _enter_fault(self, code: int) -> None:
+        self._error_code = code
+        self._error_register = error_register(code)
+        self._state = FAULT
+        self._command_velocity(self._clock.now_s())
+        if not self._bus_off:
+            self._node.emcy.send(code, self._error_register)
+
+    def _configure_consumer(self, value: int) -> None:
+        """0x1016 sub 1: master node id in bits 16-23, time in ms in bits 0-15."""
+        if self._hb_master_id:
+            self._network.unsubscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
+        master_id, time_ms = (value >> 16) & 0x7F, value & 0xFFFF
+        self._hb_master_id = master_id if time_ms else 0
+        self._hb_timeout_s = time_ms / 1000.0
+        self._hb_last_s = None  # monitoring starts with the first heartbeat heard
+        if self._hb_master_id:
+            self._network.subscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
+
+    def _load_pdo_config(self) -> None:
+        """(Re)read PDO parameters and mappings from the local object dictionary."""
+        node = self._node
+        node.tpdo.read()
+        node.rpdo.read()
+        for rpdo in node.rpdo.map.values():
+            if self._on_rpdo not in rpdo.callbacks:
+                rpdo.add_callback(self._on_rpdo)
+        self._event_timer_s = {
+            n: (tpdo.event_timer or 0) / 1000.0
+            for n, tpdo in node.tpdo.map.items()
+            if tpdo.enabled and tpdo.trans_type in (254, 255)
+        }
+        self._pdo_config_dirty = False
+
+    # ---- periodic work ----------------------------------------------------------------
+
+    def _run(self) -> None:
+        wait_s = 0.0
+        while not self._stopping.wait(wait_s):
+            try:
+                wait_s = self._tick()
+            except Exception:  # keep the drive alive, but never silently
+                log.exception("servo emulator: periodic work failed")
+                wait_s = self._tick_s
+
+    def _tick(self) -> float:
+        """One round of periodic work; returns the wait until the next (<= tick_s)."""
+        now_s = self._bus_clock.now_s()
+        with self._lock:
+            t_s = self._clock.now_s()
+            if self._pdo_config_dirty:
+                self._load_pdo_config()
+            if self._state == QSA and self.crank.at_speed(t_s):
+                self._state = SOD  # quick stop option 2: at rest -> SWITCH ON DISABLED
+            self._check_master_heartbeat(now_s)
+            if self._bus_off or self._node.nmt.state != "OPERATIONAL":
+                return self._tick_s
+            wait_s = self._tick_s
+            for n, period_s in self._event_timer_s.items():
+                if period_s <= 0:
+                    continue
+                due_s = self._tpdo_due_s.get(n, now_s)
+                if now_s >= due_s:
+                    self._transmit_tpdo(self._node.tpdo.map[n])
+                    due_s += period_s
+                    if due_s <= now_s:  # fell behind: no burst, restart the cycle
+                        due_s = now_s + period_s
+                    self._tpdo_due_s[n] = due_s
+                wait_s = min(wait_s, due_s - now_s)
+            return wait_s
+
+    def _transmit_tpdo(self, tpdo: PdoMap) -> None:
+        for var in tpdo:
+            var.set_data(self._node.get_data(var.index, var.subindex))
+        tpdo.transmit()
+
+    def _check_master_heartbeat(self, now_s: float) -> None:
+        if self._hb_last_s is None or now_s - self._hb_last_s <= self._hb_timeout_s:
+            return
+        log.warning("servo emulator: master heartbeat lost, bringing the crank to rest")
+        self._hb_last_s = None
+        if self._state != FAULT:
+            self._enter_fault(EMCY_HEARTBEAT_ERROR)

@@ -1,0 +1,1 @@
+"""Electrodynamic shaker's vibration controller: driver and emulator."""

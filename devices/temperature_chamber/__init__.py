@@ -1,0 +1,1 @@
+"""Temperature chamber (EI-Bisynch ASCII): driver and emulator."""

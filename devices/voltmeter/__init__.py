@@ -1,0 +1,1 @@
+"""Precision DC voltmeter (SCPI): driver and emulator."""

@@ -1,1 +1,0 @@
-"""Device drivers of the station; drivers/sim holds the protocol-level emulators."""

@@ -1,0 +1,397 @@
+"""The run engine: one procedure at a time through the station's drivers, every measurement stored durably.
+
+State machine: idle -> running <-> pausing -> paused -> running ... ->
+finished | aborted | estopped | failed. A pause takes effect at safe points
+(before each measurement, and at Checkpoint steps). An abort takes effect at
+the next event of the open window (the counter is aborted, the table ramps
+to rest). An emergency stop acts at once from the calling thread (quick stop
+of the crank, the head stopped and held, the window aborted), then the
+procedure ends. Each finished measurement is committed to the store before
+the next step starts, so a fault or a kill loses no finished measurement;
+`run(..., resume_uid=...)` hands the procedure the measurements a session
+already holds instead of measuring them again.
+
+The engine is also the `RunContext` that steps run in.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+
+from devices.counter_timer.driver import Event
+from devices.errors import DriverError
+from engine.planning import Plan
+from engine.protocols import StationHardware
+from engine.registry import ProcedureSpec
+from engine.steps import Recorded, Step
+from engine.timing import TimingFault
+from station.session import Measurement, PointRecord
+from station.store import SessionStore
+
+
+class State(StrEnum):
+    IDLE = "idle"
+    RUNNING = "running"
+    WAITING_OPERATOR = "waiting_operator"
+    PAUSING = "pausing"
+    PAUSED = "paused"
+    ABORTING = "aborting"
+    FINISHED = "finished"
+    ABORTED = "aborted"
+    ESTOPPED = "estopped"
+    FAILED = "failed"
+
+
+FINAL_STATES = (State.FINISHED, State.ABORTED, State.ESTOPPED, State.FAILED)
+STORE_STATUS = {State.FINISHED: "finished", State.ABORTED: "aborted", State.ESTOPPED: "aborted", State.FAILED: "failed"}
+
+
+class Aborted(Exception):  # noqa: N818 - a control-flow signal, not an error
+    """Raised inside the engine thread when an abort or emergency stop was requested."""
+
+
+@dataclass
+class Progress:
+    state: State = State.IDLE
+    session_uid: str = ""
+    procedure: str = ""
+    key: str = ""
+    done: int = 0
+    total: int = 0
+    estimate_total_s: float = 0.0
+    estimate_remaining_s: float = 0.0  # of the measurements not yet finished
+    in_step_s: float = 0.0  # station time spent on the measurement under way, up to its estimate
+    elapsed_s: float = 0.0
+    faults: list[str] = field(default_factory=list)
+
+    @property
+    def fraction(self) -> float:
+        if self.estimate_total_s <= 0:
+            return 0.0
+        left = self.estimate_remaining_s - self.in_step_s
+        return min(1.0, max(0.0, 1.0 - left / self.estimate_total_s))
+
+    @property
+    def eta_s(self) -> float:
+        """Station seconds left by the dry run's estimates."""
+        return max(self.estimate_remaining_s - self.in_step_s, 0.0)
+
+    def to_json(self) -> dict:
+        return asdict(self) | {"state": str(self.state), "fraction": self.fraction, "eta_s": self.eta_s}
+
+
+Publisher = Callable[[str, dict], None]
+WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second
+TRACE_POINTS = 250  # samples per trace message, at most
+
+
+class Engine:
+    """Runs procedures on a station; control calls are thread-safe."""
+
+    def __init__(self, hardware: StationHardware, store: SessionStore, publish: Publisher | None = None) -> None:
+        self.hw = hardware
+        self.clock = hardware.clock
+        self.store = store
+        self.publish: Publisher = publish or (lambda topic, msg: None)
+        self.progress = Progress()
+        self._lock = threading.Lock()
+        self._resume = threading.Event()
+        self._resume.set()
+        self._acknowledged = threading.Event()
+        self._pause_requested = False
+        self._abort_requested = False
+        self._estop = False
+        self.position_deg: float | None = None
+        self.freq_hz = 0.0
+        self.t0_s = 0.0
+        self.sequence = 0
+        self._session_uid = ""
+        self._estimates: dict[str, float] = {}
+        self._step_started_s = 0.0
+
+    # ---- control, from any thread ---------------------------------------------------------
+
+    def pause(self) -> None:
+        with self._lock:
+            if self.progress.state == State.RUNNING:
+                self._pause_requested = True
+                self._set_state(State.PAUSING)
+
+    def resume(self) -> None:
+        with self._lock:
+            self._pause_requested = False
+            if self.progress.state in (State.PAUSING, State.PAUSED):
+                self._set_state(State.RUNNING)
+            self._resume.set()
+
+    def abort(self) -> None:
+        with self._lock:
+            self._abort_requested = True
+            if self.progress.state in (State.RUNNING, State.PAUSING, State.PAUSED, State.WAITING_OPERATOR):
+                self._set_state(State.ABORTING)
+            self._resume.set()
+
+    def acknowledge(self) -> None:
+        """The operator has done what the open OperatorAction asked."""
+        self._acknowledged.set()
+
+    def emergency_stop(self) -> None:
+        """Quick-stop the crank and hold the head now, then end the procedure.
+
+        The flags go up first, so that any device error the stop causes in the engine's own thread
+        is read as the stop's consequence, not as a fault of the run."""
+        with self._lock:
+            self._estop = True
+            self._abort_requested = True
+            self._resume.set()
+        self.hw.emergency_stop()
+        self.publish("fault", {"kind": "estop", "message": "emergency stop"})
+
+    # ---- RunContext: what steps use --------------------------------------------------------
+
+    def check_abort(self) -> None:
+        if self._abort_requested:
+            raise Aborted("emergency stop" if self._estop else "abort requested")
+
+    def safe_point(self) -> None:
+        """A pause requested before now takes effect here; an abort ends the run here."""
+        self.check_abort()
+        with self._lock:
+            if self._pause_requested:
+                self._pause_requested = False
+                self._resume.clear()
+                self._set_state(State.PAUSED)
+        self._resume.wait()
+        self.check_abort()
+
+    def event(self, kind: str, message: str, level: str = "info") -> None:
+        if self._session_uid:
+            self.store.add_event(self._session_uid, kind, message, level)
+        self.publish("event", {"kind": kind, "message": message, "level": level})
+
+    def set_table(self, freq_hz: float, settle_s: float = 0.0) -> float:
+        """Ramp the table to freq_hz (if it is not there), then settle; the drive's frequency."""
+        measured = freq_hz
+        if freq_hz != self.freq_hz:
+            measured = self.hw.set_vibration(freq_hz).freq_hz
+            self.freq_hz = freq_hz
+            self.publish("motion", {"freq_hz": measured, "commanded_hz": freq_hz, "index_deg": self.position_deg})
+        self.wait_s(settle_s)
+        return measured
+
+    def move_head(self, position_deg: float) -> float:
+        """Move the indexing head, bringing the table to rest first; the settled angle."""
+        if self.position_deg is not None and abs(position_deg - self.position_deg) < 1e-9:
+            return self.position_deg
+        self.set_table(0.0)
+        self.position_deg = self.hw.move_index(position_deg)
+        self.publish("motion", {"freq_hz": 0.0, "commanded_hz": 0.0, "index_deg": self.position_deg})
+        return self.position_deg
+
+    def ask_operator(self, message: str, action: dict) -> None:
+        """Publish the request and wait for the operator (a simulated station's operator acts on `action`)."""
+        self._acknowledged.clear()
+        self.event("operator", message)
+        self.publish("prompt", {"message": message, "action": action})
+        operator = getattr(self.hw, "operator", None)
+        if operator is not None:
+            operator.perform(message, action)
+            return
+        self._set_state(State.WAITING_OPERATOR)
+        while not self._acknowledged.wait(0.1):
+            self.check_abort()
+        self.check_abort()
+        self._set_state(State.RUNNING)
+
+    def wait_s(self, duration_s: float) -> None:
+        """Wait station time, in slices so that an abort is seen within a second of station time."""
+        end_s = self.clock.now_s() + duration_s
+        while (left := end_s - self.clock.now_s()) > 0:
+            self.check_abort()
+            self.clock.sleep_s(min(left, 1.0))
+
+    def window_monitor(self, key: str, preset_pulses: int) -> Callable[[Event], None]:
+        """The on_event callback of a counter window: abort checks and throttled progress telemetry."""
+        expected_s = self._estimates.get(key, math.nan)
+        opened_s: list[float] = []
+        last_wall = [0.0]
+
+        def on_event(ev: Event) -> None:
+            self.check_abort()
+            if ev.kind == "open":
+                opened_s.append(ev.t_s)
+            now = time.monotonic()
+            if ev.kind not in ("open", "close") and now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
+                return
+            last_wall[0] = now
+            elapsed = ev.t_s - opened_s[0] if opened_s and math.isfinite(ev.t_s) else 0.0
+            fraction = min(elapsed / expected_s, 1.0) if expected_s > 0 else 0.0
+            msg = {"key": key, "event": ev.kind, "elapsed_s": elapsed, "expected_s": expected_s,
+                   "preset_pulses": preset_pulses, "pulses_est": round(fraction * preset_pulses)}  # fmt: skip
+            if ev.kind == "close" and elapsed > 0:
+                msg["rate_radps"] = 2 * math.pi * ev.value / (self.hw.station.pulses_per_rev * elapsed)
+            self.publish("window", msg)
+            self._publish_progress()
+
+        return on_event
+
+    def trace_sink(self) -> Callable:
+        """The on_trace callback of a window: grating samples published as a thinned displacement trace."""
+        t_parts: list = []
+        z_parts: list = []
+        last_wall = [0.0]
+
+        def on_trace(t_s, z_m) -> None:
+            t_parts.append(t_s)
+            z_parts.append(z_m)
+            now = time.monotonic()
+            if now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
+                return
+            last_wall[0] = now
+            t, z = np.concatenate(t_parts), np.concatenate(z_parts)
+            t_parts.clear()
+            z_parts.clear()
+            keep = slice(None, None, max(1, len(t) // TRACE_POINTS))
+            self.publish("trace", {"t_s": t[keep], "z_m": z[keep], "freq_hz": self.freq_hz})
+
+        return on_trace
+
+    # ---- internals ----------------------------------------------------------------------------
+
+    def _set_state(self, state: State) -> None:
+        self.progress.state = state
+        self.publish("state", {"state": str(state), "session_uid": self._session_uid,
+                               "procedure": self.progress.procedure})  # fmt: skip
+        if self._session_uid:
+            self.store.add_event(self._session_uid, "state", str(state))
+
+    def _publish_progress(self) -> None:
+        p = self.progress
+        now = self.clock.now_s()
+        p.elapsed_s = now - self.t0_s
+        p.in_step_s = min(max(now - self._step_started_s, 0.0), self._estimates.get(p.key, 0.0)) if p.key else 0.0
+        self.publish("progress", p.to_json())
+
+    def _store(self, out: Any) -> Any:
+        """Commit a measurement before anything else happens; what the procedure receives."""
+        if isinstance(out, Recorded):
+            self.store.add_point(self._session_uid, out.record, out.raw)
+            self.sequence += 1
+            self.publish("point", asdict(out.record))
+            return out.record
+        if isinstance(out, Measurement):
+            self.store.add_measurement(self._session_uid, out)
+            self.publish("measurement", {"key": out.key, "kind": out.kind, "values": out.values})
+            return out
+        raise TypeError(f"a measuring step returned {type(out).__name__}, not Recorded or Measurement")
+
+    def _execute(self, step: Step, done: dict[str, Any]) -> Any:
+        key = step.key
+        if key is None:
+            return step.run(self)
+        self.safe_point()
+        if key in done:
+            return done[key]
+        self.progress.key = key
+        self._step_started_s = self.clock.now_s()
+        self._publish_progress()
+        result = self._store(step.run(self))
+        done[key] = result
+        self.progress.done += 1
+        self.progress.estimate_remaining_s -= self._estimates.get(key, 0.0)
+        self.progress.key = ""
+        self._publish_progress()
+        return result
+
+    def _open_session(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None, config: dict) -> dict:
+        if resume_uid is None:
+            cfg = {"procedure": spec.name, "params": plan.params, "plan": plan.to_json()} | config
+            self._session_uid = self.store.create_session(self.hw.station, spec.name, instrument_serial=serial,
+                                                          config=cfg)  # fmt: skip
+            self.sequence = 0
+            return {}
+        self._session_uid = resume_uid
+        session = self.store.load_session(resume_uid, with_raw=False)
+        done: dict[str, Any] = {p.point_id: p for p in session.points}
+        done |= {m.key: m for m in session.measurements}
+        self.sequence = max((p.sequence + 1 for p in session.points), default=0)
+        self.store.set_status(resume_uid, "running")
+        self.event("resume", f"resuming with {len(done)} measurements already stored")
+        return done
+
+    def run(
+        self,
+        spec: ProcedureSpec,
+        plan: Plan,
+        *,
+        instrument_serial: str = "",
+        resume_uid: str | None = None,
+        config: dict | None = None,
+        on_open: Callable[[str], None] | None = None,
+    ) -> tuple[str, Any]:
+        """Run a validated plan's procedure; (session uid, the procedure's return value).
+
+        `on_open(uid)` is called once the session exists in the store, before anything moves.
+        """
+        self.progress = Progress(procedure=spec.name)
+        done = self._open_session(spec, plan, instrument_serial, resume_uid, config or {})
+        if on_open is not None:
+            on_open(self._session_uid)
+        self._estimates = plan.key_estimates_s()
+        last_s = max((p.start_s + p.Tm_s for p in done.values() if isinstance(p, PointRecord)), default=0.0)
+        self.t0_s = self.clock.now_s() - last_s
+        p = self.progress
+        p.session_uid, p.total, p.done = self._session_uid, len(self._estimates), len(done)
+        p.estimate_total_s = plan.total_s
+        p.estimate_remaining_s = plan.total_s - sum(self._estimates.get(k, 0.0) for k in done)
+        with self._lock:
+            self._abort_requested = self._estop = self._pause_requested = False
+            self._resume.set()
+        self._set_state(State.RUNNING)
+        gen = spec.func(plan.params)
+        value: Any = None
+        final = State.FINISHED
+        wall0 = time.perf_counter()
+        try:
+            step = gen.send(None)
+            while True:
+                step = gen.send(self._execute(step, done))
+        except StopIteration as stop:
+            value = stop.value
+            self._stop_safely()
+        except (Aborted, DriverError, TimingFault) as exc:
+            if self._abort_requested:  # an abort or emergency stop; device errors it causes are its consequence
+                final = State.ESTOPPED if self._estop else State.ABORTED
+                self.event("abort", f"{'emergency stop' if self._estop else 'abort'}: {exc}",
+                           "critical" if self._estop else "warning")  # fmt: skip
+                if not self._estop:
+                    self._stop_safely()
+            else:
+                final = State.FAILED
+                p.faults.append(f"{type(exc).__name__}: {exc}")
+                self.event("fault", p.faults[-1], "error")
+                self.publish("fault", {"kind": type(exc).__name__, "message": str(exc)})
+                self._stop_safely()
+        finally:
+            gen.close()
+        self.freq_hz = 0.0
+        self.store.set_status(self._session_uid, STORE_STATUS[final])
+        self.event("wall_time", f"{time.perf_counter() - wall0:.2f} s of wall time")
+        self._set_state(final)
+        self._publish_progress()
+        return self._session_uid, value
+
+    def _stop_safely(self) -> None:
+        try:
+            self.hw.safe_stop()
+        except DriverError as exc:
+            self.event("fault", f"safe stop failed: {exc}; emergency stop", "critical")
+            self.hw.emergency_stop()

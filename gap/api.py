@@ -1,0 +1,426 @@
+"""Sim-to-real gap diagnosis of a recorded session against a twin: `diagnose` and `station gap`.
+
+    station gap SESSION_DIR [--twin CONFIG] --json OUT.json [--html OUT.html] [--twin-out OUT.toml]
+    station gap --db STORE.sqlite UID --json OUT.json ...      (a session of our own store)
+
+Python API (stable; the web panel uses it):
+    report = diagnose(session, twin)          # GapReport; raises GapInputError on bad input
+    report.to_json()                          # the OUT.json document (plain JSON types)
+    gap.report_html.render(report)    # the self-contained HTML report
+    report.twin_out                           # the twin with the effect(s) switched on
+
+Steps (issue 3): localise (refit the calibrated coefficients, standardised
+residuals with honest noise, maps), attribute (identifiability, then every
+candidate fitted with the calibrated coefficients and ranked), shrink
+(held-out gap before and after), verdict, report (JSON, HTML, twin config).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from gap import candidates as cl
+from gap.attribute import ALPHA, AMBIGUOUS_DBIC, MAX_EFFECTS, Scored, Selection, forward_select
+from gap.design import GapInputError, PointDesign, check_geometry
+from gap.fit import Channels, Linearisation, ModelFit, evaluate, fit_model
+from gap.forward import CALIBRATED
+from gap.heldout import Folds, HeldOut, heldout, shrink
+from gap.identifiability import IdentifiabilityReport, assess
+from gap.localise import detectors, maps, significant, standardised, where_text
+from gap.noise import (
+    HonestNoise,
+    PureError,
+    TimingNoise,
+    excess_scatter_pvalue,
+    honest_noise,
+    lack_of_fit_pvalue,
+    pure_error,
+    rate_weights,
+    timing_noise,
+    timing_rate_sd_radps,
+)
+from gap.rawstreams import raw_evidence, raw_summary_text
+from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide
+from methods.common.least_squares import FitError
+from models.config import TwinConfig, TwinConfigError, default_twin
+from station.jsonsafe import json_safe
+from station.session import Session
+
+FORMAT = "piga-gap/1"
+
+
+@dataclass
+class GapReport:
+    """Everything the diagnosis found. `to_json()` is the OUT.json document; the arrays feed the HTML maps."""
+
+    verdict: Verdict
+    candidates: list[dict]  # ranked: the chosen effects, then identifiable candidates by BIC, then the rest
+    gap_before: HeldOut  # the twin with its calibrated coefficients refitted
+    gap_after: HeldOut  # ... and the chosen effects added
+    where: dict
+    identifiability: IdentifiabilityReport
+    noise: dict
+    coefficients: dict
+    twin_out: TwinConfig  # the twin with the chosen effect(s) switched on (the input twin unless explained)
+    session_info: dict
+    settings: dict
+    elapsed_s: float
+    design: PointDesign = field(repr=False)
+    z_before: np.ndarray = field(repr=False)  # standardised residual of every point, twin refitted
+    z_after: np.ndarray = field(repr=False)  # ... with the chosen effects
+    tau_z_before: np.ndarray = field(repr=False)  # standardised period identities of the vibration points
+    tau_z_after: np.ndarray = field(repr=False)
+    raw: dict = field(default_factory=dict)
+
+    @property
+    def effects(self) -> list[str]:
+        return list(self.verdict.effects)
+
+    def to_json(self) -> dict:
+        return json_safe(
+            {
+                "format": FORMAT,
+                **self.verdict.to_json(),
+                "candidates": self.candidates,
+                "gap_before": self.gap_before.to_json(),
+                "gap_after": self.gap_after.to_json(),
+                "where": self.where,
+                "identifiability": self.identifiability.to_json(),
+                "noise": self.noise,
+                "calibrated_coefficients": self.coefficients,
+                "twin_config": self.twin_out.to_dict(),
+                "session": self.session_info,
+                "settings": self.settings,
+                "elapsed_s": self.elapsed_s,
+            }
+        )
+
+
+# ----------------------------------------------------------------------------- the diagnosis
+
+
+def _check_fittable(design: PointDesign) -> None:
+    n_pos = design.positions_deg.size
+    if not design.vib.any():
+        raise GapInputError("the session has no vibration points: the calibrated coefficients need vibration")
+    if design.n_points <= n_pos + len(CALIBRATED):
+        raise GapInputError(
+            f"too few points to fit: {design.n_points} points cannot fit {n_pos} static levels and "
+            f"{len(CALIBRATED)} calibrated coefficients ({', '.join(CALIBRATED)})"
+        )
+
+
+def _channels(design: PointDesign, twin: TwinConfig, tn: TimingNoise) -> Channels:
+    """Observations whitened by the scatter of the twin refitted (window-length weights first, then timing)."""
+    weights = rate_weights(design, twin)
+    try:
+        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s), twin)
+    except FitError as exc:
+        raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
+    rss = float(np.sum(weights * probe.lin.residuals**2))
+    floor = 1e-12 * float(np.max(np.abs(design.rate_radps)))
+    sigma_w = max(math.sqrt(rss / probe.lin.dof), floor, 1e-300)
+    # The timing term of the weights needs sigma0: the probe's is close enough (it is a small term).
+    return Channels(design, twin, rate_weights(design, twin, tn.sigma_tau_s, sigma_w), sigma_w, tn.sigma_tau_s)
+
+
+def _noise_check(fit: ModelFit, pe: PureError | None, twin: TwinConfig) -> NoiseCheck:
+    """Residual scatter of a fit against an independent reference (repeats, else the twin's noise model)."""
+    if pe is not None and pe.dof >= 3 and fit.dof_rate > pe.dof:
+        return NoiseCheck("pure error of repeats", pe.sigma0_radps, lack_of_fit_pvalue(fit.rss_rate, fit.dof_rate, pe))
+    if twin.noise.rate_noise_radps > 0:
+        p = excess_scatter_pvalue(fit.sigma0_hat_radps, fit.dof_rate, twin.noise.rate_noise_radps)
+        return NoiseCheck("twin noise model", twin.noise.rate_noise_radps, p)
+    return NoiseCheck("none", None, None)
+
+
+def _coefficients(fit: ModelFit) -> dict:
+    return {c: {"value": float(v), "sigma": float(s)} for c, v, s in zip(CALIBRATED, fit.K, fit.K_sigmas, strict=True)}
+
+
+def _with_coefficients(cfg: TwinConfig, fit: ModelFit) -> TwinConfig:
+    return replace(cfg, instrument=replace(cfg.instrument, **dict(zip(CALIBRATED, map(float, fit.K), strict=True))))
+
+
+def _candidate_table(
+    selection: Selection,
+    ident: IdentifiabilityReport,
+    shrinks: dict[str, tuple[float, float | None]],
+    twin: TwinConfig,
+) -> list[dict]:
+    """Every candidate: the chosen effects first, then the identifiable ones by BIC, then the rest.
+
+    Only identifiable candidates are ranked ("rank", by BIC; "heldout_rank", by the held-out gap
+    with the candidate alone): the others are reported with their fits but not ranked.
+    """
+    first = {s.name: s for s in selection.steps[0]} if selection.steps else {}
+    chosen = {s.name: s for s in selection.chosen}
+    order = list(chosen) + [n for n in first if n not in chosen and ident.candidates[n].identifiable]
+    order += [n for n in first if n not in order] + [n for n in ident.candidates if n not in order and n not in first]
+    ranked = [n for n in shrinks if ident.candidates[n].identifiable]
+    by_heldout = sorted(ranked, key=lambda n: np.nan_to_num(shrinks[n][0], nan=np.inf))
+    rank = 0
+    table = []
+    for name in order:
+        cid, cand = ident.candidates[name], cl.LIBRARY[name]
+        s: Scored | None = chosen.get(name) or first.get(name)
+        entry: dict = {
+            "name": name,
+            "cause": cand.cause,
+            "identifiable": cid.identifiable,
+            "identifiability": {
+                "reason": cid.reason,
+                "fitted_parameters": cid.kept,
+                "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with],
+            },
+            "fixed_parameters": cl.fixed_params(cand, twin),
+            "notes": cand.notes,
+            "accepted": name in chosen,
+            "rank": None,
+            "parameters": {},
+            "uncertainty": {},
+            "units": {fp.param: fp.unit for fp in cand.free},
+            "evidence": None,
+            "heldout_shrink": None,
+        }
+        if s is not None:
+            if cid.identifiable:
+                rank += 1
+                entry["rank"] = rank
+            # A chosen effect's parameters come from the final joint fit.
+            fit = selection.final if name in chosen else s.fit
+            entry["parameters"], entry["uncertainty"] = fit.effect_parameters(name)
+            G, entry["heldout_shrink"] = shrinks.get(name, (math.nan, None))
+            entry["evidence"] = {
+                "delta_bic": s.dbic,
+                "F_rate": s.F,
+                "p_value": s.p_value,
+                "delta_rss_in_sigma2": s.drss_sigma2,
+                "delta_chi2_timing": s.dchi2_tau,
+                "heldout_gap_with_it": G,
+                "heldout_rank": by_heldout.index(name) + 1 if name in by_heldout else None,
+                "rivals_within_delta_bic": s.rivals,
+                "fit_converged": s.fit.converged,
+            }
+        table.append(entry)
+    return table
+
+
+def _noise_json(
+    twin: TwinConfig,
+    honest: HonestNoise,
+    base: ModelFit,
+    final: ModelFit,
+    pe: PureError | None,
+    checks: tuple[NoiseCheck, NoiseCheck],
+    tn: TimingNoise,
+    design: PointDesign,
+) -> dict:
+    return {
+        "model": "var(wbar_i) = sigma0^2 T_ref / Tm_i (white rate noise over the window) "
+        "+ (|wbar_i| sigma_tau / Tm_i)^2 (the two time stamps of Tm)",
+        "T_ref_s": twin.noise.rate_noise_ref_s,
+        "sigma0_radps": honest.sigma0_radps,
+        "sigma0_dof": honest.dof,
+        "source": honest.source,
+        "sigma0_twin_fit_radps": base.sigma0_hat_radps,
+        "sigma0_final_fit_radps": final.sigma0_hat_radps,
+        "pure_error": None if pe is None else {"sigma0_radps": pe.sigma0_radps, "dof": pe.dof, "groups": pe.groups},
+        "twin_nominal_sigma0_radps": twin.noise.rate_noise_radps,
+        "excess_scatter_before": vars(checks[0]),
+        "excess_scatter_after": vars(checks[1]),
+        "timing": {
+            "sigma_tau_s": tn.sigma_tau_s,
+            "dof": tn.dof,
+            "floor_s": tn.floor_s,
+            "eps_f_from_period_identities": tn.eps_f_hat,
+            "max_rate_sd_from_timing_radps": float(np.max(timing_rate_sd_radps(design, tn.sigma_tau_s))),
+        },
+    }
+
+
+def diagnose(
+    session: Session,
+    twin: TwinConfig,
+    *,
+    exclude: Sequence[str] = (),
+    max_effects: int = MAX_EFFECTS,
+    suggest: bool = True,
+) -> GapReport:
+    """Diagnose the gap between a recorded session and the twin (issue 3). Raises GapInputError on bad input.
+
+    exclude: effects left out of the candidate library; suggest=False skips the
+    search for separating test points (the slowest part of the identifiability check).
+    """
+    t_start = time.perf_counter()
+    check_geometry(session, twin)
+    design = PointDesign.from_session(session)
+    _check_fittable(design)
+    tn = timing_noise(design, twin)
+    ch = _channels(design, twin, tn)
+    lin = Linearisation(ch, cl.library(exclude=exclude))
+    base = fit_model(lin, [])
+    dof0 = base.dof_rate
+    ident = assess(lin, suggest=suggest and dof0 >= MIN_DOF, has_raw=bool(session.raw))
+    if dof0 >= MIN_DOF:
+        selection = forward_select(lin, base, ident.fittable(), ident.dropped, max_effects)
+    else:
+        selection = Selection([], [], base)
+    final = selection.final
+
+    # Localise: structure tests, then the honest noise, standardised residuals and maps.
+    dets_before = detectors(ch, base)
+    dets_after = detectors(ch, final)
+    pe = pure_error(design, final.rate_resid_radps, ch.weights)
+    structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None]
+    honest = honest_noise(pe, final.r_white, ch.n_rate, final.dof_rate, ch.sigma0_radps, structure)
+    kappa = honest.sigma0_radps / ch.sigma0_radps
+    ident.noise_ratio = 1.0 / kappa
+
+    # Shrink: the held-out gap of the twin, of each candidate alone, and of the chosen model.
+    folds = Folds.of(design)
+
+    def ho(fit: ModelFit) -> HeldOut:
+        return heldout(fit.J, fit.r_white, design, folds, kappa, honest.sigma0_radps, tn.sigma_tau_s)
+
+    h_base = ho(base)
+    h_final = ho(final) if selection.chosen else h_base
+    shrinks = {}
+    for s in selection.steps[0] if selection.steps else []:
+        h = ho(s.fit)
+        shrinks[s.name] = (h.G, shrink(h_base, h))
+    checks = (_noise_check(base, pe, twin), _noise_check(final, pe, twin))
+    verdict = decide(dof0, selection, ident, dets_before, dets_after, *checks, shrink(h_base, h_final))
+
+    z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s
+    z_after, tau_z_after = z_before, tau_z_before  # the same arrays when no effect was added
+    if selection.chosen:
+        z_after, tau_z_after = standardised(final, ch, kappa), final.tau_resid_s / tn.sigma_tau_s
+    raw = raw_evidence(session, design, _with_coefficients(twin, base), tn.sigma_tau_s / math.sqrt(2.0))
+    maps_before = maps(design, z_before, tau_z_before)
+    maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
+    where = {
+        "summary": where_text(maps_before, dets_before, ALPHA) + (f" {raw_summary_text(raw)}." if raw else ""),
+        "after_effects": where_text(maps_after, dets_after, ALPHA) if maps_after else None,
+        "maps": maps_before,
+        "maps_after_effects": maps_after,
+        "structure_tests_before": [d.to_json() for d in dets_before],
+        "structure_tests_after": [d.to_json() for d in dets_after],
+        "raw_streams": raw or None,
+    }
+    info = {
+        "n_points": design.n_points,
+        "n_vibration": int(design.vib.sum()),
+        "positions_deg": design.positions_deg,
+        "frequencies_hz": np.unique(design.freq_hz[design.vib]),
+        "raw_streams": len(session.raw),
+        "residual_dof": dof0,
+        "excluded_from_library": list(exclude),
+    }
+    return GapReport(
+        verdict=verdict,
+        candidates=_candidate_table(selection, ident, shrinks, twin),
+        gap_before=h_base,
+        gap_after=h_final,
+        where=where,
+        identifiability=ident,
+        noise=_noise_json(twin, honest, base, final, pe, checks, tn, design),
+        coefficients={"twin_refit": _coefficients(base), "with_effects": _coefficients(final)},
+        twin_out=final.cfg if verdict.verdict == "explained" else twin,
+        session_info=info,
+        settings={
+            "alpha": ALPHA,
+            "ambiguous_delta_bic": AMBIGUOUS_DBIC,
+            "max_effects": max_effects,
+            "min_dof": MIN_DOF,
+            "min_shrink": MIN_SHRINK,
+            "suggest_separating_points": suggest,
+        },
+        elapsed_s=time.perf_counter() - t_start,
+        design=design,
+        z_before=z_before,
+        z_after=z_after,
+        tau_z_before=tau_z_before,
+        tau_z_after=tau_z_after,
+        raw=raw,
+    )
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="station gap", description="Sim-to-real gap diagnosis of a recorded session.")
+    p.add_argument("session", metavar="SESSION_DIR", help="a piga-session/1 directory (or a session UID with --db)")
+    p.add_argument("--db", metavar="STORE", help="read session UID from this SQLite store instead of a directory")
+    p.add_argument("--twin", help="twin configuration TOML to compare with (default: the embedded default twin)")
+    p.add_argument("--json", required=True, metavar="OUT.json", help="write the diagnosis here")
+    p.add_argument("--html", metavar="OUT.html", help="also write a self-contained HTML report")
+    p.add_argument("--twin-out", metavar="OUT.toml", help="write the twin with the chosen effect(s) switched on")
+    p.add_argument(
+        "--exclude",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="leave an effect out of the candidate library (repeatable)",
+    )
+    p.add_argument("--max-effects", type=int, default=MAX_EFFECTS)
+    p.add_argument("--no-suggest", action="store_true", help="skip the search for separating test points")
+    return p
+
+
+def load_session(path_or_uid: str, db: str | None = None) -> Session:
+    """A piga-session/1 directory, or session `path_or_uid` of the SQLite store `db`."""
+    if db:
+        from station.store import SessionStore
+
+        if not Path(db).is_file():
+            raise FileNotFoundError(f"no store {db}")
+        with SessionStore(db) as store:
+            return store.load_session(path_or_uid)
+    from station.interchange import read_session
+
+    return read_session(path_or_uid)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`station gap`: 0 on success (whatever the verdict), 2 on bad input."""
+    args = build_parser().parse_args(argv)
+    from station.interchange import SessionFormatError
+    from station.store import StoreError
+
+    try:
+        twin = TwinConfig.from_toml(args.twin) if args.twin else default_twin()
+        session = load_session(args.session, args.db)
+        report = diagnose(
+            session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
+        )
+    except (GapInputError, SessionFormatError, TwinConfigError, StoreError, ValueError, FileNotFoundError) as exc:
+        print(f"station gap: error: {exc}", file=sys.stderr)
+        return 2
+    Path(args.json).write_text(json.dumps(report.to_json(), indent=2, allow_nan=False))
+    if args.html:
+        from gap.report_html import render
+
+        Path(args.html).write_text(render(report))
+    if args.twin_out:
+        Path(args.twin_out).write_text(report.twin_out.to_toml())
+    print(f"verdict: {report.verdict.verdict}: {report.verdict.text}")
+    print(
+        f"gap before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g} (held-out mean z^2 - 1); "
+        f"{report.elapsed_s:.1f} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,103 @@
+"""A recorded session as arrays, checked against the twin it is compared with.
+
+Bad input is refused with a clear message (issue 3, point 8): here a session
+from another station geometry, an empty one, or vibration points without
+timing capture; too few points for the calibrated coefficients in
+gap.api.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.config import TwinConfig
+from station.session import Session
+
+# Relative tolerance on the station geometry of session.json against the twin's.
+GEOMETRY_RTOL = 1e-6
+
+
+class GapInputError(ValueError):
+    """The session cannot be compared with this twin (geometry, content or size)."""
+
+
+@dataclass(frozen=True)
+class PointDesign:
+    """Columns of a session's points; theta in rad, times in s, rates in rad/s."""
+
+    point_ids: tuple[str, ...]
+    theta_rad: np.ndarray
+    position_deg: np.ndarray
+    freq_hz: np.ndarray  # commanded, 0 for static
+    vib: np.ndarray
+    Tm_s: np.ndarray
+    t1_s: np.ndarray
+    t2_s: np.ndarray
+    Np: np.ndarray
+    start_s: np.ndarray
+    sequence: np.ndarray
+    rate_radps: np.ndarray
+    pos_index: np.ndarray
+    positions_deg: np.ndarray  # unique positions, pos_index indexes into it
+
+    @property
+    def n_points(self) -> int:
+        return int(self.theta_rad.size)
+
+    @property
+    def position_rad(self) -> np.ndarray:
+        return np.radians(self.positions_deg)
+
+    @property
+    def tau_s(self) -> np.ndarray:
+        """Recorded period identity t2 - t1 + Tm - Np T_cmd (0 for static points)."""
+        tau = np.zeros(self.n_points)
+        v = self.vib
+        tau[v] = self.t2_s[v] - self.t1_s[v] + self.Tm_s[v] - self.Np[v] / self.freq_hz[v]
+        return tau
+
+    @classmethod
+    def from_session(cls, session: Session) -> PointDesign:
+        pts = session.points
+        if not pts:
+            raise GapInputError("the session has no points")
+        bad = [p.point_id for p in pts if p.kind == "vibration" and (p.t1_s is None or p.t2_s is None or p.Np is None)]
+        if bad:
+            raise GapInputError(f"vibration point(s) without timing capture (t1, t2, Np): {', '.join(bad[:5])}")
+        pos_deg = np.array([p.position_deg for p in pts], dtype=float)
+        uniq, index = np.unique(np.round(pos_deg, 9), return_inverse=True)
+        return cls(
+            point_ids=tuple(p.point_id for p in pts),
+            theta_rad=np.radians(pos_deg),
+            position_deg=pos_deg,
+            freq_hz=np.array([p.freq_hz for p in pts], dtype=float),
+            vib=np.array([p.kind == "vibration" for p in pts]),
+            Tm_s=np.array([p.Tm_s for p in pts], dtype=float),
+            t1_s=np.array([np.nan if p.t1_s is None else p.t1_s for p in pts], dtype=float),
+            t2_s=np.array([np.nan if p.t2_s is None else p.t2_s for p in pts], dtype=float),
+            Np=np.array([0 if p.Np is None else p.Np for p in pts], dtype=np.int64),
+            start_s=np.array([p.start_s for p in pts], dtype=float),
+            sequence=np.array([p.sequence for p in pts], dtype=np.int64),
+            rate_radps=session.rates_radps(),
+            pos_index=index,
+            positions_deg=uniq,
+        )
+
+
+def check_geometry(session: Session, cfg: TwinConfig) -> None:
+    """Refuse a session recorded on a station whose geometry differs from the twin's."""
+    s, t = session.station, cfg.station
+    diffs = []
+    for key in ("A0_m", "latitude_deg", "g_mps2", "earth_rate_radps", "pulses_per_rev"):
+        a, b = float(getattr(s, key)), float(getattr(t, key))
+        if not math.isclose(a, b, rel_tol=GEOMETRY_RTOL, abs_tol=0.0):
+            diffs.append(f"{key} = {a:g} in the session but {b:g} in the twin")
+    if diffs:
+        raise GapInputError(
+            "the session comes from another station geometry: "
+            + "; ".join(diffs)
+            + ". Compare it with a twin configured for that station (--twin)."
+        )

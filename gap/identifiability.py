@@ -1,0 +1,417 @@
+"""Identifiability of each candidate in the session's design, before any ranking.
+
+For every candidate parameter, its whitened column J_p (gap.fit.Linearisation)
+is projected onto the orthogonal complement of the calibrated terms' columns
+(static levels and kz, kzz, ky, k3): r_p = P_perp J_p. Then
+- rho = |r_p| / |J_p'| is the fraction of its signature that the calibrated
+  coefficients do not absorb (J_p' = J_p without its per-position constant,
+  which the static levels always absorb); rho < ABSORBED_RHO: "absorbed" (the
+  parameter is not fitted, it stays at the twin's value);
+- |r_p| * scale is the signal-to-noise ratio after projection of an effect of
+  typical size, and DETECT_SIGMA / |r_p| the smallest value detectable;
+- within a candidate, parameters are kept by pivoted QR of their projected
+  columns; one that keeps < ABSORBED_RHO of its norm after its siblings is
+  "degenerate" (not separable from them);
+- between candidates, the largest canonical correlation of the projected
+  column spaces (cosine of the smallest principal angle); >= COLLINEAR_COS:
+  "collinear", and the candidates joined by collinearity form a group that
+  this design cannot tell apart.
+For each parameter that is absorbed, degenerate or collinear, extra test
+points are tried (other frequencies, extra positions, a second crank
+amplitude, short low-frequency windows) by appending noise-free points of
+the twin to the design and recomputing the same numbers; raw streams are
+judged from what the grating and pulse records measure directly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.linalg
+
+from gap import candidates as cl
+from gap.design import PointDesign
+from gap.fit import Channels, Linearisation, linear_design, model_columns
+from gap.forward import predict
+from gap.noise import rate_weights
+from models.config import NoiseModel, TwinConfig
+from models.measurement import PointSpec, simulate_point
+from models.plan import preset_pulses
+from models.precession import WindowNeverClosesError
+from models.session_sim import station_info
+from station.session import Session
+
+ABSORBED_RHO = 0.01
+# Below it, at a signal 10 times the noise, the part of one candidate that another cannot mimic
+# is at least 10 sqrt(1 - 0.9^2) = 4.4 sigma: enough to rank them against the noise and against
+# the information criterion's penalty on a candidate with more parameters.
+COLLINEAR_COS = 0.9
+DETECT_SIGMA = 3.0
+
+# What a raw stream measures directly (physics.md, piga-session/1 raw/<point_id>.npz).
+RAW_MEASURES = {
+    "waveform_fundamental.z0": "the grating measures Zs1 at each frequency directly",
+    "waveform_fundamental.z1": "the grating measures Zs1 at each frequency directly",
+    "waveform_fundamental.Zc1": "the grating measures the fundamental's phase, but only relative to the "
+    "reference mark, so it cannot tell Zc1 from read-head latency either",
+    "waveform_harmonics.Zs2": "the grating measures the harmonics directly",
+    "waveform_harmonics.Zc2": "the grating measures the harmonics directly",
+    "waveform_harmonics.Zs3": "the grating measures the harmonics directly",
+    "waveform_harmonics.Zc3": "the grating measures the harmonics directly",
+    "frequency_error.eps_f": "the grating and reference marks give the true frequency directly",
+    "readhead_latency.delta": "grating and reference marks see latency as a phase, like Zc1; "
+    "a second reference (or frequencies far apart) separates them",
+}
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class SeparatingTest:
+    """Extra test points tried for one parameter, and what they would change."""
+
+    test: str
+    points_added: int
+    rho: float
+    cos: float | None  # with the collinear partners' columns, None without partners
+    snr_white: float  # at typical magnitude, in units of the whitening sigma
+    separates: bool
+
+    def to_json(self, noise_ratio: float) -> dict:
+        return {
+            "test": self.test,
+            "points_added": self.points_added,
+            "fraction_not_absorbed": round(self.rho, 6),
+            "cos_with_collinear_partners": None if self.cos is None else round(self.cos, 4),
+            "snr_after_projection_at_typical_magnitude": self.snr_white * noise_ratio,
+            "separates": self.separates,
+        }
+
+
+@dataclass
+class ParamId:
+    key: str
+    unit: str
+    scale: float
+    rho: float  # fraction not absorbed by the calibrated terms
+    projected_norm: float  # |P_perp J_p| per unit of the parameter, whitening sigma
+    status: str  # identifiable | weak | absorbed | degenerate | no_signature
+    collinear_with: list[tuple[str, float]] = field(default_factory=list)
+    separating: list[SeparatingTest] = field(default_factory=list)
+    raw_stream: str | None = None  # what a raw stream would say about it
+
+    def snr_at_scale(self, noise_ratio: float) -> float:
+        return self.projected_norm * self.scale * noise_ratio
+
+    def to_json(self, noise_ratio: float) -> dict:
+        pr = self.projected_norm * noise_ratio
+        return {
+            "parameter": self.key,
+            "unit": self.unit,
+            "typical_magnitude": self.scale,
+            "fraction_not_absorbed": _finite(self.rho),
+            "snr_after_projection_at_typical_magnitude": _finite(self.snr_at_scale(noise_ratio)),
+            "min_detectable_3sigma": _finite(DETECT_SIGMA / pr) if pr > 0 else None,
+            "status": self.status,
+            "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in self.collinear_with],
+            "separating_test_points": [s.to_json(noise_ratio) for s in self.separating],
+            "raw_stream": self.raw_stream,
+        }
+
+
+@dataclass
+class CandidateId:
+    name: str
+    params: list[ParamId]
+    kept: list[str]  # parameter keys that are fitted
+    collinear_with: list[tuple[str, float]] = field(default_factory=list)
+
+    @property
+    def identifiable(self) -> bool:
+        return bool(self.kept) and not self.collinear_with
+
+    @property
+    def reason(self) -> str:
+        if not self.kept:
+            return "every parameter is absorbed by the calibrated coefficients or leaves no signature"
+        if self.collinear_with:
+            return "nearly collinear with " + ", ".join(f"{n} (cos {c:.3f})" for n, c in self.collinear_with)
+        weak = [p.key for p in self.params if p.status == "weak"]
+        absorbed = [p.key for p in self.params if p.key not in self.kept]
+        text = "identifiable"
+        if absorbed:
+            text += f"; not fitted (absorbed or degenerate): {', '.join(absorbed)}"
+        if weak:
+            text += f"; an effect of typical size is below the noise for {', '.join(weak)}"
+        return text
+
+    def to_json(self, noise_ratio: float) -> dict:
+        return {
+            "name": self.name,
+            "identifiable": self.identifiable,
+            "reason": self.reason,
+            "fitted_parameters": self.kept,
+            "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in self.collinear_with],
+            "parameters": [p.to_json(noise_ratio) for p in self.params],
+        }
+
+
+@dataclass
+class IdentifiabilityReport:
+    candidates: dict[str, CandidateId]
+    noise_ratio: float = 1.0  # whitening sigma / honest sigma: scales every SNR figure
+
+    @property
+    def dropped(self) -> frozenset[str]:
+        """Parameter keys that stay at the twin's value (absorbed, degenerate or without signature)."""
+        kept = {k for c in self.candidates.values() for k in c.kept}
+        return frozenset(p.key for c in self.candidates.values() for p in c.params if p.key not in kept)
+
+    def fittable(self) -> list[str]:
+        return [n for n, c in self.candidates.items() if c.kept]
+
+    def group(self, name: str) -> list[str]:
+        """`name` and every candidate joined to it by collinearity (the set this design cannot tell apart)."""
+        seen, todo = [name], [name]
+        while todo:
+            for other, _ in self.candidates[todo.pop()].collinear_with:
+                if other not in seen:
+                    seen.append(other)
+                    todo.append(other)
+        return seen
+
+    def separating_tests(self, names: Sequence[str]) -> list[str]:
+        """Tests that separate every collinear parameter of these candidates (tried by `suggest`)."""
+        flagged = [p for n in names for p in self.candidates[n].params if p.collinear_with and p.separating]
+        if not flagged:
+            return []
+        ok = [{s.test for s in p.separating if s.separates} for p in flagged]
+        return [s.test for s in flagged[0].separating if all(s.test in o for o in ok)]
+
+    def to_json(self) -> dict:
+        return {
+            "method": "columns of each parameter projected off the calibrated terms (static levels, kz, kzz, "
+            f"ky, k3); absorbed if the fraction kept < {ABSORBED_RHO}; collinear if the cosine of the smallest "
+            f"principal angle between two candidates' projected columns >= {COLLINEAR_COS}",
+            "candidates": [c.to_json(self.noise_ratio) for c in self.candidates.values()],
+        }
+
+
+def subspace(cols: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the columns' span."""
+    if cols.shape[1] == 0:
+        return cols
+    U, s, _ = np.linalg.svd(cols, full_matrices=False)
+    return U[:, s > 1e-9 * s.max()] if s.max() > 0 else U[:, :0]
+
+
+def principal_cos(A: np.ndarray, B: np.ndarray) -> float:
+    """Cosine of the smallest principal angle between two orthonormal bases."""
+    if A.shape[1] == 0 or B.shape[1] == 0:
+        return 0.0
+    return float(np.linalg.svd(A.T @ B, compute_uv=False).max())
+
+
+def _param_status(lin: Linearisation, fp: cl.FreeParam, projected: np.ndarray) -> ParamId:
+    raw = float(np.linalg.norm(lin.project_levels(lin.columns[fp.key][:, None])))
+    pr = float(np.linalg.norm(projected))
+    rho = pr / raw if raw > 0 else math.nan
+    status = "no_signature" if raw == 0 else ("absorbed" if rho < ABSORBED_RHO else "identifiable")
+    if status == "identifiable" and pr * fp.scale < 1.0:
+        status = "weak"
+    return ParamId(fp.key, fp.unit, fp.scale, rho, pr, status)
+
+
+def _kept(params: list[ParamId], proj: dict[str, np.ndarray]) -> list[str]:
+    """Parameters kept by pivoted QR of their unit-norm projected columns; the others are degenerate."""
+    live = [p for p in params if p.status in ("identifiable", "weak")]
+    if not live:
+        return []
+    M = np.column_stack([proj[p.key] / np.linalg.norm(proj[p.key]) for p in live])
+    _, R, piv = scipy.linalg.qr(M, mode="economic", pivoting=True)
+    keep = set()
+    for d, j in zip(np.abs(np.diag(R)), piv, strict=False):
+        if d < ABSORBED_RHO:
+            live[j].status = "degenerate"
+        else:
+            keep.add(live[j].key)
+    return [p.key for p in params if p.key in keep]  # table order
+
+
+def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> IdentifiabilityReport:
+    """Absorbed / degenerate / collinear status of every candidate and parameter of the library."""
+    proj = {k: lin.project(c[:, None])[:, 0] for k, c in lin.columns.items()}
+    out: dict[str, CandidateId] = {}
+    spaces: dict[str, np.ndarray] = {}
+    for name, cand in lin.cands.items():
+        params = [_param_status(lin, fp, proj[fp.key]) for fp in cand.free]
+        kept = _kept(params, proj)
+        spaces[name] = subspace(np.column_stack([proj[k] for k in kept])) if kept else np.zeros((lin.n_rows, 0))
+        out[name] = CandidateId(name, params, kept)
+    for name, cid in out.items():
+        cos = [(other, principal_cos(spaces[name], spaces[other])) for other in out if other != name]
+        cid.collinear_with = sorted([(n, c) for n, c in cos if c >= COLLINEAR_COS], key=lambda x: -x[1])
+        for p in cid.params:
+            if p.key in cid.kept:
+                v = proj[p.key] / np.linalg.norm(proj[p.key])
+                near = [(n, float(np.linalg.norm(spaces[n].T @ v))) for n, _ in cid.collinear_with]
+                p.collinear_with = sorted([(n, c) for n, c in near if c >= COLLINEAR_COS], key=lambda x: -x[1])
+            if p.key in RAW_MEASURES and (p.status in ("absorbed", "degenerate", "weak") or p.collinear_with):
+                p.raw_stream = ("recorded in this session (see where.raw_streams): " if has_raw else "") + RAW_MEASURES[
+                    p.key
+                ]
+    report = IdentifiabilityReport(out)
+    if suggest:
+        _suggest(lin, report)
+    return report
+
+
+# ----------------------------------------------------------------------------- separating test points
+
+
+@dataclass(frozen=True)
+class _Option:
+    label: str
+    specs: tuple[PointSpec, ...]
+    A0_factor: float = 1.0
+
+
+def _options(design: PointDesign, pulses_per_rev: int) -> list[_Option]:
+    """Extra test points to try: each is a set of points added to the recorded design."""
+    pos = [float(p) for p in design.positions_deg]
+    freqs = sorted({float(f) for f in design.freq_hz[design.vib]})
+    preset = {p: _preset_for(design, p) for p in pos}
+    opts: list[_Option] = []
+    new_freqs = [f for f in (2.0, 4.0, 6.0) if all(abs(f - g) > 0.5 for g in freqs)]
+    for f in new_freqs:
+        opts.append(_Option(f"add {f:g} Hz at every position", tuple(PointSpec(p, f, preset[p]) for p in pos)))
+    if new_freqs:
+        opts.append(
+            _Option(
+                f"add {new_freqs[0]:g} Hz with short windows (1 precession revolution) at every position",
+                tuple(PointSpec(p, new_freqs[0], pulses_per_rev) for p in pos),
+            )
+        )
+    if len(pos) >= 2:
+        step = float(np.min(np.diff(sorted(pos))))
+        # Positions near 90 and 270 deg cost hours (physics.md): left out.
+        new = [p + step / 2 for p in pos if abs(math.cos(math.radians(p + step / 2))) > 0.2]
+        specs = []
+        for p in new:
+            pp = _preset_for(design, p)
+            specs += [PointSpec(p, f, pp) for f in freqs] + [PointSpec(p, 0.0, pp)]
+        opts.append(_Option(f"add {len(new)} positions half-way between the recorded ones", tuple(specs)))
+    if freqs:
+        opts.append(
+            _Option(
+                "repeat the vibration points with a second crank amplitude A0/2",
+                tuple(PointSpec(p, f, preset[p]) for p in pos for f in freqs),
+                A0_factor=0.5,
+            )
+        )
+    return opts
+
+
+def _preset_for(design: PointDesign, position_deg: float) -> int:
+    """Preset count for about the session's median window at this position (seed 000 5.1.4)."""
+    cos = np.abs(np.cos(design.theta_rad))
+    ok = cos > 0.3
+    gain = float(np.median(np.abs(design.rate_radps[ok]) / cos[ok])) if ok.any() else 0.56
+    return preset_pulses(position_deg, float(np.median(design.Tm_s)), kz_nominal=gain, k0_nominal=0.0)
+
+
+def _hypothetical(design: PointDesign, twin: TwinConfig, specs: Sequence[PointSpec], seed: int = 7) -> PointDesign:
+    """Records the twin would give for `specs` (noise-free), as a design."""
+    quiet = replace(
+        twin, noise=NoiseModel(rate_noise_ref_s=twin.noise.rate_noise_ref_s, timer_tick_s=twin.noise.timer_tick_s)
+    )
+    rng = np.random.default_rng(seed)
+    t0 = float(design.start_s.max() + design.Tm_s.max()) + 60.0
+    recs = []
+    for i, spec in enumerate(specs):
+        sp = simulate_point(spec, quiet, rng, start_s=t0, point_id=f"X{i}", sequence=10_000 + i)
+        recs.append(sp.record)
+        t0 += sp.true_Tm_s + 60.0
+    return PointDesign.from_session(Session(station_info(twin), recs))
+
+
+def _columns_for(design: PointDesign, twin: TwinConfig, lin: Linearisation, keys: Sequence[str]):
+    """Whitened linear design and parameter columns of a (hypothetical) design under `twin`."""
+    ch = Channels(design, twin, rate_weights(design, twin), lin.ch.sigma0_radps, lin.ch.sigma_tau_s)
+    base = cl.apply(twin, [], [], lin.fixed)
+    fps = [lin.param(k) for k in keys]
+
+    def cfg_of(j: int, h: float) -> TwinConfig:
+        fp = fps[j]
+        return cl.apply(base, [fp], [lin.p0[fp.key] + h], {})
+
+    cols = model_columns(ch, lin.state.lin.values, cfg_of, [fp.fd_step for fp in fps])
+    return linear_design(ch, predict(design, base)), cols
+
+
+def _unit_norm(M: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(M, axis=0)
+    return M / np.where(n > 0, n, 1.0)
+
+
+def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
+    """Try each option for every absorbed, degenerate or collinear parameter."""
+    flagged: dict[str, list[str]] = {}
+    pids = {p.key: p for c in report.candidates.values() for p in c.params}
+    for cid in report.candidates.values():
+        for p in cid.params:
+            partners = [n for n, _ in p.collinear_with]
+            if p.status in ("absorbed", "degenerate") or partners:
+                flagged[p.key] = [k for n in partners for k in report.candidates[n].kept]
+    if not flagged:
+        return
+    d, twin = lin.ch.design, lin.ch.twin
+    keys = sorted({k for key, partners in flagged.items() for k in [key, *partners]})
+    col = {k: j for j, k in enumerate(keys)}
+    C0 = np.column_stack([lin.columns[k] for k in keys])
+    for opt in _options(d, twin.station.pulses_per_rev):
+        tw = twin
+        if opt.A0_factor != 1.0:
+            tw = replace(twin, station=replace(twin.station, A0_m=twin.station.A0_m * opt.A0_factor))
+        try:
+            hd = _hypothetical(d, tw, opt.specs)
+        except WindowNeverClosesError:  # an option the twin cannot run (a rate too small to close a window)
+            continue
+        Xh, Ch = _columns_for(hd, tw, lin, keys)
+        X, n_levels = _stack_levels(lin.state.X_white, d.positions_deg, Xh, hd.positions_deg)
+        C = np.vstack([C0, Ch])
+        Q, _ = np.linalg.qr(_unit_norm(X))
+        P = C - Q @ (Q.T @ C)
+        QL, _ = np.linalg.qr(_unit_norm(X[:, :n_levels]))
+        CL = C - QL @ (QL.T @ C)
+        for key, partners in flagged.items():
+            raw, pr = float(np.linalg.norm(CL[:, col[key]])), float(np.linalg.norm(P[:, col[key]]))
+            rho = pr / raw if raw > 0 else 0.0
+            cos = None
+            if partners:
+                B = subspace(P[:, [col[k] for k in partners]])
+                cos = float(np.linalg.norm(B.T @ (P[:, col[key]] / max(pr, 1e-300))))
+            ok = rho >= ABSORBED_RHO and (cos is None or cos < COLLINEAR_COS)
+            pid = pids[key]
+            pid.separating.append(SeparatingTest(opt.label, len(opt.specs), rho, cos, pr * pid.scale, ok))
+
+
+def _stack_levels(X0: np.ndarray, pos0: np.ndarray, Xh: np.ndarray, pos_h: np.ndarray) -> tuple[np.ndarray, int]:
+    """Join two whitened linear designs (levels, then K), sharing the static level of common positions."""
+    allpos = list(np.round(pos0, 9))
+    allpos += [p for p in np.round(pos_h, 9) if p not in allpos]
+    n0, nh, n_all = pos0.size, pos_h.size, len(allpos)
+    k = X0.shape[1] - n0
+    top = np.zeros((X0.shape[0], n_all + k))
+    top[:, :n0] = X0[:, :n0]
+    top[:, n_all:] = X0[:, n0:]
+    bot = np.zeros((Xh.shape[0], n_all + k))
+    for j, p in enumerate(np.round(pos_h, 9)):
+        bot[:, allpos.index(p)] = Xh[:, j]
+    bot[:, n_all:] = Xh[:, nh:]
+    return np.vstack([top, bot]), n_all

@@ -1,0 +1,259 @@
+"""Where the gap lies: standardised residuals, their maps, and tests for structure in them.
+
+Standardised residual of point i under a fitted model (whitened by the honest
+noise, gap.noise): z_i = e_i / (sigma_i sqrt(1 - h_ii)), h_ii the
+leverage of the joint fit. Maps: position x frequency, static vs vibration,
+run order (time blocks), and the period identity of the timing capture.
+
+Structure tests ("detectors"): a generic block of columns D is added to the
+fitted model and tested by F = (dRSS / r) / ((RSS - dRSS) / (dof - r)), r the
+rank of D after projecting off the model's columns. Blocks: one offset per
+frequency (vibration points); position harmonics a^2 {cos k theta, sin k theta},
+k = 1..4 (vibration points); a cubic trend in session time (every point); one
+offset per run-order block (vibration points); one point off by itself (the
+largest studentised deleted residual, Bonferroni over the points: seed 000's
+reliability test, eq. 28, made exact); and, for the period identities, a
+slope in Np T (a frequency error). They find structure that no library effect
+has to explain, and what is left after the chosen effects.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.polynomial import legendre
+from scipy import stats
+
+from gap.design import PointDesign
+from gap.fit import Channels, ModelFit
+from gap.heldout import BLOCKS
+
+
+@dataclass(frozen=True)
+class Detector:
+    name: str
+    F: float
+    dof: tuple[int, int]
+    p_value: float
+    what: str
+    # Orthonormal whitened columns of the block off the model (rate-channel blocks only).
+    basis: np.ndarray | None = field(default=None, repr=False, compare=False)
+    at: str = ""  # the point, for a test of one point
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} at {self.at}" if self.at else self.name
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name,
+            "F": _r(self.F),
+            "dof": list(self.dof),
+            "p_value": _r(self.p_value),
+            "tests": self.what,
+            "at": self.at or None,
+        }
+
+
+def _r(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def _blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
+    """Generic structure blocks (physical columns; whitened by the caller)."""
+    d = ch.design
+    n, n_tau = d.n_points, ch.n_tau
+    vib = d.vib.astype(float)
+    out: dict[str, tuple[np.ndarray, str]] = {}
+    freqs = np.unique(d.freq_hz[d.vib])
+    if freqs.size:
+        out["frequency_offsets"] = (
+            np.column_stack([vib * (d.freq_hz == f) for f in freqs]),
+            "one offset per vibration frequency",
+        )
+    a2 = np.zeros(n)
+    a2[d.vib] = (d.freq_hz[d.vib] / max(float(d.freq_hz.max()), 1e-9)) ** 4
+    cols = []
+    for k in range(1, 5):
+        cols += [a2 * np.cos(k * d.theta_rad), a2 * np.sin(k * d.theta_rad)]
+    out["position_harmonics"] = (np.column_stack(cols), "a^2 cos k theta, a^2 sin k theta, k = 1..4")
+    t = d.start_s + 0.5 * d.Tm_s
+    span = float(t.max() - t.min())
+    if span > 0:
+        x = 2.0 * (t - t.min()) / span - 1.0
+        out["time_trend"] = (
+            np.column_stack([legendre.legval(x, np.eye(4)[k]) for k in (1, 2, 3)]),
+            "cubic trend in session time",
+        )
+    vidx = np.flatnonzero(d.vib)
+    if vidx.size >= 2 * BLOCKS:
+        order = vidx[np.argsort(d.sequence[vidx], kind="stable")]
+        B = np.zeros((n, BLOCKS))
+        for j, blk in enumerate(np.array_split(order, BLOCKS)):
+            B[blk, j] = 1.0
+        out["run_order_blocks"] = (B, f"one offset per run-order block ({BLOCKS} blocks of vibration points)")
+    return {k: (np.vstack([v, np.zeros((n_tau, v.shape[1]))]), w) for k, (v, w) in out.items()}
+
+
+def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
+    """F-tests of generic structure left in the residuals of `fit`."""
+    d = ch.design
+    n = d.n_points
+    J = fit.J[:, np.linalg.norm(fit.J, axis=0) > 0]
+    Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
+    r = fit.r_white
+    rss_rate = float(r[:n] @ r[:n])
+    out = []
+    wr = np.concatenate([np.sqrt(ch.weights) / ch.sigma0_radps, np.zeros(ch.n_tau)])
+    for name, (D, what) in _blocks(ch).items():
+        Dw = D * wr[:, None]
+        Dp = Dw - Q @ (Q.T @ Dw)
+        U, s, _ = np.linalg.svd(Dp, full_matrices=False)
+        if not s.size or s.max() == 0:
+            continue
+        U = U[:, s > 1e-8 * s.max()]
+        k = U.shape[1]
+        dof2 = fit.dof_rate - k
+        if k == 0 or dof2 <= 0:
+            continue
+        drss = float(np.sum((U.T @ r) ** 2))
+        F = (drss / k) / max((rss_rate - drss) / dof2, 1e-300)
+        out.append(Detector(name, F, (k, dof2), float(stats.f.sf(F, k, dof2)), what, U))
+    if fit.dof_rate >= 2:
+        out.append(_single_point(d, Q, r, rss_rate, fit.dof_rate))
+    if ch.n_tau >= 3:
+        vib = d.vib
+        span = d.Np[vib] / d.freq_hz[vib]
+        e = fit.tau_resid_s
+        x = float(span @ e / (span @ span))
+        drss = x * x * float(span @ span)
+        rss = float(e @ e)
+        dof2 = ch.n_tau - 1
+        F = (drss / 1) / max((rss - drss) / dof2, 1e-300)
+        out.append(
+            Detector(
+                "period_identity_slope",
+                F,
+                (1, dof2),
+                float(stats.f.sf(F, 1, dof2)),
+                "slope of t2 - t1 + Tm - Np T against Np T (a frequency error)",
+            )
+        )
+    return out
+
+
+def _single_point(d: PointDesign, Q: np.ndarray, r: np.ndarray, rss_rate: float, dof: int) -> Detector:
+    """The point whose own offset lowers the RSS most: drss_i = r_i^2 / (1 - h_i) (r is off the model)."""
+    n = d.n_points
+    h = np.sum(Q[:n] ** 2, axis=1)
+    drss = r[:n] ** 2 / np.clip(1.0 - h, 1e-12, None)
+    i = int(np.argmax(drss))
+    F = float(drss[i]) / max((rss_rate - float(drss[i])) / (dof - 1), 1e-300)
+    p = min(1.0, n * float(stats.f.sf(F, 1, dof - 1)))
+    column = -Q @ Q[i]
+    column[i] += 1.0
+    basis = (column / np.linalg.norm(column))[:, None]
+    what = f"one point off by itself (the largest of {n} studentised residuals, Bonferroni)"
+    return Detector("single_point", F, (1, dof - 1), p, what, basis, d.point_ids[i])
+
+
+def significant(dets: list[Detector], alpha: float) -> list[Detector]:
+    """The structure tests significant at level alpha, Bonferroni over the family."""
+    return [d for d in dets if d.p_value < alpha / max(len(dets), 1)]
+
+
+def standardised(fit: ModelFit, ch: Channels, rate_sigma_ratio: float) -> np.ndarray:
+    """z_i = e_i / (sigma_i sqrt(1 - h_ii)) for every rate row (honest sigma)."""
+    n = ch.n_rate
+    J = fit.J[:, np.linalg.norm(fit.J, axis=0) > 0]
+    Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
+    h = np.sum(Q[:n] ** 2, axis=1)
+    return fit.r_white[:n] / rate_sigma_ratio / np.sqrt(np.clip(1.0 - h, 1e-6, None))
+
+
+def _group(z: np.ndarray, mask: np.ndarray) -> dict:
+    zz = z[mask]
+    if zz.size == 0:
+        return {"n": 0}
+    chi2 = float(np.sum(zz**2))
+    return {
+        "n": int(zz.size),
+        "mean_z": float(zz.mean()),
+        "rms_z": float(np.sqrt(np.mean(zz**2))),
+        "chi2": chi2,
+        "p_value": float(stats.chi2.sf(chi2, zz.size)),
+    }
+
+
+def maps(design: PointDesign, z: np.ndarray, tau_z: np.ndarray) -> dict:
+    """Group summaries of standardised residuals: position, frequency, kind, run order, timing."""
+    d = design
+    out: dict = {"by_position": [], "by_frequency": [], "by_kind": {}, "by_time_block": [], "grid": []}
+    for j, p in enumerate(d.positions_deg):
+        out["by_position"].append({"position_deg": float(p), **_group(z, d.pos_index == j)})
+    for f in np.unique(d.freq_hz):
+        label = "static" if f == 0 else float(f)
+        out["by_frequency"].append({"freq_hz": label, **_group(z, d.freq_hz == f)})
+    out["by_kind"] = {"static": _group(z, ~d.vib), "vibration": _group(z, d.vib)}
+    order = np.argsort(d.sequence, kind="stable")
+    for j, blk in enumerate(np.array_split(order, min(BLOCKS, max(1, d.n_points // 4)))):
+        m = np.zeros(d.n_points, dtype=bool)
+        m[blk] = True
+        out["by_time_block"].append(
+            {
+                "block": j,
+                "start_s": float(d.start_s[blk].min()),
+                "end_s": float((d.start_s + d.Tm_s)[blk].max()),
+                **_group(z, m),
+            }
+        )
+    for i in range(d.n_points):
+        out["grid"].append(
+            {
+                "point_id": d.point_ids[i],
+                "position_deg": float(d.position_deg[i]),
+                "freq_hz": float(d.freq_hz[i]),
+                "sequence": int(d.sequence[i]),
+                "z": float(z[i]),
+            }
+        )
+    if tau_z.size:
+        out["timing"] = {
+            "n": int(tau_z.size),
+            "rms_z": float(np.sqrt(np.mean(tau_z**2))),
+            "chi2": float(np.sum(tau_z**2)),
+            "p_value": float(stats.chi2.sf(np.sum(tau_z**2), tau_z.size)),
+        }
+    return out
+
+
+def where_text(m: dict, dets: list[Detector], alpha: float) -> str:
+    """Where the gap lies, in words and numbers."""
+    parts = []
+    k = m["by_kind"]
+    if k.get("static", {}).get("n") and k.get("vibration", {}).get("n"):
+        parts.append(
+            f"static points rms z {k['static']['rms_z']:.2f}, vibration points rms z {k['vibration']['rms_z']:.2f}"
+        )
+    worst = sorted([g for g in m["by_frequency"] if g.get("n")], key=lambda g: -g["rms_z"])[:1]
+    for g in worst:
+        parts.append(
+            f"largest at {g['freq_hz']}{' Hz' if g['freq_hz'] != 'static' else ''} "
+            f"(rms z {g['rms_z']:.2f}, mean z {g['mean_z']:+.2f})"
+        )
+    pos = sorted([g for g in m["by_position"] if g.get("n")], key=lambda g: -g["rms_z"])[:2]
+    if pos:
+        parts.append("positions " + ", ".join(f"{g['position_deg']:g} deg (rms z {g['rms_z']:.2f})" for g in pos))
+    blk = sorted([g for g in m["by_time_block"] if g.get("n")], key=lambda g: -g["rms_z"])[:1]
+    for g in blk:
+        parts.append(f"run-order block {g['block']} ({g['start_s']:.0f}-{g['end_s']:.0f} s, rms z {g['rms_z']:.2f})")
+    if "timing" in m:
+        parts.append(f"period identities rms z {m['timing']['rms_z']:.2f}")
+    sig = significant(dets, alpha)
+    if sig:
+        parts.append("structure: " + "; ".join(f"{dt.label} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig))
+    else:
+        parts.append(f"no structure test significant at the {alpha:g} level (Bonferroni over {len(dets)} tests)")
+    return "; ".join(parts) + "."

@@ -1,0 +1,213 @@
+"""What the raw streams say: the grating's harmonics and the pulse-rate spectrum (physics.md raw/).
+
+Per vibration point with raw/<point_id>.npz, with the apparent crank phase
+psi_a(t) = w_m (t - t1) (w_m = 2 pi Np / (t2 + Tm - t1), from the record's own
+timing capture, so the reduction needs no model):
+- grating: least squares of z(t) on 1, sin j psi_a, cos j psi_a (j = 1..3)
+  gives (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) as the read head sees them; the
+  twin predicts the same numbers from table_position_m at psi = psi_a + w delta
+  (latency shifts the reference); the differences are the waveform gap. Their
+  standard errors combine the fit's residual scatter with the phase error of
+  the stamp t1 (sd_stamp): psi_a off by e turns (Zsj, Zcj) by j e, so
+  se(Zcj) = j w sd_stamp |Zsj| and se(Zsj) = j w sd_stamp |Zcj|.
+- pulses: the precession angle at every pulse edge (the level it crosses,
+  from the up/down count, times the pulse angle) fitted by phi0 + c0 t + sum_j (A_j sin j psi_a +
+  B_j cos j psi_a) gives the rate's harmonics r_j = j w (A_j, B_j); the twin
+  predicts them from periodic_rate (rotated by the latency phase).
+At most MAX_SAMPLES samples per stream are used (evenly strided).
+Across points, the grating differences are summarised as the waveform
+parameters they imply: dZs1 = dz0 + dz1 w, and the mean of each other harmonic.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gap.design import PointDesign
+from models.config import TwinConfig
+from models.inputs import table_position_m
+from models.precession import N_PHASES, periodic_rate
+from station.session import Session
+
+MAX_SAMPLES = 200_000
+HARMONICS = (1, 2, 3)
+_GRATING_NAMES = ("Zs1+A0", "Zc1", "Zs2", "Zc2", "Zs3", "Zc3")
+
+
+def _design(psi: np.ndarray, with_line: np.ndarray | None = None) -> np.ndarray:
+    cols = [np.ones_like(psi)]
+    if with_line is not None:
+        cols.append(with_line)
+    for j in HARMONICS:
+        cols += [np.sin(j * psi), np.cos(j * psi)]
+    return np.column_stack(cols)
+
+
+def _lsq(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    res = y - A @ coef
+    dof = max(y.size - A.shape[1], 1)
+    s2 = float(res @ res) / dof
+    cov = np.linalg.pinv(A.T @ A) * s2
+    return coef, np.sqrt(np.diag(cov))
+
+
+def _stride(n: int) -> slice:
+    return slice(None, None, max(1, math.ceil(n / MAX_SAMPLES)))
+
+
+def _twin_grating(w: float, delta: float, cfg: TwinConfig) -> np.ndarray:
+    """(Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) the read head sees, from the twin's table motion."""
+    psi_a = 2 * math.pi * np.arange(N_PHASES) / N_PHASES
+    z = table_position_m(psi_a + w * delta, w, cfg)
+    spec = np.fft.rfft(z) / N_PHASES
+    out = []
+    for j in HARMONICS:
+        out += [-2.0 * spec[j].imag, 2.0 * spec[j].real]
+    return np.array(out)
+
+
+def _twin_rate_harmonics(theta: float, f_true: float, delta: float, cfg: TwinConfig) -> np.ndarray:
+    """Rate harmonics (sin, cos) per j in the apparent phase, from periodic_rate."""
+    pr = periodic_rate(theta, f_true, cfg)
+    w = 2 * math.pi * f_true
+    out = []
+    for j in HARMONICS:
+        idx = np.flatnonzero(pr.k == j)
+        a, b = (float(pr.alpha[idx[0]]), float(pr.beta[idx[0]])) if idx.size else (0.0, 0.0)
+        # r = a cos j psi + b sin j psi, psi = psi_a + w delta: rotate into psi_a.
+        ph = j * w * delta
+        out += [b * math.cos(ph) - a * math.sin(ph), a * math.cos(ph) + b * math.sin(ph)]
+    return np.array(out)
+
+
+def _phase_se(coef: np.ndarray, w: float, sd_stamp_s: float) -> np.ndarray:
+    """se of (Zs1, Zc1, Zs2, ...) from a phase error w sd_stamp of the apparent crank phase."""
+    out = np.empty_like(coef)
+    for k, j in enumerate(HARMONICS):
+        zs, zc = coef[2 * k], coef[2 * k + 1]
+        out[2 * k], out[2 * k + 1] = j * w * sd_stamp_s * abs(zc), j * w * sd_stamp_s * abs(zs)
+    return out
+
+
+def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float) -> dict:
+    """Grating and pulse-rate harmonics of every vibration point with raw streams ({} if none).
+
+    cfg: the twin to compare with, its calibrated coefficients refitted to the session;
+    sd_stamp_s: standard deviation of one time stamp (of t1).
+    """
+    if not session.raw:
+        return {}
+    points = []
+    rows_w, rows_d, rows_s = [], [], []
+    delta = cfg.param("readhead_latency", "delta")
+    for i, pid in enumerate(design.point_ids):
+        raw = session.raw.get(pid)
+        if raw is None or not design.vib[i]:
+            continue
+        t1, t2, tm, n_p = design.t1_s[i], design.t2_s[i], design.Tm_s[i], int(design.Np[i])
+        w = 2 * math.pi * n_p / (t2 + tm - t1)
+        f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+        entry: dict = {
+            "point_id": pid,
+            "position_deg": float(design.position_deg[i]),
+            "freq_hz": float(design.freq_hz[i]),
+            "measured_freq_hz": w / (2 * math.pi),
+            "twin_freq_hz": float(f_true),
+        }
+        if raw.grating_t.size > 20:
+            s = _stride(raw.grating_t.size)
+            t, z = raw.grating_t[s], raw.grating_z[s]
+            coef, se = _lsq(_design(w * (t - t1)), z)
+            meas = coef[1:]
+            se = np.hypot(se[1:], _phase_se(meas, w, sd_stamp_s))
+            pred = _twin_grating(w, delta, cfg)
+            diff = meas - pred
+            entry["grating"] = {
+                n: {"measured_m": float(m), "twin_m": float(p), "difference_m": float(dd), "se_m": float(e)}
+                for n, m, p, dd, e in zip(_GRATING_NAMES, meas, pred, diff, se, strict=True)
+            }
+            rows_w.append(w)
+            rows_d.append(diff)
+            rows_s.append(se)
+        if raw.pulse_t.size > 20 and raw.pulse_dir is None:
+            entry["pulse_rate_harmonics"] = "no pulse directions (pulse_dir): the up/down count cannot be rebuilt"
+        elif raw.pulse_t.size > 20:
+            entry["pulse_rate_harmonics"] = _pulse_harmonics(
+                raw, w, t1, session.station.pulses_per_rev, i, design, cfg, sd_stamp_s
+            )
+        points.append(entry)
+    out: dict = {"points": points, "n_points": len(points)}
+    if rows_d:
+        out["grating_summary"] = _grating_summary(np.array(rows_w), np.array(rows_d), np.array(rows_s))
+    return out
+
+
+def _pulse_harmonics(
+    raw, w: float, t1: float, pulses_per_rev: int, i: int, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float
+) -> list[dict]:
+    """Rate harmonics from the precession angle at every pulse edge, against the twin's periodic_rate."""
+    # The level an edge crosses: the up/down count after it, plus one after a down edge (a
+    # down-crossing of level k leaves the count at k - 1); the count alone would add a
+    # half-pulse square wave in step with the rate's sign, i.e. spurious odd harmonics.
+    levels = np.cumsum(raw.pulse_dir) + (raw.pulse_dir < 0)
+    s = _stride(raw.pulse_t.size)
+    t = raw.pulse_t[s]
+    coef, se = _lsq(_design(w * (t - t1), with_line=t), levels[s] * (2 * math.pi / pulses_per_rev))
+    # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
+    jw = np.repeat([j * w for j in HARMONICS], 2)
+    meas = jw * np.column_stack([-coef[3::2], coef[2::2]]).ravel()
+    se_rate = np.hypot(jw * np.column_stack([se[3::2], se[2::2]]).ravel(), _phase_se(meas, w, sd_stamp_s))
+    f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+    pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, cfg.param("readhead_latency", "delta"), cfg)
+    return [
+        {
+            "harmonic": j,
+            "measured_radps": float(np.hypot(*meas[2 * k : 2 * k + 2])),
+            "twin_radps": float(np.hypot(*pred[2 * k : 2 * k + 2])),
+            "difference_radps": float(np.hypot(*(meas - pred)[2 * k : 2 * k + 2])),
+            "se_radps": float(np.hypot(*se_rate[2 * k : 2 * k + 2])),
+        }
+        for k, j in enumerate(HARMONICS)
+    ]
+
+
+def raw_summary_text(raw: dict, n_se: float = 3.0) -> str:
+    """The grating's waveform differences from the twin that exceed n_se standard errors, in words."""
+    summary = raw.get("grating_summary", {})
+    big = [
+        f"{name.removesuffix('_m')} {v['value']:+.3g} ± {v['se']:.2g}"
+        for name, v in summary.items()
+        if abs(v["value"]) > n_se * v["se"]
+    ]
+    head = f"raw streams at {raw['n_points']} vibration points"
+    if not summary:
+        return head + " (no grating record)"
+    if big:
+        return head + "; grating differs from the twin in " + ", ".join(big)
+    return head + f"; grating agrees with the twin within {n_se:g} se"
+
+
+def _grating_summary(w: np.ndarray, d: np.ndarray, s: np.ndarray) -> dict:
+    """Waveform parameters implied by the grating differences (weighted least squares)."""
+    out: dict = {}
+    s = np.maximum(s, 1e-12)
+    wt = 1.0 / s[:, 0] ** 2
+    if np.unique(np.round(w, 6)).size >= 2:
+        A = np.column_stack([np.ones_like(w), w])
+        cov = np.linalg.inv(A.T @ (A * wt[:, None]))
+        coef = cov @ (A.T @ (wt * d[:, 0]))
+        out["z0_m"] = {"value": float(coef[0]), "se": float(math.sqrt(cov[0, 0]))}
+        out["z1_m_s_per_rad"] = {"value": float(coef[1]), "se": float(math.sqrt(cov[1, 1]))}
+    else:
+        out["Zs1_m"] = {"value": float(np.average(d[:, 0], weights=wt)), "se": float(1 / math.sqrt(wt.sum()))}
+    for k, name in enumerate(_GRATING_NAMES[1:], start=1):
+        wk = 1.0 / s[:, k] ** 2
+        out[f"{name}_m"] = {
+            "value": float(np.average(d[:, k], weights=wk)),
+            "se": float(1 / math.sqrt(wk.sum())),
+            "note": "Zc1 includes the read-head latency phase A0 w delta" if name == "Zc1" else "",
+        }
+    return out

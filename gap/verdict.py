@@ -1,0 +1,142 @@
+"""The verdict: no gap beyond noise, explained by effect(s) X, not explained, or cannot tell.
+
+Evidence of a gap (before any effect is added), two families each at level
+ALPHA with a Bonferroni correction inside it:
+- a library candidate accepted by the forward selection (gap.attribute);
+- the residual checks: the structure tests on the twin's residuals
+  (gap.localise) and excess scatter, the residual noise of the fit
+  against a reference: the pure error of repeats when there are any
+  (lack-of-fit F test), else the twin's own noise model (chi-square test);
+  none when neither exists.
+"explained": effects were accepted, after them no residual check is
+significant, the held-out gap shrank by at least
+MIN_SHRINK (when there was a held-out gap to shrink), and each effect is one
+this design can tell from the others: not collinear with another candidate
+(gap.identifiability) and without a rival of nearly equal BIC.
+"cannot_tell": the design leaves fewer than MIN_DOF residual degrees of
+freedom after the calibrated terms, or the effects that explain the gap are
+ones this design cannot tell apart (it names them all, and the test points
+that would separate them). Otherwise "unexplained", naming what was found and
+what remains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from gap.attribute import ALPHA, Selection
+from gap.identifiability import IdentifiabilityReport
+from gap.localise import Detector, significant
+
+MIN_SHRINK = 0.5
+MIN_DOF = 4
+
+
+@dataclass(frozen=True)
+class NoiseCheck:
+    reference: str  # "pure error of repeats" | "twin noise model" | "none"
+    sigma_ref_radps: float | None
+    p_value: float | None
+
+
+@dataclass
+class Verdict:
+    verdict: str  # no_gap | explained | unexplained | cannot_tell
+    effects: list[str]  # the effects added (explained only)
+    text: str
+    partial: list[str] = field(default_factory=list)  # accepted, but the gap is not explained
+    remaining: list[str] = field(default_factory=list)  # what is left after them
+    ambiguous: list[str] = field(default_factory=list)  # effects this design cannot tell apart
+
+    def to_json(self) -> dict:
+        return {
+            "verdict": self.verdict,
+            "verdict_text": self.text,
+            "effects": self.effects,
+            "partial_effects": self.partial,
+            "remaining": self.remaining,
+            "ambiguous_effects": self.ambiguous,
+        }
+
+
+def residual_checks(dets: list[Detector], noise: NoiseCheck) -> list[str]:
+    """The structure tests and the excess-scatter test significant as one family (Bonferroni at ALPHA)."""
+    level = ALPHA * len(dets) / (len(dets) + 1)  # significant() divides by len(dets)
+    found = [f"{d.label} (F = {d.F:.1f}, p = {d.p_value:.1e})" for d in significant(dets, level)]
+    if noise.p_value is not None and noise.p_value < ALPHA / (len(dets) + 1):
+        found.append(f"excess scatter against the {noise.reference} (p = {noise.p_value:.1e})")
+    return found
+
+
+def _look_alikes(selection: Selection, ident: IdentifiabilityReport) -> dict[str, list[str]]:
+    """For each chosen effect, the candidates this session cannot tell it from."""
+    out = {}
+    for s in selection.chosen:
+        alike = [n for n in ident.group(s.name) if n != s.name] + [n for n in s.rivals if n not in ident.group(s.name)]
+        if alike:
+            out[s.name] = alike
+    return out
+
+
+def decide(
+    dof: int,
+    selection: Selection,
+    ident: IdentifiabilityReport,
+    dets_before: list[Detector],
+    dets_after: list[Detector],
+    noise_before: NoiseCheck,
+    noise_after: NoiseCheck,
+    shrink: float | None,
+) -> Verdict:
+    if dof < MIN_DOF:
+        return Verdict(
+            "cannot_tell",
+            [],
+            f"cannot tell with this design: only {dof} residual degrees of freedom "
+            f"remain after the static levels and the calibrated coefficients (need >= {MIN_DOF}); "
+            "add positions or frequencies",
+        )
+    effects = selection.effects
+    before = residual_checks(dets_before, noise_before)
+    if not effects and not before:
+        ref = (
+            f"; residual scatter consistent with the {noise_before.reference}"
+            if noise_before.reference != "none"
+            else "; no independent noise reference (no repeats, no twin noise model)"
+        )
+        return Verdict(
+            "no_gap", [], "no gap beyond noise: no library effect and no structure test is significant" + ref
+        )
+    remaining = residual_checks(dets_after, noise_after)
+    if selection.capped:
+        remaining.append("further library effects still significant beyond the maximum number added")
+    if effects and shrink is not None and shrink < MIN_SHRINK:
+        remaining.append(f"held-out gap shrink only {shrink:.2f} (< {MIN_SHRINK})")
+    if effects and not remaining:
+        sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
+        alike = _look_alikes(selection, ident)
+        if alike:
+            named = list(dict.fromkeys([n for e in effects for n in [e, *alike.get(e, [])]]))
+            why = "; ".join(f"{e} from {', '.join(a)}" for e, a in alike.items())
+            tests = ident.separating_tests(named)
+            sep = f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
+            return Verdict(
+                "cannot_tell",
+                [],
+                f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, "
+                f"but this session cannot tell {why}{sep}",
+                ambiguous=named,
+            )
+        return Verdict("explained", effects, f"explained by {', '.join(effects)} ({sh})")
+    if effects:
+        return Verdict(
+            "unexplained",
+            [],
+            "not explained by the library: "
+            + ", ".join(effects)
+            + " account(s) for part of it, but "
+            + "; ".join(remaining),
+            partial=effects,
+            remaining=remaining,
+        )
+    return Verdict("unexplained", [], "a gap that no library effect explains: " + "; ".join(before), remaining=before)

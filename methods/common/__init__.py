@@ -1,0 +1,1 @@
+"""What the methods share: least squares with their uncertainties."""

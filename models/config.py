@@ -1,0 +1,269 @@
+"""Twin configuration: station geometry, instrument coefficients, effects and noise.
+
+Every effect of the table in physics.md is switchable by name with its
+parameters (`TwinConfig.with_effect`). Units: metres, seconds, radians,
+rad/s for rates, g for accelerations inside the instrument model.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from station import constants
+from station.tomlfile import read_toml
+
+
+class TwinConfigError(ValueError):
+    """A twin configuration that names an unknown effect, parameter or a bad value."""
+
+
+@dataclass(frozen=True)
+class StationGeometry:
+    A0_m: float = constants.A0_M
+    latitude_deg: float = constants.LATITUDE_DEG
+    g_mps2: float = constants.G_MPS2
+    earth_rate_radps: float = constants.EARTH_RATE_RADPS
+    pulses_per_rev: int = constants.PULSES_PER_REV
+
+    @property
+    def latitude_rad(self) -> float:
+        return math.radians(self.latitude_deg)
+
+    @property
+    def pulse_angle_rad(self) -> float:
+        return 2.0 * math.pi / self.pulses_per_rev
+
+    def amplitude_ratio(self, freq_hz: float) -> float:
+        """a = A0 w^2 / g (physics.md, table motion)."""
+        w = 2.0 * math.pi * freq_hz
+        return self.A0_m * w * w / self.g_mps2
+
+
+@dataclass(frozen=True)
+class InstrumentCoefficients:
+    """Nominal PIGA rate-model terms (physics.md); seed 000 simulation values by default."""
+
+    k0: float = 1.5e-4
+    kz: float = 0.56
+    kzz: float = 6.0e-6
+    ky: float = 5.0e-6
+    k3: float = 7.0e-7
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Measurement noise of one point.
+
+    rate_noise_radps: standard deviation of the window-mean rate error of a
+    window of `rate_noise_ref_s` seconds; white rate noise, so it scales as
+    sqrt(rate_noise_ref_s / Tm). timing_jitter_s: Gaussian jitter of every
+    time stamp (pulse and reference edges). timer_tick_s: counter/timer
+    quantisation (0 turns it off).
+    """
+
+    rate_noise_radps: float = 0.0
+    rate_noise_ref_s: float = 560.0
+    timing_jitter_s: float = 0.0
+    timer_tick_s: float = constants.TIMER_TICK_S
+    grating_noise_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    name: str
+    cause: str
+    parameters: Mapping[str, str]  # parameter name -> unit
+    defaults: Mapping[str, float]
+
+
+def _spec(name: str, cause: str, params: dict[str, tuple[str, float]]) -> EffectSpec:
+    return EffectSpec(
+        name,
+        cause,
+        MappingProxyType({k: u for k, (u, _) in params.items()}),
+        MappingProxyType({k: d for k, (_, d) in params.items()}),
+    )
+
+
+_INDEX_PARAMS = {f"{p}{k}": ("rad", 0.0) for k in range(1, 5) for p in ("c", "s")}
+
+EFFECTS: Mapping[str, EffectSpec] = MappingProxyType(
+    {
+        s.name: s
+        for s in (
+            _spec(
+                "waveform_fundamental",
+                "crank/guide geometry changes the fundamental (seed 000 Table 5, eq. 32)",
+                {"z0": ("m", 0.0), "z1": ("m s/rad", 0.0), "Zc1": ("m", 0.0)},
+            ),
+            _spec(
+                "waveform_harmonics",
+                "higher harmonics of the table motion",
+                {"Zs2": ("m", 0.0), "Zc2": ("m", 0.0), "Zs3": ("m", 0.0), "Zc3": ("m", 0.0)},
+            ),
+            _spec(
+                "parasitic_rotation",
+                "table top rocks about x each cycle (seed 000 Table 7, eq. 34)",
+                {"ax0": ("rad", 0.0), "axs1": ("rad", 0.0), "axc1": ("rad", 0.0)},
+            ),
+            _spec(
+                "lateral_resonance",
+                "lateral motion near a structural resonance, seen through kx (seed 000 6.1.4)",
+                {
+                    "L0": ("1", 0.0),
+                    "fr": ("Hz", 30.0),
+                    "Q": ("1", 10.0),
+                    "phiL": ("rad", 0.0),
+                    "kx": ("rad/s/g^2", 0.0),
+                },
+            ),
+            _spec("odd_quadratic", "instrument term koq aI|aI|", {"koq": ("rad/s/g^2", 0.0)}),
+            _spec("cross_coupling", "instrument term kip aI aP", {"kip": ("rad/s/g^2", 0.0)}),
+            _spec("index_harmonics", "indexing head angle error (seed 003)", _INDEX_PARAMS),
+            _spec(
+                "mount_misalignment",
+                "installation tilt in the rotation plane (seed 000 eqs. 25-27)",
+                {"dtheta_mount": ("rad", 0.0)},
+            ),
+            _spec("bias_drift", "bias wanders over the session", {"d": ("rad/s^2", 0.0)}),
+            _spec(
+                "readhead_latency",
+                "reference crossings are time-stamped late",
+                {"delta": ("s", 0.0)},
+            ),
+            _spec(
+                "frequency_error",
+                "true frequency differs from the commanded one",
+                {"eps_f": ("1", 0.0)},
+            ),
+        )
+    }
+)
+
+
+def effect_params(name: str, given: Mapping[str, float] | None = None) -> Mapping[str, float]:
+    """Defaults of effect `name` overlaid with `given`, validated."""
+    if name not in EFFECTS:
+        raise TwinConfigError(f"unknown effect {name!r}; known effects: {', '.join(EFFECTS)}")
+    spec = EFFECTS[name]
+    params = dict(spec.defaults)
+    for key, value in (given or {}).items():
+        if key not in spec.parameters:
+            raise TwinConfigError(f"effect {name!r} has no parameter {key!r}; allowed: {', '.join(spec.parameters)}")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise TwinConfigError(f"effect {name!r} parameter {key!r} = {value!r}: expected a finite number")
+        params[key] = float(value)
+    if name == "lateral_resonance" and (params["fr"] <= 0 or params["Q"] <= 0):
+        raise TwinConfigError(f"effect 'lateral_resonance': fr = {params['fr']!r} and Q = {params['Q']!r} must be > 0")
+    return MappingProxyType(params)
+
+
+@dataclass(frozen=True)
+class TwinConfig:
+    """Everything the twin needs: geometry, instrument, effects switched on, noise."""
+
+    station: StationGeometry = field(default_factory=StationGeometry)
+    instrument: InstrumentCoefficients = field(default_factory=InstrumentCoefficients)
+    effects: Mapping[str, Mapping[str, float]] = field(default_factory=lambda: MappingProxyType({}))
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    earth_rate_on: bool = True
+
+    def __post_init__(self) -> None:
+        checked = {name: effect_params(name, p) for name, p in self.effects.items()}
+        object.__setattr__(self, "effects", MappingProxyType(checked))
+
+    def with_effect(self, name: str, **params: float) -> TwinConfig:
+        """A copy with effect `name` switched on with `params` (others at their defaults)."""
+        return replace(self, effects={**self.effects, name: params})
+
+    def without_effect(self, name: str) -> TwinConfig:
+        return replace(self, effects={k: v for k, v in self.effects.items() if k != name})
+
+    def param(self, effect: str, key: str) -> float:
+        """Parameter `key` of `effect`, or 0 when the effect is off."""
+        p = self.effects.get(effect)
+        return p[key] if p is not None else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "station": _asdict(self.station),
+            "instrument": _asdict(self.instrument),
+            "noise": _asdict(self.noise),
+            "earth_rate_on": self.earth_rate_on,
+            "effects": {k: dict(v) for k, v in self.effects.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "twin config") -> TwinConfig:
+        allowed = {"station", "instrument", "noise", "earth_rate_on", "effects"}
+        unknown = set(data) - allowed
+        if unknown:
+            raise TwinConfigError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
+        kwargs: dict[str, Any] = {}
+        for key, klass in (
+            ("station", StationGeometry),
+            ("instrument", InstrumentCoefficients),
+            ("noise", NoiseModel),
+        ):
+            if key in data:
+                kwargs[key] = _build(klass, data[key], f"{source} [{key}]")
+        if "earth_rate_on" in data:
+            if not isinstance(data["earth_rate_on"], bool):
+                raise TwinConfigError(f"{source}: earth_rate_on = {data['earth_rate_on']!r}: expected true or false")
+            kwargs["earth_rate_on"] = data["earth_rate_on"]
+        if "effects" in data:
+            try:
+                kwargs["effects"] = {str(k): dict(v) for k, v in data["effects"].items()}
+            except (AttributeError, TypeError, ValueError) as exc:
+                raise TwinConfigError(f"{source} [effects]: expected tables of numbers") from exc
+        try:
+            return cls(**kwargs)
+        except TwinConfigError as exc:
+            raise TwinConfigError(f"{source}: {exc}") from None
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> TwinConfig:
+        return cls.from_dict(read_toml(path, "twin config", TwinConfigError), source=str(path))
+
+    def to_toml(self) -> str:
+        lines = [f"earth_rate_on = {'true' if self.earth_rate_on else 'false'}", ""]
+        for section in ("station", "instrument", "noise"):
+            lines.append(f"[{section}]")
+            lines += [f"{k} = {v!r}" for k, v in _asdict(getattr(self, section)).items()]
+            lines.append("")
+        for name, params in self.effects.items():
+            lines.append(f"[effects.{name}]")
+            lines += [f"{k} = {v!r}" for k, v in params.items()]
+            lines.append("")
+        return "\n".join(lines)
+
+
+def _asdict(obj: Any) -> dict[str, Any]:
+    return {f.name: getattr(obj, f.name) for f in fields(obj)}
+
+
+def _build(klass: type, data: Any, where: str) -> Any:
+    if not isinstance(data, Mapping):
+        raise TwinConfigError(f"{where}: expected a table, got {data!r}")
+    names = {f.name: f for f in fields(klass)}
+    for key, value in data.items():
+        if key not in names:
+            raise TwinConfigError(f"{where}: unknown key {key!r}; allowed: {', '.join(names)}")
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        if not ok or not math.isfinite(value):
+            raise TwinConfigError(f"{where}: {key} = {value!r}: expected a finite number")
+    return klass(**{k: (int(v) if names[k].type == "int" else float(v)) for k, v in data.items()})
+
+
+def default_twin() -> TwinConfig:
+    """The embedded default station (models/data/default_twin.toml)."""
+    from importlib.resources import files
+
+    text = files("models").joinpath("data/default_twin.toml").read_text()
+    return TwinConfig.from_dict(tomllib.loads(text), source="embedded default twin")

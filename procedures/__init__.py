@@ -1,1 +1,0 @@
-"""The procedure library: one module per calibration method."""

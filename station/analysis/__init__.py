@@ -1,1 +1,0 @@
-"""Calibration analysis: window means, regressors, least squares, evaluation."""

@@ -1,5 +1,0 @@
-"""Digital twin of the station (physics.md): table motion, instrument, counter windows, raw streams."""
-
-from station.twin.config import EFFECTS, TwinConfig, TwinConfigError, default_twin
-
-__all__ = ["EFFECTS", "TwinConfig", "TwinConfigError", "default_twin"]
