@@ -23,6 +23,7 @@ from engine.planning import Plan, StationModel, plan_procedure
 from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from engine.runner import Engine, State
+from station.errors import StationFault
 from station.store import SessionStore
 
 Publisher = Callable[[str, dict], None]
@@ -31,7 +32,7 @@ Publisher = Callable[[str, dict], None]
 ANALYSIS_TIMEOUT_S = 600.0
 
 
-class ControlError(RuntimeError):
+class ControlError(StationFault):
     """A control request that the station's state does not allow (a run already under way, ...)."""
 
 

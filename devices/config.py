@@ -18,11 +18,12 @@ from pathlib import Path
 from typing import Any, get_type_hints
 
 from devices.registry import device_kinds
+from station.errors import InputError
 
 SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A configuration file is unreadable or holds a bad key or value."""
 
     def __init__(self, path: Path, key: str, value: Any, allowed: str) -> None:

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from station.errors import StationFault
 
-class DriverError(Exception):
+
+class DriverError(StationFault):
     """Base of all driver errors: `device` plus an optional field/value/allowed triple."""
 
     def __init__(

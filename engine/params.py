@@ -12,8 +12,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from station.errors import InputError
 
-class ParameterError(ValueError):
+
+class ParameterError(InputError):
     """A procedure parameter that is missing, unknown, of the wrong type or out of range."""
 
 

@@ -16,10 +16,11 @@ from typing import Any
 from devices.config import StationConfig
 from engine.registry import ProcedureSpec
 from engine.steps import Step
+from station.errors import InputError
 from station.session import StationInfo
 
 
-class ValidationError(ValueError):
+class ValidationError(InputError):
     """A step that the station cannot or must not do."""
 
 

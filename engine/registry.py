@@ -18,11 +18,12 @@ from pathlib import Path
 from typing import Any
 
 from engine.params import Param, ParameterError, validate_params
+from station.errors import InputError
 from station.session import Session
 from station.tomlfile import read_toml
 
 
-class ProcedureError(ValueError):
+class ProcedureError(InputError):
     """An unknown procedure or a malformed procedure file."""
 
 

@@ -15,8 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station.errors import StationFault
 
-class TimingFault(RuntimeError):  # noqa: N818 (a fault of the station, named as the lab does)
+
+class TimingFault(StationFault):
     """The counter's timing and the grating record disagree, or the window is incomplete."""
 
 

@@ -14,13 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.config import TwinConfig
+from station.errors import InputError
 from station.session import Session
 
 # Relative tolerance on the station geometry of session.json against the twin's.
 GEOMETRY_RTOL = 1e-6
 
 
-class GapInputError(ValueError):
+class GapInputError(InputError):
     """The session cannot be compared with this twin (geometry, content or size)."""
 
 

@@ -16,10 +16,11 @@ from types import MappingProxyType
 from typing import Any
 
 from station import constants
+from station.errors import InputError
 from station.tomlfile import read_toml
 
 
-class TwinConfigError(ValueError):
+class TwinConfigError(InputError):
     """A twin configuration that names an unknown effect, parameter or a bad value."""
 
 

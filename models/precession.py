@@ -31,13 +31,14 @@ from scipy.optimize import brentq
 
 from models.config import TwinConfig
 from models.inputs import instrument_rate_radps
+from station.errors import StationFault
 
 N_PHASES = 256
 _CELLS_PER_PERIOD = 64
 _RTOL = 4.0 * np.finfo(float).eps  # the smallest relative tolerance brentq accepts
 
 
-class WindowNeverClosesError(RuntimeError):
+class WindowNeverClosesError(StationFault):
     """The mean precession rate is too small (or reverses) for the window ever to close."""
 
 

@@ -24,6 +24,7 @@ from models.inputs import table_position_m
 from models.measurement import PointSpec
 from models.precession import PrecessionWindow
 from station.constants import GRATING_RATE_HZ
+from station.errors import InputError
 from station.session import RawStreams
 
 GRID_PER_PERIOD = 512
@@ -199,7 +200,7 @@ def pulse_edges(
 MAX_RAW_SAMPLES = 60_000_000  # grating samples plus pulse edges: about 1.5 GB of float64 arrays
 
 
-class RawStreamsTooLargeError(ValueError):
+class RawStreamsTooLargeError(InputError):
     """Raw streams of a window that would not fit in memory."""
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from station.errors import InputError
 from station.session import PointRecord, RawStreams, Session, StationInfo
 
 FORMAT = "piga-session/1"
@@ -32,7 +33,7 @@ RAW_ARRAYS = ("grating_t", "grating_z", "pulse_t")
 MAX_PERIOD_MISMATCH = 1e-3
 
 
-class SessionFormatError(ValueError):
+class SessionFormatError(InputError):
     """A session directory that does not follow piga-session/1."""
 
     def __init__(self, file: str, message: str, row: int | None = None, column: str | None = None, value=None):

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from station.errors import StationFault
 from station.session import Measurement, PointRecord, RawStreams, Session, StationInfo
 
 SCHEMA_VERSION = 2  # 2: measurements, measurement_arrays
@@ -97,7 +98,7 @@ CREATE TABLE IF NOT EXISTS measurement_arrays (
 _RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 
 
-class StoreError(RuntimeError):
+class StoreError(StationFault):
     """A store operation that names an unknown session or would duplicate a point."""
 
 

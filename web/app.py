@@ -11,6 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
+from station.errors import StationFault
 from web.config import PanelConfig, describe_errors
 from web.routes import auth, control, gap, history, live, pages
 from web.state import Panel
@@ -26,7 +27,7 @@ SECURITY_HEADERS = {
 }
 
 
-class PanelSetupError(RuntimeError):
+class PanelSetupError(StationFault):
     """Something the project's setup installs is missing."""
 
 

@@ -12,12 +12,13 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from station.errors import InputError
 from station.tomlfile import read_toml
 
 NAME_PATTERN = r"^[A-Za-z0-9_-]{1,40}$"
 
 
-class PanelConfigError(ValueError):
+class PanelConfigError(InputError):
     """A panel configuration file that is unreadable or holds a bad key or value."""
 
 

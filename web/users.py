@@ -16,6 +16,8 @@ from typing import Literal
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 
+from station.errors import InputError
+
 Role = Literal["operator", "viewer"]
 ROLES: tuple[Role, ...] = ("operator", "viewer")
 USER_NAME = re.compile(r"^[A-Za-z0-9_.@-]{1,64}$")
@@ -25,7 +27,7 @@ _HASHER = PasswordHasher()
 _DUMMY_HASH = _HASHER.hash("not a password of anyone")
 
 
-class UserError(ValueError):
+class UserError(InputError):
     """A bad user name, role or password, or an unreadable users file."""
 
 

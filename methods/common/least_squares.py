@@ -20,8 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from station.errors import InputError
 
-class FitError(ValueError):
+
+class FitError(InputError):
     """The design cannot identify the requested coefficients."""
 
 

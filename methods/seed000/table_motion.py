@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.constants import GRATING_RATE_HZ, TIMER_TICK_S
+from station.errors import InputError
 
 TWO_PI = 2.0 * math.pi
 
@@ -37,7 +38,7 @@ SEED_TABLE5_M = {
 SEED_Z0_M, SEED_Z1_M_S_PER_RAD = -1.299e-4, 3.2e-6  # seed 000 eq. 32 (-0.1299 mm + 0.0032 mm s/rad w)
 
 
-class MotionFitError(ValueError):
+class MotionFitError(InputError):
     """The record cannot give what was asked (too few crossings or samples)."""
 
 
