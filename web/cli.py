@@ -54,6 +54,8 @@ def _password(args: argparse.Namespace) -> str:
         if not password:
             raise ValueError(f"--password-env {args.password_env}: that environment variable is not set")
         return password
+    if not sys.stdin.isatty():
+        raise ValueError("no terminal to ask the password on: pass --password-env VAR with the password in VAR")
     first = getpass.getpass(f"password for {args.name}: ")
     if getpass.getpass("again: ") != first:
         raise ValueError("the two passwords differ")
@@ -72,9 +74,27 @@ def cmd_panel_user(args: argparse.Namespace) -> int:
         book.remove(args.name)
         print(f"removed {args.name} from {book.path}")
     else:
+        if not args.role:
+            raise ValueError("panel-user add: --role is required: operator (may control the station) or viewer "
+                             "(watches only)")  # fmt: skip
+        existing = {u.name: u for u in book.list()}.get(args.name)
+        if existing is not None and not _confirm_replace(args, existing.role, book.path):
+            print(f"{args.name} left as it was in {book.path}", file=sys.stderr)
+            return 1
         user = book.add(args.name, args.role, _password(args))
-        print(f"{user.name} ({user.role}) in {book.path}")
+        print(f"{user.name} ({user.role}) {'replaced' if existing else 'added'} in {book.path}")
     return 0
+
+
+def _confirm_replace(args: argparse.Namespace, role: str, path) -> bool:
+    """Replacing a user's password and role only with --replace or a yes on the terminal."""
+    if args.replace:
+        return True
+    if not sys.stdin.isatty():
+        raise ValueError(f"user {args.name!r} ({role}) already exists in {path}: pass --replace to replace "
+                         "their password and role")  # fmt: skip
+    answer = input(f"user {args.name} ({role}) exists in {path}: replace their password and role? [y/N] ")
+    return answer.strip().lower() in ("y", "yes")
 
 
 def _guarded(func):
@@ -87,11 +107,22 @@ def _guarded(func):
 
         try:
             return func(args)
-        except (PanelConfigError, PanelSetupError, UserError, ValueError, OSError) as exc:
+        except (PanelConfigError, PanelSetupError, UserError, ValueError, OSError, EOFError) as exc:
             print(f"station {args.command}: error: {exc}", file=sys.stderr)
             return 2
 
     return run
+
+
+def tcp_port(text: str) -> int:
+    """argparse type of --port: an integer 1-65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not allowed: a TCP port is an integer 1-65535")
+    return port
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
@@ -99,14 +130,18 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("panel", help="serve the web panel (live view, history, control)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="panel configuration (default: config/panel.toml)")
     p.add_argument("--host", help="address to bind (default: the configuration's, 127.0.0.1)")
-    p.add_argument("--port", type=int, help="port (default: the configuration's)")
-    p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"))
+    p.add_argument("--port", type=tcp_port, help="TCP port, 1-65535 (default: the configuration's, 8080)")
+    p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"),
+                   help="uvicorn's log level (default warning)")  # fmt: skip
     p.set_defaults(func=_guarded(cmd_panel))
 
     p = sub.add_parser("panel-user", help="add, remove or list the web panel's users")
-    p.add_argument("action", choices=("add", "remove", "list"))
+    p.add_argument("action", choices=("add", "remove", "list"), help="add (or replace) a user, remove one, list them")
     p.add_argument("name", nargs="?", default="", help="user name (add, remove)")
-    p.add_argument("--role", choices=("operator", "viewer"), default="viewer")
+    p.add_argument("--role", choices=("operator", "viewer"),
+                   help="required by add: operator (may control the station) or viewer (watches only)")  # fmt: skip
+    p.add_argument("--replace", action="store_true",
+                   help="replace an existing user's password and role without asking")  # fmt: skip
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="panel configuration naming the users file")
     p.add_argument("--users", help="the users file itself (instead of the configuration's)")
     p.add_argument("--password-env", metavar="VAR", help="take the password from this environment variable")

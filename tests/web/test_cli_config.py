@@ -28,7 +28,10 @@ def test_panel_user_add_list_remove(tmp_path: Path, monkeypatch, capsys):
         main(["panel-user", "add", "olga", "--role", "operator", "--users", str(users), "--password-env", "PANEL_PW"])
         == 0
     )
-    assert main(["panel-user", "add", "victor", "--users", str(users), "--password-env", "PANEL_PW"]) == 0
+    assert (
+        main(["panel-user", "add", "victor", "--role", "viewer", "--users", str(users), "--password-env", "PANEL_PW"])
+        == 0
+    )
     capsys.readouterr()
     assert main(["panel-user", "list", "--users", str(users)]) == 0
     assert capsys.readouterr().out.split() == ["olga", "operator", "victor", "viewer"]
@@ -42,9 +45,18 @@ def test_panel_user_add_list_remove(tmp_path: Path, monkeypatch, capsys):
 @pytest.mark.parametrize(
     ("args", "env", "message"),
     [
-        (["add", "olga", "--password-env", "PANEL_PW"], "short", "password too short"),
-        (["add", "bad name", "--password-env", "PANEL_PW"], "long enough pw", "user name 'bad name'"),
-        (["add", "olga", "--password-env", "UNSET_VAR"], None, "UNSET_VAR: that environment variable is not set"),
+        (["add", "olga", "--role", "operator", "--password-env", "PANEL_PW"], "short", "password too short"),
+        (
+            ["add", "bad name", "--role", "viewer", "--password-env", "PANEL_PW"],
+            "long enough pw",
+            "user name 'bad name'",
+        ),
+        (
+            ["add", "olga", "--role", "viewer", "--password-env", "UNSET_VAR"],
+            None,
+            "UNSET_VAR: that environment variable is not set",
+        ),
+        (["add", "olga", "--password-env", "PANEL_PW"], "long enough pw", "--role is required"),
         (["remove", "nobody"], None, "no user 'nobody'"),
     ],
 )

@@ -1,0 +1,140 @@
+"""Coefficient tables and verdicts from any method's results JSON, for the console, notebooks and reports.
+
+Methods report coefficients in one of two shapes:
+
+    {"coefficients": {name: {"value", "sigma"}}, "units": {name: unit}, "mu", "mu_c", "reliable", ...}
+    {name: {"value", "sigma", "unit"}, ...}
+
+`coefficient_rows` reads both (any depth), so a new method is shown with its units
+as soon as it states them. `sigma` is always the standard uncertainty u (k = 1)
+of the least-squares fit: the covariance (X^T X)^-1 scaled by the residual
+sigma^2 (seed 000 eqs. 21-22); the expanded uncertainty is U = k u.
+`mu` is max|e| / sigma and `mu_c = 1.25 + ln sqrt(N / 3)` its critical value
+(seed 000 eq. 28): mu < mu_c says that no residual is an outlier.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+COVERAGE_K = 2.0  # expanded uncertainty U = k u, about 95 % for a normal error
+UNCERTAINTY_NOTE = (
+    f"u is the standard uncertainty (k = 1, about 68 %) from the fit's covariance scaled by the residual "
+    f"sigma (seed 000 eq. 22); U = {COVERAGE_K:g} u is the expanded uncertainty (k = {COVERAGE_K:g}, about 95 %)"
+)
+MU_NOTE = "mu = max|residual| / sigma; mu_c = 1.25 + ln sqrt(N/3) (seed 000 eq. 28); mu < mu_c: no outlier"
+
+
+@dataclass(frozen=True)
+class CoefficientRow:
+    """One identified quantity: value and standard uncertainty u (k = 1) in `unit`."""
+
+    result: str  # the results key it came from ("integral", "baseline", "20C", ...)
+    name: str
+    value: float | None
+    u: float | None
+    unit: str
+    note: str = ""
+
+    @property
+    def expanded(self) -> float | None:
+        """U = k u with k = COVERAGE_K."""
+        return None if self.u is None else COVERAGE_K * self.u
+
+    @property
+    def relative(self) -> float | None:
+        """u / |value|, None when either is missing or the value is zero."""
+        if self.u is None or not self.value:
+            return None
+        return self.u / abs(self.value)
+
+
+def _number(x: Any) -> float | None:
+    return float(x) if isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) else None
+
+
+def _is_quantity(doc: Any) -> bool:
+    return isinstance(doc, Mapping) and "value" in doc and (doc["value"] is None or _number(doc["value"]) is not None)
+
+
+def coefficient_rows(results: Mapping[str, Any]) -> list[CoefficientRow]:
+    """Every quantity with a value in the results (either shape of the module docstring), in order."""
+    return list(_walk(results, "", {}))
+
+
+def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any]) -> Iterator[CoefficientRow]:
+    own_units = doc.get("units") if isinstance(doc.get("units"), Mapping) else {}
+    units = {**units, **own_units}
+    for key, item in doc.items():
+        if key == "coefficients" and isinstance(item, Mapping):
+            yield from _walk(item, where, units)
+        elif _is_quantity(item):
+            unit = str(item.get("unit", units.get(key, "")))
+            yield CoefficientRow(where or key, key, _number(item["value"]), _number(item.get("sigma")), unit,
+                                 str(item.get("note", "")))  # fmt: skip
+        elif isinstance(item, Mapping) and key != "units":
+            yield from _walk(item, f"{where}.{key}" if where else key, units)
+
+
+def acceptance(results: Mapping[str, Any]) -> list[tuple[str, bool, str]]:
+    """(result, accepted, reason) for every result that reports mu and mu_c (seed 000 eq. 28)."""
+    out = []
+    for name, doc in results.items():
+        if not isinstance(doc, Mapping):
+            continue
+        mu, mu_c = _number(doc.get("mu")), _number(doc.get("mu_c"))
+        if mu is None or mu_c is None:
+            continue
+        ok = bool(doc.get("reliable", mu < mu_c))
+        n = doc.get("n_points")
+        pts = f", {n} points" if n is not None else ""
+        out.append((name, ok, f"{name}: mu {mu:.2f} {'<' if ok else '>='} mu_c {mu_c:.2f}" +
+                    (" (no outlier)" if ok else " (an outlier among the residuals)") + pts))  # fmt: skip
+    return out
+
+
+def verdict(state: str, results: Mapping[str, Any] | None, faults: list[str] | tuple[str, ...] = ()) -> str:
+    """One line: ACCEPTED or NOT ACCEPTED, with the reasons (run state, faults, mu vs mu_c)."""
+    reasons: list[str] = []
+    bad = False
+    if state != "finished":
+        bad = True
+        reasons.append(f"the run {state}")
+    if faults:
+        bad = True
+        reasons.append(f"{len(faults)} fault{'s' if len(faults) != 1 else ''}: {faults[0]}")
+    if results is None and state == "finished" and not faults:
+        reasons.append("no analysis for this procedure")
+    checks = acceptance(results or {})
+    bad = bad or any(not ok for _, ok, _ in checks)
+    reasons += [r for _, _, r in checks]
+    if not checks and results:
+        reasons.append("this method reports no outlier test (mu, mu_c)")
+    if not bad and not faults:
+        reasons.append("no fault")
+    return f"verdict: {'NOT ACCEPTED' if bad else 'ACCEPTED'}: " + "; ".join(reasons)
+
+
+def format_value(x: float | None, digits: int = 7) -> str:
+    """A value in scientific notation, or a dash when there is none."""
+    return "—" if x is None else f"{x:+.{digits - 1}e}"
+
+
+def format_rows(rows: list[CoefficientRow]) -> list[str]:
+    """Console lines: name = value unit, u and U = k u in the same unit, u/|value|."""
+    lines = []
+    width = max((len(r.name) for r in rows), default=4)
+    for r in rows:
+        if r.value is None:
+            lines.append(f"  {r.name:{width}s}   not identified{f' ({r.note})' if r.note else ''}")
+            continue
+        unit = f" {r.unit}" if r.unit else " (unit not stated by the method)"
+        text = f"  {r.name:{width}s} = {format_value(r.value)}{unit}"
+        if r.u is not None:
+            rel = f", u/|value| = {r.relative:.1e}" if r.relative is not None else ""
+            text += f"   u = {r.u:.2e}{unit}, U = {r.expanded:.2e}{unit} (k = {COVERAGE_K:g}){rel}"
+        lines.append(text)
+    return lines
