@@ -26,8 +26,9 @@ from app.control import ControlServer
 from app.controller import ControlError
 from devices.config import ConfigError
 from devices.errors import DriverError
+from engine.context import ValidationError
 from engine.params import ParameterError
-from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.planning import plan_procedure
 from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
 from methods.common.least_squares import FitError
 from methods.seed000.identify import METHODS, identify
@@ -49,7 +50,7 @@ def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid
     config = load_station(args.station)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    plan = plan_procedure(spec, params, StationModel.from_config(config))
+    plan = plan_procedure(spec, params, config.station_model())
     if args.dry_run:
         describe_plan(plan, sys.stdout)
         return 0

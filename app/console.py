@@ -20,7 +20,7 @@ from tqdm import tqdm
 from app.controller import RunOutcome, StationController
 from devices.config import StationConfig, load_station_config
 from devices.station import StationDevices, simulated_station
-from engine.planning import Plan, StationModel
+from engine.planning import Plan
 from engine.protocols import StationHardware
 from engine.runner import State
 from models.config import TwinConfig
@@ -135,7 +135,7 @@ def controller_for(
     station_id: str = "station",
 ) -> Iterator[StationController]:
     pub = TelemetryPublisher(telemetry, station_id, hardware.clock) if telemetry else None
-    controller = StationController(hardware, store, StationModel.from_config(config), reports_dir=out_dir,
+    controller = StationController(hardware, store, config.station_model(), reports_dir=out_dir,
                                    publish=pub.publish if pub else None)  # fmt: skip
     beacon = controller.beacon() if pub else None
     try:

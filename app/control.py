@@ -31,8 +31,8 @@ import zmq
 
 from app.controller import ControlError, StationController
 from devices.errors import DriverError
+from engine.context import ValidationError
 from engine.params import ParameterError
-from engine.planning import ValidationError
 from engine.registry import ProcedureError
 from station.jsonsafe import json_safe
 from station.store import StoreError

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from engine.planning import Plan, StationModel, plan_procedure
+from engine.context import StationModel
+from engine.planning import Plan, plan_procedure
 from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from engine.runner import Engine, State

@@ -21,7 +21,6 @@ from pathlib import Path
 from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
-from engine.planning import StationModel
 from engine.registry import load_procedure_file
 from models.config import default_twin
 from station.store import SessionStore
@@ -36,7 +35,7 @@ def run_once(speed: float, seed: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         with simulated_station(cfg, twin, seed=seed, speed=speed) as sim, SessionStore(Path(tmp) / "s.sqlite") as st:
-            controller = StationController(sim.devices, st, StationModel.from_config(cfg), reports_dir=tmp)
+            controller = StationController(sim.devices, st, cfg.station_model(), reports_dir=tmp)
             outcome = controller.run(spec.name, params)
             station_s = controller.engine.progress.elapsed_s
         wall_s = time.perf_counter() - t0

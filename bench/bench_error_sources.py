@@ -25,7 +25,6 @@ import numpy as np
 from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
-from engine.planning import StationModel
 from methods.seed000.parasitic_rotation import (
     AXES,
     SEED_HARMONICS_ARCSEC,
@@ -63,7 +62,7 @@ def seed_tables() -> None:
 def run(procedure_file: str, twin, out: Path) -> tuple[dict, float, float]:
     doc = tomllib.loads((ROOT / "config" / "procedures" / procedure_file).read_text())
     with simulated_station(STATION, twin, seed=7, speed=1000.0) as sim, SessionStore(out / "bench.sqlite") as store:
-        controller = StationController(sim.devices, store, StationModel.from_config(STATION), reports_dir=out)
+        controller = StationController(sim.devices, store, STATION.station_model(), reports_dir=out)
         t0 = time.perf_counter()
         outcome = controller.run(doc["procedure"], doc["params"])
         wall = time.perf_counter() - t0

@@ -23,7 +23,6 @@ from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
 from devices.voltmeter.emulator import accelerometer
-from engine.planning import StationModel
 from engine.registry import load_procedure_file
 from methods.seed001.analysis import analyse_tumble
 from methods.seed001.tumble_session import tumble_session
@@ -41,7 +40,7 @@ def station_session(seed: int, speed: float) -> None:
     with tempfile.TemporaryDirectory() as tmp, SessionStore(Path(tmp) / "s.sqlite") as store:
         sim = simulated_station(config, default_twin(), seed=seed, speed=speed)
         try:
-            controller = StationController(sim.devices, store, StationModel.from_config(config), reports_dir=tmp)
+            controller = StationController(sim.devices, store, config.station_model(), reports_dir=tmp)
             wall0 = time.perf_counter()
             outcome = controller.run(spec.name, params)
             wall_s = time.perf_counter() - wall0

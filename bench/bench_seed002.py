@@ -26,7 +26,6 @@ import numpy as np
 from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
-from engine.planning import StationModel
 from engine.registry import load_procedure_file
 from methods.seed002.analysis import RunRecord, estimate_flexure, navigate, observe_run
 from methods.seed002.procedure import VELOCITY_BLOCK_S
@@ -64,7 +63,7 @@ def session(seed: int) -> None:
         simulated_station(config, default_twin(), seed=seed, speed=1000.0) as sim,
         SessionStore(Path(tmp) / "station.sqlite") as store,
     ):
-        controller = StationController(sim.devices, store, StationModel.from_config(config), reports_dir=tmp)
+        controller = StationController(sim.devices, store, config.station_model(), reports_dir=tmp)
         wall = time.perf_counter()
         outcome = controller.run(spec.name, params)
         wall = time.perf_counter() - wall

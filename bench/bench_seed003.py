@@ -26,7 +26,6 @@ from app.controller import StationController
 from devices.config import load_station_config
 from devices.second_instrument.emulator import static_rates_radps
 from devices.station import simulated_station
-from engine.planning import StationModel
 from methods.seed003 import gravity_field as gf
 from methods.seed003.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
 from methods.seed003.four_pose import PoseWindow, fit_four_pose, harmonic_names
@@ -109,7 +108,7 @@ def run_session(twin: TwinConfig, params: dict, seed: int, speed: float):
         sim = simulated_station(config, twin, seed=seed, speed=speed)
         store = SessionStore(Path(out) / "station.sqlite")
         try:
-            controller = StationController(sim.devices, store, StationModel.from_config(config), reports_dir=out)
+            controller = StationController(sim.devices, store, config.station_model(), reports_dir=out)
             t0 = time.perf_counter()
             outcome = controller.run("seed003.gravity_field", params)
             wall = time.perf_counter() - t0

@@ -41,7 +41,8 @@ def _raw_point_child(freq_hz: float) -> None:
     import numpy as np
 
     from models.config import default_twin
-    from models.measurement import PointSpec, simulate_point
+    from models.measurement import simulate_point
+    from models.plan import PointSpec
 
     cfg = default_twin()
     simulate_point(PointSpec(0.0, freq_hz, 16384), cfg, np.random.default_rng(0), raw=True)  # warm-up, 11 s

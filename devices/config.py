@@ -18,7 +18,9 @@ from pathlib import Path
 from typing import Any, get_type_hints
 
 from devices.registry import device_kinds
+from engine.context import StationModel
 from station.errors import InputError
+from station.session import StationInfo
 
 SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
 
@@ -131,6 +133,22 @@ class StationConfig:
             else:
                 raise ConfigError(self.path, name, port, f"one of {', '.join((*SERIAL_SECTIONS, *extras))}")
         return dataclasses.replace(self, **changes, extras=extras)
+
+    def station_model(self) -> StationModel:
+        """What planning knows of this station: its geometry, limits, motion speeds and devices."""
+        s, lim, h = self.station, self.limits, self.indexing_head
+        return StationModel(
+            devices=StationModel.devices | frozenset(self.extras),
+            sections=dict(self.extras),
+            station=StationInfo(s.A0_m, s.latitude_deg, s.g_mps2, s.earth_rate_radps, s.pulses_per_rev),
+            freq_min_hz=lim.freq_min_hz,
+            freq_max_hz=lim.freq_max_hz,
+            accel_min_g=lim.accel_min_g,
+            accel_max_g=lim.accel_max_g,
+            ramp_hz_per_s=lim.ramp_max_hz_per_s,
+            index_speed_deg_s=h.speed_deg_s,
+            index_settle_s=h.settle_time_s,
+        )
 
 
 _SECTIONS: dict[str, type] = {

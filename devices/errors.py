@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from station.errors import StationFault
+from station.errors import DeviceError
 
 
-class DriverError(StationFault):
+class DriverError(DeviceError):
     """Base of all driver errors: `device` plus an optional field/value/allowed triple."""
 
     def __init__(

@@ -30,13 +30,14 @@ from typing import Any
 import numpy as np
 
 from devices.config import StationConfig
-from devices.counter_timer.driver import CounterTimer, Event, WindowResult
+from devices.counter_timer.driver import CounterTimer
 from devices.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError
 from devices.grating.driver import GratingReadHead
 from devices.indexing_head.driver import IndexingHead
-from devices.reference_marks.driver import FrequencyEstimate, ReferenceMarks
+from devices.reference_marks.driver import ReferenceMarks
 from devices.registry import device_kinds
-from devices.servo.driver import ServoLimits, ServoReading, VibrationTableServo
+from devices.servo.driver import ServoLimits, VibrationTableServo
+from engine.protocols import Event, FrequencyEstimate, MotionRecord, ServoReading, WindowResult
 from models.config import TwinConfig
 from station.clock import Clock, VirtualClock, WallClock, speed_at_most
 from station.session import StationInfo
@@ -55,15 +56,6 @@ TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often; each drain
 # Reference marks report each crossing as an ASCII line of about 35 bytes at 115 200 baud
 # (330 lines per wall second): at 10 Hz, station time may run at most 10x while they are timed.
 REFERENCE_MAX_SPEED = 10.0
-
-
-@dataclass(frozen=True)
-class MotionRecord:
-    """The table's motion over a stretch: grating samples and the reference crossings among them."""
-
-    t_s: np.ndarray
-    z_m: np.ndarray
-    reference_t_s: np.ndarray
 
 
 @dataclass

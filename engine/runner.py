@@ -26,13 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from devices.counter_timer.driver import Event
-from devices.errors import DriverError
 from engine.planning import Plan
-from engine.protocols import StationHardware
+from engine.protocols import Event, StationHardware
 from engine.registry import ProcedureSpec
 from engine.steps import Recorded, Step
 from engine.timing import TimingFault
+from station.errors import DeviceError
 from station.session import Measurement, PointRecord
 from station.store import SessionStore
 
@@ -367,7 +366,7 @@ class Engine:
         except StopIteration as stop:
             value = stop.value
             self._stop_safely()
-        except (Aborted, DriverError, TimingFault) as exc:
+        except (Aborted, DeviceError, TimingFault) as exc:
             if self._abort_requested:  # an abort or emergency stop; device errors it causes are its consequence
                 final = State.ESTOPPED if self._estop else State.ABORTED
                 self.event("abort", f"{'emergency stop' if self._estop else 'abort'}: {exc}",
@@ -392,6 +391,6 @@ class Engine:
     def _stop_safely(self) -> None:
         try:
             self.hw.safe_stop()
-        except DriverError as exc:
+        except DeviceError as exc:
             self.event("fault", f"safe stop failed: {exc}; emergency stop", "critical")
             self.hw.emergency_stop()

@@ -27,8 +27,7 @@ from engine.timing import capture_timing, cross_check
 from station.session import Measurement, PointRecord, RawStreams
 
 if TYPE_CHECKING:
-    from engine.planning import PlanContext
-    from engine.runner import Engine as RunContext
+    from engine.context import PlanContext, RunContext
 
 
 class Step:

@@ -38,8 +38,8 @@ from gap.fit import Channels, Linearisation, linear_design, model_columns
 from gap.forward import predict
 from gap.noise import rate_weights
 from models.config import NoiseModel, TwinConfig
-from models.measurement import PointSpec, simulate_point
-from models.plan import preset_pulses
+from models.measurement import simulate_point
+from models.plan import PointSpec, preset_pulses
 from models.precession import WindowNeverClosesError
 from models.session_sim import station_info
 from station.session import Session

@@ -61,8 +61,7 @@ from gap.identifiability import COLLINEAR_COS, principal_cos, subspace
 from gap.noise import rate_weights
 from models.config import TwinConfig, default_twin
 from models.inputs import instrument_inputs, instrument_rate_radps
-from models.measurement import PointSpec
-from models.plan import equal_angle_positions_deg, preset_pulses, seed000_plan
+from models.plan import PointSpec, equal_angle_positions_deg, preset_pulses, seed000_plan
 from models.precession import N_PHASES, PeriodicRate, PrecessionWindow, periodic_rate
 from models.session_sim import simulate_session
 from station.jsonsafe import json_safe

@@ -17,21 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.config import TwinConfig
+from models.plan import PointSpec
 from models.precession import PrecessionWindow, periodic_rate
-from station.session import PointKind, PointRecord, RawStreams
-
-
-@dataclass(frozen=True)
-class PointSpec:
-    """One planned point: indexing position, commanded frequency (0 = static), preset count."""
-
-    position_deg: float
-    freq_hz: float
-    preset_pulses: int = 819_200
-
-    @property
-    def kind(self) -> PointKind:
-        return "static" if self.freq_hz == 0.0 else "vibration"
+from station.session import PointRecord, RawStreams
 
 
 @dataclass(frozen=True)

@@ -3,15 +3,30 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from models.measurement import PointSpec
+from station.session import PointKind
 
 SEED000_FREQS_HZ = (8.0, 9.0, 10.0)
 SEED000_WINDOW_S = 560.0  # seed 000: P = 50 revolutions at 0 deg gives Tm about 560 s
 NOMINAL_KZ_RADPS_PER_G = 0.56
 PULSES_PER_REV = 16384
+
+
+
+@dataclass(frozen=True)
+class PointSpec:
+    """One planned point: indexing position, commanded frequency (0 = static), preset count."""
+
+    position_deg: float
+    freq_hz: float
+    preset_pulses: int = 819_200
+
+    @property
+    def kind(self) -> PointKind:
+        return "static" if self.freq_hz == 0.0 else "vibration"
 
 
 def preset_pulses(

@@ -21,3 +21,7 @@ class InputError(StationError, ValueError):
 
 class StationFault(StationError, RuntimeError):  # noqa: N818 - a fault, named as the lab does
     """A fault while the station ran: a device, the store, the timing capture, an analysis."""
+
+
+class DeviceError(StationFault):
+    """A device failed or refused a request (devices.errors has the typed kinds: timeout, frame, fault, ...)."""

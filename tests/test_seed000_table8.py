@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from models.config import NoiseModel, TwinConfig
-from models.measurement import PointSpec, simulate_point
+from models.measurement import simulate_point
+from models.plan import PointSpec
 from models.precession import PrecessionWindow, periodic_rate
 
 TARGET = 2 * math.pi * 50

@@ -44,85 +44,44 @@ import contextlib
 import struct
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from devices.counter_timer.protocol import (
+    ABORT,
+    ACK,
+    ACK_PAYLOAD,
+    ACK_RESULTS,
+    ARM,
+    ARM_PAYLOAD,
+    CLOSE,
+    CLOSE_PAYLOAD,
+    DEVICE,
+    DONE,
+    DONE_PAYLOAD,
+    EDGE_DTYPE,
+    EDGES,
+    EDGES_HEADER,
+    FAULT,
+    FAULT_PAYLOAD,
+    FAULTS,
+    FLAG_STREAM_EDGES,
+    HEARTBEAT,
+    HEARTBEAT_PAYLOAD,
+    MAX_PRESET,
+    OPEN,
+    OPEN_PAYLOAD,
+    REF,
+    REF_PAYLOAD,
+    STATES,
+    STATUS,
+    STATUS_PAYLOAD,
+    STATUS_Q,
+)
 from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
 from devices.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
+from engine.protocols import Event, WindowResult
 from station.clock import Clock
-
-DEVICE = "counter/timer"
-
-ARM, ABORT, STATUS_Q = 0x20, 0x21, 0x22
-ACK, STATUS = 0xA0, 0xA2
-OPEN, REF, EDGES, CLOSE, DONE, HEARTBEAT, FAULT = 0xB0, 0xB1, 0xB2, 0xB3, 0xB4, 0xB5, 0xBF
-
-ARM_PAYLOAD = struct.Struct("<iB")
-ACK_PAYLOAD = struct.Struct("<BB")
-STATUS_PAYLOAD = struct.Struct("<BiIB")
-OPEN_PAYLOAD = struct.Struct("<I")
-REF_PAYLOAD = struct.Struct("<II")
-EDGES_HEADER = struct.Struct("<IH")
-EDGE_DTYPE = np.dtype([("ticks", "<u4"), ("dir", "i1")])
-CLOSE_PAYLOAD = struct.Struct("<Ii")
-DONE_PAYLOAD = struct.Struct("<II")
-HEARTBEAT_PAYLOAD = struct.Struct("<IB")
-FAULT_PAYLOAD = struct.Struct("<BI")
-
-FLAG_STREAM_EDGES = 0x01
-MAX_PRESET = 2**31 - 1
-MAX_EDGES_PER_FRAME = 400
-HEARTBEAT_S = 1.0
-STATES = {0: "idle", 1: "armed", 2: "counting", 3: "closing", 4: "done", 5: "fault"}
-FAULTS = {1: "counter overflow"}
-ACK_RESULTS = {1: "busy (a window is under way)", 2: "bad argument"}
-
-
-@dataclass
-class WindowResult:
-    """One timing window. Times in seconds on the board's (or station's) time base."""
-
-    preset: int
-    open_s: float = float("nan")
-    close_s: float = float("nan")
-    pulses: int = 0
-    crossings_s: np.ndarray = field(default_factory=lambda: np.empty(0))
-    edges_t_s: np.ndarray | None = None
-    edges_dir: np.ndarray | None = None
-    edges_lost: int = 0
-
-    @property
-    def Tm_s(self) -> float:
-        return self.close_s - self.open_s
-
-    @property
-    def t1_s(self) -> float | None:
-        """First reference crossing after the opening, from the opening."""
-        return float(self.crossings_s[0] - self.open_s) if self.crossings_s.size else None
-
-    @property
-    def Np(self) -> int | None:
-        """Whole periods from t1 to the first crossing at or after the closing."""
-        if self.crossings_s.size and self.crossings_s[-1] >= self.close_s:
-            return int(self.crossings_s.size - 1)
-        return None
-
-    @property
-    def t2_s(self) -> float | None:
-        """Closing crossing minus the closing time, in [0, T)."""
-        if self.Np is None:
-            return None
-        return float(self.crossings_s[-1] - self.close_s)
-
-
-@dataclass(frozen=True, slots=True)
-class Event:
-    """A board event as it arrives: kind is open/ref/edges/close/done/heartbeat."""
-
-    kind: str
-    t_s: float
-    value: int = 0
 
 
 class CounterTimer(FramedDevice):

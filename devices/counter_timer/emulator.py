@@ -1,4 +1,4 @@
-"""Emulator of the counter/timer board (protocol in devices.counter_timer.driver).
+"""Emulator of the counter/timer board (protocol in devices.counter_timer.driver and .protocol).
 
 ARM asks the world for the window (world.open_window at the arm time); each
 poll then reports, for the station time elapsed since the previous poll, the
@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from devices.counter_timer import driver as c
+from devices.counter_timer import protocol as c
+from devices.counter_timer.protocol import ARMED, CLOSING, COUNTING, DONE_STATE, FAULTED, IDLE
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
 from devices.serial_port import FrameParser, encode_frame, ticks_of
 
-IDLE, ARMED, COUNTING, CLOSING, DONE_STATE, FAULTED = range(6)
 SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary edges are those
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
 REF_FRAME_BYTES = 7 + c.REF_PAYLOAD.size

@@ -1,4 +1,4 @@
-"""Emulator of the absolute grating read head's interface board (protocol in devices.grating.driver).
+"""Emulator of the absolute grating read head's interface board (protocol in devices.grating.driver and .protocol).
 
 Samples are taken on the exact 5 kHz grid of station time (t_k = k / 5000 s,
 time stamps multiples of 4000 ticks), positions from world.table_position_m.
@@ -21,33 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from devices.grating import driver as g
+from devices.grating import protocol as g
+from devices.grating.protocol import SAMPLE_FRAME_LEN, encode_sample_frames
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
-from devices.serial_port import (
-    OVERHEAD,
-    SYNC,
-    FrameParser,
-    crc16,
-    encode_frame,
-    ticks_of,
-)
+from devices.serial_port import FrameParser, encode_frame, ticks_of
 
-SAMPLE_FRAME_LEN = OVERHEAD + g.SAMPLE_PAYLOAD.size
 MAX_SAMPLES_PER_POLL = 4000
-
-# numpy layout of a whole SAMPLE frame, for vectorised encoding
-_FRAME_DTYPE = np.dtype(
-    [
-        ("sync", "u1", 2),
-        ("type", "u1"),
-        ("len", "<u2"),
-        ("seq", "<u2"),
-        ("ticks", "<u4"),
-        ("biss", "u1", 6),
-        ("crc", "<u2"),
-    ]
-)
-assert _FRAME_DTYPE.itemsize == SAMPLE_FRAME_LEN
 
 
 class GratingEmulator(PtyEmulator):
@@ -151,22 +130,10 @@ class GratingEmulator(PtyEmulator):
             n_err[i] = 0
         pos = np.where(n_err == 1, np.rint(z_m * 1e9 / g.NM_PER_COUNT), 0).astype(np.int64)
         words = g.biss_words_np(pos, n_err, np.ones(n, dtype=np.uint8))
-        frames = np.zeros(n, dtype=_FRAME_DTYPE)
-        frames["sync"] = np.frombuffer(SYNC, dtype=np.uint8)
-        frames["type"] = g.SAMPLE
-        frames["len"] = g.SAMPLE_PAYLOAD.size
-        frames["seq"] = (self._seq + np.arange(n)) & 0xFFFF
-        ticks = k * (g.TICKS_PER_CYCLE * self.divider)
-        frames["ticks"] = (ticks & 0xFFFFFFFF).astype(np.uint32)
-        for j in range(6):
-            frames["biss"][:, j] = (words >> np.uint64(8 * (5 - j))) & np.uint64(0xFF)
-        raw = frames.view(np.uint8).reshape(n, SAMPLE_FRAME_LEN)
-        crc_span = raw[:, 2 : SAMPLE_FRAME_LEN - 2]
-        frames["crc"] = [crc16(row.tobytes()) for row in crc_span]
+        out = encode_sample_frames(self._seq + np.arange(n), k * (g.TICKS_PER_CYCLE * self.divider), words)
         self._next_k += n
         self._seq = (self._seq + n) & 0xFFFF
         self.sent += n
-        out = frames.tobytes()
         first = self._maybe_corrupt(out[:SAMPLE_FRAME_LEN])
         return first + out[SAMPLE_FRAME_LEN:]
 

@@ -36,7 +36,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from devices.errors import (
-    ChecksumError,
     DeviceFault,
     DeviceTimeout,
     DriverError,
@@ -44,67 +43,9 @@ from devices.errors import (
     InterlockError,
     LimitError,
 )
+from devices.indexing_head.protocol import DEVICE, Reply, decode_reply, encode_command
 from devices.serial_port import SerialDevice, with_retries
 from station.clock import Clock, WallClock
-
-DEVICE = "indexing head"
-
-
-# ---------------------------------------------------------------- line codec
-
-
-def lrc(body: bytes) -> int:
-    """Zaber ASCII checksum: two's complement of the byte sum, mod 256."""
-    return (256 - sum(body) % 256) % 256
-
-
-def encode_message(lead: str, body: str) -> bytes:
-    """`<lead><body>:<lrc>` (no terminator)."""
-    b = body.encode("ascii")
-    return lead.encode("ascii") + b + b":%02X" % lrc(b)
-
-
-@dataclass(frozen=True, slots=True)
-class Reply:
-    device: int
-    axis: int
-    msg_id: int | None
-    ok: bool
-    busy: bool
-    warning: str  # "--" when none
-    data: str
-
-
-def decode_reply(line: bytes) -> Reply:
-    """Parse a `@...` reply line (terminator stripped); typed errors when bad."""
-    if not line.startswith(b"@"):
-        raise FrameError(DEVICE, f"not a reply: {line!r}")
-    body, sep, cs = line[1:].rpartition(b":")
-    if not sep or len(cs) != 2:
-        raise FrameError(DEVICE, f"reply without checksum (truncated?): {line!r}")
-    try:
-        got = int(cs, 16)
-    except ValueError as exc:
-        raise FrameError(DEVICE, f"malformed checksum in {line!r}") from exc
-    if got != lrc(body):
-        raise ChecksumError(DEVICE, f"reply {line!r}: checksum {got:02X} != computed {lrc(body):02X}")
-    try:
-        tokens = body.decode("ascii").split(" ")
-        dev, axis, *rest = tokens
-        msg_id: int | None = None
-        if rest and rest[0].isdigit():
-            msg_id = int(rest[0])
-            rest = rest[1:]
-        if len(rest) < 4:
-            raise ValueError("too few fields")
-        flag, status, warn = rest[:3]
-        data = " ".join(rest[3:])
-        if flag not in ("OK", "RJ") or status not in ("BUSY", "IDLE"):
-            raise ValueError(f"flag {flag!r} / status {status!r}")
-        return Reply(int(dev), int(axis), msg_id, flag == "OK", status == "BUSY", warn, data)
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise FrameError(DEVICE, f"malformed reply {line!r}: {exc}") from exc
-
 
 # ---------------------------------------------------------------- driver
 
@@ -174,8 +115,7 @@ class IndexingHead(SerialDevice):
         with self._io:
             self._msg_id = (self._msg_id + 1) % 100
             mid = self._msg_id
-            body = f"{self.device} {self.axis} {mid} {command}".rstrip()
-            lines.link.write(encode_message("/", body) + b"\n")
+            lines.link.write(encode_command(self.device, self.axis, mid, command))
             deadline = time.monotonic() + self.timeout_s
             while True:
                 left = deadline - time.monotonic()

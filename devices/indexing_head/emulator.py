@@ -1,4 +1,4 @@
-"""Emulator of the indexing head's controller (protocol in devices.indexing_head.driver).
+"""Emulator of the indexing head's controller (protocol in devices.indexing_head.driver and .protocol).
 
 Motion belongs to the world: `move abs` calls world.index_command_move,
 `stop` world.index_stop, `get pos` reads world.index_position_deg (the
@@ -14,10 +14,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from devices.indexing_head.driver import encode_message, lrc
+from devices.indexing_head.protocol import WARNING_ORDER, decode_command, encode_reply
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
-
-WARNING_ORDER = ("FS", "NI", "WR")  # most important first
 
 
 class IndexingEmulator(PtyEmulator):
@@ -51,11 +49,7 @@ class IndexingEmulator(PtyEmulator):
         now = self.clock.now_s()
         busy = self.world.index_busy(now)
         warn = next((w for w in WARNING_ORDER if w in self.warnings), "--")
-        fields = [f"{self.device:02d}", str(axis)]
-        if mid is not None:
-            fields.append(f"{mid:02d}")
-        fields += ["OK" if ok else "RJ", "BUSY" if busy else "IDLE", warn, data]
-        line = encode_message("@", " ".join(fields))
+        line = encode_reply(self.device, axis, mid, ok, busy, warn, data)
         if self.faults.take(Fault.GARBLE):
             line = garble(line)
         elif self.faults.take(Fault.TRUNCATE):
@@ -65,22 +59,10 @@ class IndexingEmulator(PtyEmulator):
         self.send(line + b"\r\n")
 
     def _handle(self, line: bytes) -> None:
-        if not line.startswith(b"/"):
+        command = decode_command(line)
+        if command is None or command.device not in (0, self.device):
             return
-        body, sep, cs = line[1:].partition(b":")
-        if sep and (len(cs) != 2 or int(cs, 16) != lrc(body)):
-            return  # Zaber devices silently drop commands with a bad checksum
-        tokens = body.decode("ascii", "replace").split()
-        if len(tokens) < 2 or not tokens[0].isdigit() or not tokens[1].isdigit():
-            return
-        dev, axis = int(tokens[0]), int(tokens[1])
-        if dev not in (0, self.device):
-            return
-        rest = tokens[2:]
-        mid = None
-        if rest and rest[0].isdigit():
-            mid = int(rest[0])
-            rest = rest[1:]
+        axis, mid, rest = command.axis, command.msg_id, command.words
         self.commands.append(" ".join(rest))
         if axis not in (0, 1):
             self._reply(axis, mid, False, "BADAXIS")

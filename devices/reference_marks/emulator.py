@@ -1,4 +1,4 @@
-"""Emulator of the reference-mark monitor (protocol in devices.reference_marks.driver).
+"""Emulator of the reference-mark monitor (protocol in devices.reference_marks.driver and .protocol).
 
 Each poll reports the crossings world.reference_crossings_s gives for the
 station time elapsed since the previous poll, and a heartbeat every second of
@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import Any
 
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
-from devices.reference_marks.driver import HEARTBEAT_S, decode_line, encode_line
+from devices.reference_marks.protocol import HEARTBEAT_S, decode_line, encode_line
 from devices.serial_port import ticks_of
 
 

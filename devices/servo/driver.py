@@ -57,6 +57,7 @@ TWO_PI = 2.0 * math.pi
 VELOCITY_UNIT_HZ = 1e-6  # 0x606C, 0x60FF: 1e-6 rev/s
 ACCEL_UNIT_HZ_PER_S = 1e-6  # 0x6083, 0x6084, 0x6085: 1e-6 rev/s^2
 POSITION_UNITS_PER_REV = 65536  # 0x6064
+from engine.protocols import ServoReading
 MODE_PROFILE_VELOCITY = 3
 SUPPORTED_MODE_PV_BIT = 0x04  # 0x6502 bit 2
 
@@ -161,16 +162,6 @@ class ServoLimits:
                 value=ramp_hz_per_s,
                 allowed=f"0 < ramp <= {self.ramp_max_hz_per_s:g} Hz/s",
             )
-
-
-@dataclass(frozen=True)
-class ServoReading:
-    """One TPDO sample of the drive's feedback, time-stamped by the station clock."""
-
-    t_s: float
-    freq_hz: float
-    velocity_radps: float
-    position_rad: float  # wraps with the drive's 32-bit position counter
 
 
 class _TpdoCache:

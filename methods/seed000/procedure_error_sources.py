@@ -36,7 +36,7 @@ from station.clock import speed_at_most
 from station.session import Measurement, Session
 
 if TYPE_CHECKING:
-    from engine.planning import PlanContext
+    from engine.context import PlanContext
     from engine.runner import RunContext
 
 TABLE5_FREQS_HZ = [1.0, 3.0, 5.0, 7.0, 9.0, 10.0]

@@ -29,7 +29,7 @@ from models.chamber_thermal import time_to_band_s
 from station.session import Measurement, Session
 
 if TYPE_CHECKING:
-    from engine.planning import PlanContext
+    from engine.context import PlanContext
     from engine.runner import RunContext
 
 CHAMBER = "temperature_chamber"

@@ -40,7 +40,7 @@ from models.plan import PULSES_PER_REV, preset_pulses
 from station.session import Measurement, PointRecord, Session, StationInfo
 
 if TYPE_CHECKING:
-    from engine.planning import PlanContext
+    from engine.context import PlanContext
     from engine.runner import RunContext
 
 SECOND_INSTRUMENT = "second_instrument"  # the device (devices/second_instrument/driver.py)

@@ -32,7 +32,7 @@ from models.plan import multiposition_plan, point_id
 from station.session import Measurement, PointRecord, Session
 
 if TYPE_CHECKING:
-    from engine.planning import PlanContext
+    from engine.context import PlanContext
     from engine.runner import Engine as RunContext
 
 ELECTRONICS = "piga_electronics"  # devices.piga_electronics.driver.DEVICE_KIND.name

@@ -22,7 +22,8 @@ from devices.errors import (
     FrameError,
     LimitError,
 )
-from devices.grating import driver as g
+from devices.grating import protocol as g
+from devices.grating.driver import GratingReadHead
 from devices.pty_link import Fault
 from devices.serial_port import SYNC, Frame, FrameParser, crc16, encode_frame
 
@@ -234,7 +235,7 @@ def test_rate_divider_keeps_up_with_a_fast_virtual_clock(grating_rig_at) -> None
 # ---------------------------------------------------------------- faults
 
 
-def _read_until_error(head: g.GratingReadHead, limit: int = 50) -> DriverError:
+def _read_until_error(head: GratingReadHead, limit: int = 50) -> DriverError:
     for _ in range(limit):
         try:
             head.read_block(timeout_s=1.0)
@@ -317,7 +318,7 @@ def test_disconnect_mid_stream(grating_rig) -> None:
 def test_port_is_exclusive_and_missing_port_is_disconnected(grating_rig) -> None:
     _, emu, _ = grating_rig
     with pytest.raises(DriverError, match="in use"):
-        g.GratingReadHead(emu.port).open()
+        GratingReadHead(emu.port).open()
     missing = f"/dev/pts/does-not-exist-{os.getpid()}"
     with pytest.raises(Disconnected):
-        g.GratingReadHead(missing).open()
+        GratingReadHead(missing).open()

@@ -18,7 +18,7 @@ from devices.errors import (
     InterlockError,
     LimitError,
 )
-from devices.indexing_head import driver as ih
+from devices.indexing_head import protocol as ih
 from devices.pty_link import Fault
 
 pytestmark = pytest.mark.timeout(60)

@@ -11,7 +11,6 @@ import pytest
 from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import SimulatedStation, simulated_station
-from engine.planning import StationModel
 from models.config import TwinConfig, default_twin
 from station.store import SessionStore
 
@@ -39,7 +38,7 @@ def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
         store = SessionStore(db or tmp_path / "station.sqlite")
         messages: list[tuple[str, dict]] = []
         controller = StationController(
-            sim.devices, store, StationModel.from_config(CONFIG), reports_dir=tmp_path,
+            sim.devices, store, CONFIG.station_model(), reports_dir=tmp_path,
             publish=lambda topic, msg: messages.append((topic, msg)),
         )  # fmt: skip
         rig = Rig(sim, store, controller, messages)

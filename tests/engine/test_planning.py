@@ -9,14 +9,15 @@ from pathlib import Path
 import pytest
 
 from devices.config import load_station_config
+from engine.context import StationModel, ValidationError
 from engine.params import Param, ParameterError
-from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.planning import plan_procedure
 from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
 from engine.steps import MeasurePoint, MoveIndex, SetVibration
 
 from .conftest import CONFIG
 
-MODEL = StationModel.from_config(CONFIG)
+MODEL = CONFIG.station_model()
 CONFIG_DIR = Path(__file__).parents[2] / "config"
 PROCEDURES = CONFIG_DIR / "procedures"
 
@@ -32,7 +33,7 @@ def _spec(*steps) -> ProcedureSpec:
 def test_every_shipped_procedure_file_plans() -> None:
     """On the core station, or (a procedure with further devices) on a simulated station file that has them."""
     stations = sorted(CONFIG_DIR.glob("station-*-sim.toml"))
-    models = [MODEL] + [StationModel.from_config(load_station_config(f)) for f in stations]
+    models = [MODEL] + [load_station_config(f).station_model() for f in stations]
     for path in sorted(PROCEDURES.glob("*.toml")):
         spec, params = load_procedure_file(path)
         refusals = []

@@ -21,8 +21,9 @@ from scipy.integrate import quad
 from app.controller import RunOutcome, StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
+from engine.context import StationModel, ValidationError
 from engine.params import ParameterError
-from engine.planning import Plan, StationModel, ValidationError, plan_procedure
+from engine.planning import Plan, plan_procedure
 from engine.registry import get_procedure
 from engine.runner import State
 from methods.seed000.frequency_stability import mean_rate_error_radps
@@ -60,7 +61,7 @@ def run(tmp_path) -> Iterator[Callable[..., tuple[RunOutcome, SessionStore]]]:
         sim = simulated_station(STATION, twin, seed=5, speed=1000.0)
         store = SessionStore(tmp_path / "station.sqlite")
         opened.append((sim, store))
-        controller = StationController(sim.devices, store, StationModel.from_config(STATION), reports_dir=tmp_path)
+        controller = StationController(sim.devices, store, STATION.station_model(), reports_dir=tmp_path)
         outcome = controller.run(procedure, params)
         assert outcome.state == State.FINISHED and not outcome.faults, outcome.faults
         return outcome, store
@@ -198,8 +199,8 @@ def _plan(procedure: str, params: dict, model: StationModel) -> Plan:
 
 
 def test_bad_input_is_refused_before_anything_moves() -> None:
-    model = StationModel.from_config(STATION)
-    bare = StationModel.from_config(load_station_config(CONFIG_DIR / "station-sim.toml"))
+    model = STATION.station_model()
+    bare = load_station_config(CONFIG_DIR / "station-sim.toml").station_model()
     with pytest.raises(ParameterError, match=r"'freq_hz' = 2\.0: out of range, allowed float in \[0\.1, 1\] Hz"):
         _plan("seed000.parasitic_rotation", {"freq_hz": 2.0}, model)
     with pytest.raises(ValidationError, match=r"CaptureGrating.*duration_s = 1010\.0.*0 \.\. 600 s"):

@@ -17,7 +17,8 @@ from devices.config import load_station_config
 from devices.station import simulated_station
 from devices.temperature_chamber.emulator import ChamberFault
 from devices.voltmeter.emulator import accelerometer
-from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.context import ValidationError
+from engine.planning import plan_procedure
 from engine.registry import get_procedure
 from engine.runner import State
 from methods.seed001.analysis import READING, SOAK
@@ -47,7 +48,7 @@ Z_MAX = 4.0
 def station(tmp_path) -> Iterator[tuple]:
     sim = simulated_station(CONFIG, default_twin(), seed=7, speed=SPEED)
     store = SessionStore(tmp_path / "station.sqlite")
-    controller = StationController(sim.devices, store, StationModel.from_config(CONFIG), reports_dir=tmp_path)
+    controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=tmp_path)
     try:
         yield sim, store, controller
     finally:
@@ -61,7 +62,7 @@ def station(tmp_path) -> Iterator[tuple]:
 def _plan_error(params: dict, config=CONFIG) -> str:
     spec = get_procedure(PROCEDURE)
     with pytest.raises(ValidationError) as exc:
-        plan_procedure(spec, spec.validate(params), StationModel.from_config(config))
+        plan_procedure(spec, spec.validate(params), config.station_model())
     return str(exc.value)
 
 
@@ -76,7 +77,7 @@ def test_planning_refuses_what_the_station_must_not_do() -> None:
 
 def test_dry_run_estimates_the_soaks() -> None:
     spec = get_procedure(PROCEDURE)
-    plan = plan_procedure(spec, spec.validate(QUICK), StationModel.from_config(CONFIG))
+    plan = plan_procedure(spec, spec.validate(QUICK), CONFIG.station_model())
     est = plan.key_estimates_s()
     assert len(est) == 4 + 4 * 18
     section = CONFIG.extras["temperature_chamber"]

@@ -18,8 +18,9 @@ import pytest
 from app.controller import RunOutcome, StationController
 from devices.config import load_station_config
 from devices.station import SimulatedStation, simulated_station
+from engine.context import ValidationError
 from engine.params import ParameterError
-from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.planning import plan_procedure
 from engine.registry import get_procedure, load_procedure_file
 from engine.runner import State
 from models.config import default_twin
@@ -69,7 +70,7 @@ def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
         def make(seed: int = 1) -> Rig:
             sim = stack.enter_context(simulated_station(STATION, default_twin(), seed=seed, speed=1000.0))
             store = stack.enter_context(SessionStore(tmp_path / f"station-{seed}.sqlite"))
-            controller = StationController(sim.devices, store, StationModel.from_config(STATION), reports_dir=tmp_path)
+            controller = StationController(sim.devices, store, STATION.station_model(), reports_dir=tmp_path)
             stack.callback(_stop, controller)
             return Rig(sim, store, controller)
 
@@ -78,11 +79,11 @@ def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
 
 def test_the_dry_run_times_the_session_and_bad_input_is_refused_before_anything_moves() -> None:
     spec, params = load_procedure_file(CONFIG_DIR / "procedures" / "seed002_quick.toml")
-    plan = plan_procedure(spec, params, StationModel.from_config(STATION))
+    plan = plan_procedure(spec, params, STATION.station_model())
     per_run = 60 + 2 * 60 + 2 * 2 + 60 + 1  # remount, two alignments, ramps, vibration, ring-down
     assert plan.total_s == pytest.approx(11 * per_run) and len(plan.measurements) == 11
     spec = get_procedure(PROCEDURE)
-    model = StationModel.from_config(STATION)
+    model = STATION.station_model()
     refused = [
         ({}, CORE, "device = 'imu' is not allowed"),
         ({"poses": [1, 5.5]}, STATION, "fixture_pose = 5.5 is not allowed: one of 1, 2"),
@@ -93,7 +94,7 @@ def test_the_dry_run_times_the_session_and_bad_input_is_refused_before_anything_
     ]
     for params, station, message in refused:
         with pytest.raises(ValidationError, match=message.replace("[", r"\[").replace("]", r"\]")):
-            plan_procedure(spec, spec.validate(params), StationModel.from_config(station))
+            plan_procedure(spec, spec.validate(params), station.station_model())
     with pytest.raises(ParameterError, match=r"'align_s' = 5: out of range, allowed float in \[10, 7200\] s"):
         spec.validate({"align_s": 5})
     assert plan_procedure(spec, spec.validate(SESSION), model).total_s > 0

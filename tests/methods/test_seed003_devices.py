@@ -26,8 +26,9 @@ from devices.registry import device_kinds
 from devices.second_instrument.emulator import FIXTURE, INSTRUMENT_B, SEAT_ERRORS_RAD
 from devices.station import simulated_station
 from devices.world import SimStation
+from engine.context import ValidationError
 from engine.params import ParameterError
-from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.planning import plan_procedure
 from engine.registry import get_procedure
 from engine.runner import State
 from models.config import TwinConfig
@@ -181,7 +182,7 @@ def dual_station(tmp_path):
     config = load_station_config(CONFIG_DIR / "station-dual-sim.toml")
     sim = simulated_station(config, TWIN, seed=4, speed=1000.0)
     store = SessionStore(tmp_path / "station.sqlite")
-    controller = StationController(sim.devices, store, StationModel.from_config(config), reports_dir=tmp_path)
+    controller = StationController(sim.devices, store, config.station_model(), reports_dir=tmp_path)
     try:
         yield sim, controller
     finally:
@@ -236,7 +237,7 @@ def test_bad_parameters_name_the_field_value_and_allowed(params, named) -> None:
 
 def test_a_station_without_the_second_instrument_is_refused_in_planning() -> None:
     spec = get_procedure("seed003.gravity_field")
-    model = StationModel.from_config(load_station_config(CONFIG_DIR / "station-sim.toml"))
+    model = load_station_config(CONFIG_DIR / "station-sim.toml").station_model()
     with pytest.raises(ValidationError, match="device = 'second_instrument' is not allowed: a device of this"):
         plan_procedure(spec, spec.validate({}), model)
 
@@ -245,7 +246,7 @@ def test_dry_run_shows_the_hours_where_an_input_axis_is_horizontal() -> None:
     """With B 90 deg from A, the four-pose positions at 0 and 180 deg put B's input axis horizontal: its
     rate is about k0, so a 10 pi window takes 2 pi 5 / (k0 + kz cos 90.0) of the planning model, days."""
     spec = get_procedure("seed003.gravity_field")
-    model = StationModel.from_config(load_station_config(CONFIG_DIR / "station-dual-sim.toml"))
+    model = load_station_config(CONFIG_DIR / "station-dual-sim.toml").station_model()
     est = plan_procedure(spec, spec.validate({}), model).key_estimates_s()
     slow = 2 * math.pi * 5 / abs(model.nominal_rate_radps(90.0))
     assert est["S1-01-0deg-B"] == pytest.approx(slow, rel=1e-3) and slow > 24 * 3600

@@ -22,7 +22,6 @@ from app.controller import StationController
 from devices.config import load_station_config
 from devices.second_instrument.emulator import IA_ERROR_B_RAD, INSTRUMENT_B, SEAT_ERRORS_RAD
 from devices.station import simulated_station
-from engine.planning import StationModel
 from engine.runner import State
 from methods.seed003 import gravity_field as gf
 from methods.seed003.four_pose import harmonic_names
@@ -68,7 +67,7 @@ def run(tmp_path_factory):
     sim = simulated_station(CONFIG, twin, seed=3, speed=1000.0)
     store = SessionStore(out / "station.sqlite")
     try:
-        controller = StationController(sim.devices, store, StationModel.from_config(CONFIG), reports_dir=out)
+        controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=out)
         outcome = controller.run("seed003.gravity_field", PARAMS)
         session = store.load_session(outcome.session_uid, with_raw=False)
     finally:

@@ -16,8 +16,9 @@ from app.cli import main
 from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
+from engine.context import ValidationError
 from engine.params import ParameterError
-from engine.planning import StationModel, ValidationError, plan_procedure
+from engine.planning import plan_procedure
 from engine.registry import get_procedure, load_procedure_file
 from engine.runner import State
 from methods.seed004.analysis import spline_minimum
@@ -34,7 +35,7 @@ KZ = 0.56  # the simulated PIGA's scale factor (default twin)
 def _plan(station: Path = STATION, **params):
     spec, given = load_procedure_file(PROCEDURE)
     return plan_procedure(spec, spec.validate({**given, **params}),
-                          StationModel.from_config(load_station_config(station)))  # fmt: skip
+                          load_station_config(station).station_model())  # fmt: skip
 
 
 @pytest.mark.timeout(30)
@@ -140,7 +141,7 @@ def test_a_resumed_session_sets_the_offset_again_and_never_removes_mass_twice(tm
     params = {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0], "freqs_hz": [8.0, 10.0], "window_s": 20.0,
               "verify_window_s": 20.0}  # fmt: skip
     with simulated_station(config, default_twin(), seed=3, speed=300.0) as sim, SessionStore(tmp_path / "s.db") as db:
-        controller = StationController(sim.devices, db, StationModel.from_config(config), reports_dir=tmp_path)
+        controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)
         emu = sim.emulators["piga_electronics"]
         j0 = emu.float_model.inertia_product_kgm2
         uid, _ = controller.start("seed004.nonlinear_suppression", params)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from models.config import EFFECTS, NoiseModel, TwinConfig, TwinConfigError
-from models.measurement import PointSpec, simulate_point
+from models.measurement import simulate_point
+from models.plan import PointSpec
 from models.precession import periodic_rate
 
 EXACT = TwinConfig(noise=NoiseModel(timer_tick_s=0.0))

@@ -15,7 +15,8 @@ from scipy.optimize import brentq
 
 from models.config import NoiseModel, TwinConfig
 from models.inputs import instrument_inputs, instrument_rate_radps
-from models.measurement import PointSpec, simulate_point
+from models.measurement import simulate_point
+from models.plan import PointSpec
 from models.precession import PrecessionWindow, periodic_rate
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from models.config import NoiseModel, TwinConfig
-from models.measurement import PointSpec, simulate_point
+from models.measurement import simulate_point
+from models.plan import PointSpec
 
 EXACT = TwinConfig(noise=NoiseModel(timer_tick_s=0.0))
 Q = 2 * math.pi / 16384
