@@ -1,6 +1,6 @@
 """Devices beyond the vibration-table core, found by name: voltmeters, chambers, IMUs, shakers, ...
 
-A driver module in `devices/` that defines a module attribute
+A device package's kind module (`devices/<device>/kind.py`) that defines a module attribute
 
     DEVICE_KIND = DeviceKind(name="voltmeter", section=VoltmeterSection, open=..., emulate=...)
 
@@ -19,6 +19,7 @@ through `ctx.model.section(name)`.
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,14 +39,14 @@ class DeviceKind:
 
 @cache
 def device_kinds() -> dict[str, DeviceKind]:
-    """Every DEVICE_KIND declared by a device package's driver module, by name."""
+    """Every DEVICE_KIND declared by a device package's kind module (devices/<device>/kind.py), by name."""
     import devices
 
     kinds: dict[str, DeviceKind] = {}
     for mod in pkgutil.iter_modules(devices.__path__):
-        if not mod.ispkg:
+        if not mod.ispkg or importlib.util.find_spec(f"devices.{mod.name}.kind") is None:
             continue
-        kind = getattr(importlib.import_module(f"devices.{mod.name}.driver"), "DEVICE_KIND", None)
+        kind = getattr(importlib.import_module(f"devices.{mod.name}.kind"), "DEVICE_KIND", None)
         if isinstance(kind, DeviceKind):
             kinds[kind.name] = kind
     return kinds

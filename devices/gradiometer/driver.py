@@ -35,49 +35,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
 
-from devices.config import SerialSection, in_range, spec
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, FrameError
-from devices.registry import DeviceKind
+from devices.errors import DeviceFault, DeviceTimeout, FrameError
+from devices.gradiometer.protocol import DEVICE, STATUS, decode_line, encode_line, parse_reading
 from devices.serial_port import SerialDevice, TickUnwrapper, with_retries
 from station.clock import Clock
-
-DEVICE = "gradiometer"
-STATUS = {0: "ok", 1: "over range", 2: "sensor fault (no pendulum signal)"}
-
-
-# ---------------------------------------------------------------- line codec
-
-
-def checksum(body: bytes) -> int:
-    return sum(body) % 256
-
-
-def encode_line(lead: str, address: int, command: str, *fields: object) -> bytes:
-    """`<lead><aa><CMD>[,f1,...]*<cs>\\r\\n`."""
-    body = (f"{address:02d}{command}" + "".join(f",{f}" for f in fields)).encode("ascii")
-    return lead.encode("ascii") + body + b"*%02X\r\n" % checksum(body)
-
-
-def decode_line(line: bytes, lead: bytes = b"!") -> tuple[int, str, list[str]]:
-    """(address, command, fields) of a line without its terminator; typed errors when bad."""
-    if not line.startswith(lead) or len(line) < 8 or line[-3:-2] != b"*":
-        raise FrameError(DEVICE, f"malformed or truncated line {line!r}")
-    body = line[1:-3]
-    try:
-        got = int(line[-2:], 16)
-    except ValueError as exc:
-        raise FrameError(DEVICE, f"malformed checksum in {line!r}") from exc
-    if got != checksum(body):
-        raise ChecksumError(DEVICE, f"line {line!r}: checksum {got:02X} != computed {checksum(body):02X}")
-    try:
-        text = body.decode("ascii")
-        head, *fields = text.split(",")
-        return int(head[:2]), head[2:], fields
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise FrameError(DEVICE, f"malformed line {line!r}") from exc
-
 
 # ---------------------------------------------------------------- driver
 
@@ -163,12 +125,7 @@ class Gradiometer(SerialDevice):
 
     def read(self) -> TiltReading:
         """One reading, time-stamped by the instrument (query, retried)."""
-        f = self._query("RD")
-        try:
-            n, ticks, status = int(f[0]), int(f[1], 16), int(f[5])
-            phi = tuple(float(v) for v in f[2:5])
-        except (IndexError, ValueError) as exc:
-            raise FrameError(DEVICE, f"malformed reading {f!r}") from exc
+        n, ticks, phi, status = parse_reading(self._query("RD"))
         if status == 1:
             axis, value = max(zip("xyz", phi, strict=True), key=lambda av: abs(av[1]))
             raise DeviceFault(DEVICE, "over range", field=f"phi_{axis}_arcsec", value=value,
@@ -178,46 +135,3 @@ class Gradiometer(SerialDevice):
                               allowed="0 (ok)")  # fmt: skip
         self._unwrap.reset()
         return TiltReading(n, self._unwrap.unwrap_s(ticks), *phi)
-
-
-# ---------------------------------------------------------------- station plug-in
-
-
-@dataclass(frozen=True)
-class GradiometerSection(SerialSection):
-    """`[gradiometer]` of a station file."""
-
-    address: int = spec(in_range(1, 99))
-    resolution_arcsec: float = spec(in_range(0.0, 10.0, lo_open=True))
-    range_arcsec: float = spec(in_range(0.0, 36_000.0, lo_open=True))
-
-
-def open_gradiometer(section: GradiometerSection, clock: Clock) -> Gradiometer:
-    """Open the port and check that the instrument answering is the one configured."""
-    grad = Gradiometer(section.port or "", baud=section.baud, address=section.address, clock=clock).open()
-    try:
-        ident = grad.identify()
-        for name in ("resolution_arcsec", "range_arcsec"):
-            got, want = getattr(ident, name), getattr(section, name)
-            if abs(got - want) > 1e-9 * max(abs(want), 1.0):
-                raise DeviceFault(DEVICE, f"instrument {ident.model} {ident.serial} disagrees with [gradiometer]",
-                                  field=name, value=got, allowed=f"{want:g} as configured")  # fmt: skip
-    except BaseException:
-        grad.close()
-        raise
-    return grad
-
-
-def emulate_gradiometer(section: GradiometerSection, world: Any) -> Any:
-    """The emulator on the simulated world (a GradiometerEmulator, started), configured as the section says."""
-    from devices.gradiometer.emulator import GradiometerEmulator
-
-    emu = GradiometerEmulator(
-        world, baud=section.baud, address=section.address,
-        resolution_arcsec=section.resolution_arcsec, range_arcsec=section.range_arcsec,
-    )  # fmt: skip
-    emu.start()
-    return emu
-
-
-DEVICE_KIND = DeviceKind("gradiometer", GradiometerSection, open_gradiometer, emulate_gradiometer)

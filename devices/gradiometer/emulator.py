@@ -1,4 +1,4 @@
-"""Emulator of the electronic gradiometer (protocol in devices.gradiometer.driver).
+"""Emulator of the electronic gradiometer (protocol in devices.gradiometer.driver and .protocol).
 
 A reading is taken when its request arrives, at t = world.clock.now_s(): the table
 top's tilt at the crank phase world.crank.phase_rad(t) (models.table_tilt: about
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from devices.errors import ChecksumError, FrameError
-from devices.gradiometer.driver import decode_line, encode_line
+from devices.gradiometer.protocol import decode_line, encode_line, format_reading
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
 from devices.serial_port import ticks_of
 from models.table_tilt import ARCSEC_RAD, NO_TILT, TiltHarmonics, table_tilt_rad
@@ -81,7 +81,7 @@ class GradiometerEmulator(PtyEmulator):
         else:
             self._reply("ER", "BADCMD")
 
-    def _reading(self) -> tuple[object, ...]:
+    def _reading(self) -> tuple[str, ...]:
         t = self.clock.now_s()
         psi = self.world.crank.phase_rad(t)
         tilt = np.array(table_tilt_rad(psi, self.world.twin, self.about_y, self.about_z), dtype=float) / ARCSEC_RAD
@@ -90,7 +90,7 @@ class GradiometerEmulator(PtyEmulator):
         status = 2 if self.faults.active(Fault.SIGNAL_LOSS) else 1 if np.any(np.abs(tilt) > self.range_arcsec) else 0
         tilt = np.clip(tilt, -self.range_arcsec, self.range_arcsec)
         self.readings += 1
-        return (self.readings, f"{ticks_of(t):08X}", *(f"{v:+.3f}" for v in tilt), status)
+        return format_reading(self.readings, ticks_of(t), tilt, status)
 
     def _reply(self, command: str, *fields: object) -> None:
         line = encode_line("!", self.address, command, *fields)

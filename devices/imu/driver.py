@@ -33,40 +33,33 @@ retried.
 from __future__ import annotations
 
 import contextlib
-import struct
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from devices.config import in_range, spec
 from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from devices.registry import DeviceKind
-from devices.serial_port import OVERHEAD, TICK_S, Frame, FramedDevice, TickUnwrapper
+from devices.imu.protocol import (
+    ACK,
+    ACK_PAYLOAD,
+    ACK_RESULTS,
+    DEVICE,
+    INFO,
+    INFO_PAYLOAD,
+    INFO_Q,
+    LINE_MARGIN,
+    RATE,
+    RATE_PAYLOAD,
+    RATES_HZ,
+    SAMPLE,
+    SAMPLE_DTYPE,
+    SAMPLE_FRAME_BYTES,
+    START,
+    STATUS_BITS,
+    STOP,
+)
+from devices.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from station.clock import Clock
-
-DEVICE = "strapdown IMU"
-
-START, STOP, INFO_Q, RATE = 0x40, 0x41, 0x42, 0x43
-ACK, INFO, SAMPLE = 0xC0, 0xC2, 0x50
-RATES_HZ = (200, 400, 500, 1000)
-ACK_PAYLOAD = struct.Struct("<BB")
-RATE_PAYLOAD = struct.Struct("<H")
-INFO_PAYLOAD = struct.Struct("<HddB16s")
-SAMPLE_DTYPE = np.dtype([("seq", "<u4"), ("ticks", "<u4"), ("dtheta", "<i4", 3), ("dv", "<i4", 3), ("status", "u1")])
-SAMPLE_FRAME_BYTES = OVERHEAD + SAMPLE_DTYPE.itemsize
-STATUS_BITS = {0: "gyro fault", 1: "accelerometer fault or saturation", 2: "over-temperature"}
-ACK_RESULTS = {1: "bad argument", 2: "busy: streaming"}
-LINE_MARGIN = 0.5  # share of the line a lossless stream may fill (UART pacing, host reads, bursts)
-
-
-@dataclass(frozen=True)
-class ImuSection:
-    """[imu] of a station file."""
-
-    port: str | None = spec((bool, "a device path such as /dev/ttyUSB4"), optional=True)
-    baud: int = spec(in_range(115_200, 12_000_000))
-    rate_hz: int = spec((lambda v: v in RATES_HZ, f"one of {', '.join(map(str, RATES_HZ))}"))
 
 
 @dataclass(frozen=True)
@@ -261,20 +254,3 @@ class StrapdownImu(FramedDevice):
         self._next_seq, self._last_ticks = int(seq[-1]) + 1, int(ticks[-1])
         return ImuBlock(seq, ticks * TICK_S, raw["dtheta"] * info.gyro_lsb_rad, raw["dv"] * info.accel_lsb_mps,
                         int(np.sum(dseq - 1)))  # fmt: skip
-
-
-def open_imu(section: ImuSection, clock: Clock) -> StrapdownImu:
-    if section.port is None:
-        raise DriverError(DEVICE, "no serial port configured for [imu]")
-    return StrapdownImu(section.port, baud=section.baud, rate_hz=section.rate_hz, clock=clock).open()
-
-
-def emulate_imu(section: ImuSection, world) -> object:
-    from devices.imu.emulator import ImuEmulator
-
-    emulator = ImuEmulator(world, baud=section.baud)
-    emulator.start()
-    return emulator
-
-
-DEVICE_KIND = DeviceKind("imu", ImuSection, open_imu, emulate_imu)

@@ -1,4 +1,4 @@
-"""Emulator of the strapdown IMU (protocol in devices.imu.driver), on the fixture on the shaker's slip table.
+"""Emulator of the strapdown IMU (protocol in devices.imu.protocol), on the fixture on the shaker's slip table.
 
 Samples are made on the exact grid of station time (t_k = k / rate, stamps multiples of the
 period in 50 ns ticks) from the twin (`models.strapdown_imu`): the table's motion is the
@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 
 from devices.errors import DriverError
-from devices.imu import driver as imu
+from devices.imu import protocol as imu
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
-from devices.serial_port import SYNC, TICK_S, FrameParser, crc16, encode_frame
+from devices.serial_port import TICK_S, FrameParser, encode_frame
 from models.fixture_poses import POSES, ROCKING_AXIS_N, SLIP_AXIS_N, mounted
 from models.shaker_motion import ShakerMotion
 from models.strapdown_imu import Site, StrapdownImuTwin, fixture_motion, nodes_for, sensor_errors, true_increments
@@ -42,7 +42,6 @@ ACCEL_LSB_MPS = 1e-7
 # virtual clock runs on), not the IMU.
 FIFO_BYTES = 1 << 22
 SERIAL = b"SINS-RLG-0002"
-_FRAME_DTYPE = np.dtype([("sync", "u1", 2), ("type", "u1"), ("len", "<u2"), ("body", imu.SAMPLE_DTYPE), ("crc", "<u2")])
 
 
 _BENCH = ShakerMotion()  # where the IMU lies before it is mounted: a table that never moves
@@ -233,20 +232,9 @@ class ImuEmulator(PtyEmulator):
     def _encode(self, n: int) -> bytes:
         d_theta, d_v = self._increments(n)
         k = self._next_k + np.arange(n, dtype=np.int64)
-        frames = np.zeros(n, dtype=_FRAME_DTYPE)
-        frames["sync"] = np.frombuffer(SYNC, dtype=np.uint8)
-        frames["type"] = imu.SAMPLE
-        frames["len"] = imu.SAMPLE_DTYPE.itemsize
-        body = frames["body"]
-        body["seq"] = (self._seq + np.arange(n)) & 0xFFFFFFFF
-        body["ticks"] = (k * round(1.0 / (self.rate_hz * TICK_S))) & 0xFFFFFFFF
-        body["dtheta"] = d_theta
-        body["dv"] = d_v
-        body["status"] = self.status_bits
-        raw = frames.view(np.uint8).reshape(n, _FRAME_DTYPE.itemsize)
-        frames["crc"] = [crc16(row[2:-2].tobytes()) for row in raw]
+        ticks = k * round(1.0 / (self.rate_hz * TICK_S))
+        out = imu.encode_sample_frames(self._seq + np.arange(n), ticks, d_theta, d_v, self.status_bits)
         self._next_k += n
         self._seq += n
-        out = frames.tobytes()
-        size = _FRAME_DTYPE.itemsize
+        size = imu.SAMPLE_FRAME_DTYPE.itemsize
         return self._damaged(out[:size]) + out[size:]

@@ -27,58 +27,19 @@ SERV:OFFS (an absolute setpoint, so repeating it is harmless) are retried; the o
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
-from devices.config import SerialSection, in_range, spec
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, FrameError, LimitError
-from devices.registry import DeviceKind
+from devices.errors import DeviceFault, DeviceTimeout, FrameError, LimitError
+from devices.piga_electronics.protocol import DEVICE, OFFSET_DECIMALS, SERVO_STATES, decode_line, encode_line
 from devices.serial_port import SerialDevice, with_retries
 from station.clock import Clock, WallClock
-
-DEVICE = "PIGA electronics"
-SERVO_STATES = ("LOCK", "SETTLE", "FAULT")
-OFFSET_DECIMALS = 3
-
-
-def checksum(body: bytes) -> int:
-    """XOR of the body's bytes (NMEA style)."""
-    return functools.reduce(lambda a, b: a ^ b, body, 0)
-
-
-def encode_line(body: str) -> bytes:
-    """`<body>*<cs>` (no terminator)."""
-    b = body.encode("ascii")
-    return b + b"*%02X" % checksum(b)
-
-
-def decode_line(line: bytes) -> str:
-    """The body of a `<body>*<cs>` line (terminator stripped); FrameError or ChecksumError when bad."""
-    body, sep, cs = line.rpartition(b"*")
-    if not sep or len(cs) != 2:
-        raise FrameError(DEVICE, f"reply without checksum (truncated?): {line!r}")
-    try:
-        got = int(cs, 16)
-        text = body.decode("ascii")
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise FrameError(DEVICE, f"malformed reply {line!r}") from exc
-    if got != checksum(body):
-        raise ChecksumError(DEVICE, f"reply {line!r}: checksum {got:02X} != computed {checksum(body):02X}")
-    return text
 
 
 @dataclass(frozen=True)
 class ServoStatus:
     state: str  # LOCK, SETTLE or FAULT
     beta_error_arcsec: float
-
-
-@dataclass(frozen=True)
-class PigaElectronicsSection(SerialSection):
-    offset_max_arcsec: float = spec(in_range(0.0, 60.0, lo_open=True))
-    servo_settle_s: float = spec(in_range(0.0, 600.0))  # how long beta takes to follow an offset change
-    lock_timeout_s: float = spec(in_range(0.0, 600.0, lo_open=True))
 
 
 class PigaElectronics(SerialDevice):
@@ -201,24 +162,3 @@ class PigaElectronics(SerialDevice):
                     f"(state {status.state}, beta error {status.beta_error_arcsec:g} arcsec)",
                 )
             self.clock.sleep_s(self.poll_s)
-
-
-def _open(section: PigaElectronicsSection, clock: Clock) -> PigaElectronics:
-    return PigaElectronics(
-        section.port,
-        baud=section.baud,
-        offset_max_arcsec=section.offset_max_arcsec,
-        lock_timeout_s=section.lock_timeout_s,
-        clock=clock,
-    ).open()
-
-
-def _emulate(section: PigaElectronicsSection, world):
-    from devices.piga_electronics.emulator import PigaElectronicsEmulator
-
-    emulator = PigaElectronicsEmulator(world, baud=section.baud, settle_s=section.servo_settle_s)
-    emulator.start()
-    return emulator
-
-
-DEVICE_KIND = DeviceKind("piga_electronics", PigaElectronicsSection, _open, _emulate)

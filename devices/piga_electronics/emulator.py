@@ -1,4 +1,4 @@
-"""Emulator of the PIGA's electronics (protocol in devices.piga_electronics.driver), with the float it servoes.
+"""Emulator of the PIGA's electronics (protocol in devices.piga_electronics.protocol), with the float it servoes.
 
 The emulator owns the simulated instrument's float (models.nonlinear_error.FloatModel, seed 004's by
 default): whenever the digital offset changes, or the simulated operator has the laser fine-weight adjusting
@@ -20,7 +20,7 @@ from dataclasses import replace
 from typing import Any
 
 from devices.errors import DriverError
-from devices.piga_electronics.driver import OFFSET_DECIMALS, checksum, encode_line
+from devices.piga_electronics.protocol import OFFSET_DECIMALS, decode_command, encode_line
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
 from models.nonlinear_error import ARCSEC_RAD, MASS_REMOVAL, FloatModel
 
@@ -115,10 +115,9 @@ class PigaElectronicsEmulator(PtyEmulator):
         return f'ERR {code},"{text}"'
 
     def _handle(self, line: bytes) -> str:
-        body, sep, cs = line.rpartition(b"*")
-        if not sep or len(cs) != 2 or cs.upper() != b"%02X" % checksum(body):
+        command = decode_command(line)
+        if command is None:
             return self._error(-310, "checksum")
-        command = body.decode("ascii", "replace").strip()
         self.commands.append(command)
         with self._lock:
             return self._execute(command.split(maxsplit=1), self.clock.now_s())

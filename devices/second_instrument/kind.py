@@ -1,4 +1,5 @@
-"""A second PIGA on the indexing head with a counter/timer channel of its own (seed 003's dual-instrument method).
+"""A second PIGA on the indexing head with a counter/timer channel of its own (seed 003's dual-instrument method):
+the station's [second_instrument] section, how its counter opens and how it is emulated.
 
 The orthogonal 4-pose method (seed 003 section 4) counts two PIGAs on one fixture: the
 second one's output pulses go to a second counter/timer board, the same board and
@@ -18,8 +19,8 @@ from __future__ import annotations
 from typing import Any
 
 from devices.config import SerialSection
-from devices.counter_timer.driver import CounterTimer
 from devices.registry import DeviceKind
+from devices.second_instrument.driver import CounterTimer
 from station.clock import Clock
 
 

@@ -1,4 +1,4 @@
-"""Emulator of the shaker's vibration controller (protocol in devices.shaker.driver).
+"""Emulator of the shaker's vibration controller (protocol in devices.shaker.protocol).
 
 The table's motion belongs to the world: START sets the world's shared `ShakerMotion`
 (`world.shared("shaker", ShakerMotion)`, what the IMU's emulator reads) running from now on,
@@ -22,7 +22,8 @@ import numpy as np
 from devices.errors import LimitError
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
 from devices.serial_port import crc16
-from devices.shaker import driver as sh
+from devices.shaker import envelope as sh
+from devices.shaker.protocol import decode_command, encode_reply
 from models.shaker_motion import Drive, ShakerMotion, random_drive, sine_drive
 
 ALARM_STOP_S = 0.02  # an amplifier trip stops the table within tens of milliseconds
@@ -52,7 +53,7 @@ class ShakerEmulator(PtyEmulator):
             self._handle(line)
 
     def _reply(self, ok: bool, data: str) -> None:
-        line = sh.encode_line(f"{'OK' if ok else 'ER'} {data}")
+        line = encode_reply(ok, data)
         if self.faults.take(Fault.GARBLE):
             line = garble(line)
         elif self.faults.take(Fault.TRUNCATE):
@@ -62,11 +63,10 @@ class ShakerEmulator(PtyEmulator):
         self.send(line + b"\r\n")
 
     def _handle(self, line: bytes) -> None:
-        body, sep, crc = line.rpartition(b"*")
-        if not sep or len(crc) != 4 or crc.upper() != b"%04X" % crc16(body):
+        words = decode_command(line)
+        if words is None:
             self._reply(False, "SYNTAX checksum")
             return
-        words = body.decode("ascii", "replace").split()
         self.commands.append(" ".join(words))
         ok, data = self._execute(words)
         self._reply(ok, data)

@@ -26,102 +26,23 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from functools import reduce
-from operator import xor
-from typing import Any
 
-from devices.config import SerialSection, in_range, spec
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
-from devices.registry import DeviceKind
+from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
 from devices.serial_port import SerialDevice, with_retries
-from station.clock import Clock
-
-DEVICE = "temperature chamber"
-STX, ETX, EOT, ENQ, ACK, NAK = b"\x02", b"\x03", b"\x04", b"\x05", b"\x06", b"\x15"
-SENSOR_BREAK = "S.br"
-ALARM_BITS = {0: "over-temperature (AL1)", 1: "under-temperature (AL2)", 2: "sensor break", 3: "loop break"}
-RAMPING_BIT = 4
-
-
-# ---------------------------------------------------------------- codec
-
-
-def bcc(data: bytes) -> int:
-    """EI-Bisynch block check: XOR of the bytes."""
-    return reduce(xor, data, 0)
-
-
-def address_field(address: int) -> bytes:
-    """Group and unit digits, each sent twice: address 1 -> b'0011'."""
-    g, u = f"{address:02d}".encode("ascii")
-    return bytes((g, g, u, u))
-
-
-def encode_read(address: int, mnemonic: str) -> bytes:
-    return EOT + address_field(address) + mnemonic.encode("ascii") + ENQ
-
-
-def block(mnemonic: str, data: str) -> bytes:
-    """[STX] C1 C2 <data> [ETX] (BCC): a write's body and a read's reply."""
-    body = (mnemonic + data).encode("ascii") + ETX
-    return STX + body + bytes((bcc(body),))
-
-
-def encode_write(address: int, mnemonic: str, data: str) -> bytes:
-    return EOT + address_field(address) + block(mnemonic, data)
-
-
-def reply_length(buf: bytes | bytearray) -> int | None:
-    """Bytes of the complete reply at the start of `buf`; None if incomplete; FrameError if not a reply."""
-    if not buf:
-        return None
-    first = buf[:1]
-    if first in (ACK, NAK, EOT):
-        return 1
-    if first != STX:
-        raise FrameError(DEVICE, f"not a reply: {bytes(buf[:16])!r}")
-    end = buf.find(ETX)
-    return end + 2 if 0 <= end < len(buf) - 1 else None
-
-
-def decode_block(frame: bytes, mnemonic: str) -> str:
-    """The data of a read's reply to `mnemonic`; typed errors when it is damaged."""
-    body = frame[1:-1]
-    if frame[-1] != bcc(body):
-        raise ChecksumError(DEVICE, f"reply {frame!r}: BCC {frame[-1]:02X} != computed {bcc(body):02X}")
-    try:
-        text = body[:-1].decode("ascii")
-    except UnicodeDecodeError as exc:
-        raise FrameError(DEVICE, f"reply {frame!r} is not ASCII") from exc
-    if text[:2] != mnemonic:
-        raise FrameError(DEVICE, f"reply {frame!r} answers {text[:2]!r}, not {mnemonic!r}")
-    return text[2:]
-
-
-# ---------------------------------------------------------------- configuration
-
-
-@dataclass(frozen=True)
-class TemperatureChamberSection(SerialSection):
-    """[temperature_chamber]: the controller's address and the station's limits for the instrument inside."""
-
-    address: int = spec(in_range(0, 99))
-    setpoint_min_c: float = spec(in_range(-100.0, 200.0))
-    setpoint_max_c: float = spec(in_range(-100.0, 200.0))
-    ramp_max_c_per_min: float = spec(in_range(0.0, 20.0, lo_open=True))
-    stable_band_c: float = spec(in_range(0.0, 5.0, lo_open=True))  # "at temperature": |PV - SL| within this
-    time_constant_s: float = spec(in_range(1.0, 36_000.0))  # product temperature lag, for soak estimates
-    timeout_s: float = spec(in_range(0.0, 10.0, lo_open=True))
-
-    def __post_init__(self) -> None:
-        if not self.setpoint_min_c < self.setpoint_max_c:
-            raise ValueError(
-                f"[temperature_chamber] setpoint_min_c = {self.setpoint_min_c!r}: "
-                f"not allowed (allowed: < setpoint_max_c = {self.setpoint_max_c!r})"
-            )
-
-
-# ---------------------------------------------------------------- driver
+from devices.temperature_chamber.protocol import (
+    ACK,
+    ALARM_BITS,
+    DEVICE,
+    EOT,
+    NAK,
+    RAMPING_BIT,
+    SENSOR_BREAK,
+    STX,
+    decode_block,
+    encode_read,
+    encode_write,
+    reply_length,
+)
 
 
 @dataclass(frozen=True)
@@ -276,22 +197,3 @@ class TemperatureChamber(SerialDevice):
 
     def acknowledge_alarms(self) -> None:
         self.write("AC", "1")
-
-
-def _open(section: TemperatureChamberSection, clock: Clock) -> TemperatureChamber:
-    return TemperatureChamber(
-        section.port or "", baud=section.baud, address=section.address, setpoint_min_c=section.setpoint_min_c,
-        setpoint_max_c=section.setpoint_max_c, ramp_max_c_per_min=section.ramp_max_c_per_min,
-        stable_band_c=section.stable_band_c, time_constant_s=section.time_constant_s, timeout_s=section.timeout_s,
-    ).open()  # fmt: skip
-
-
-def _emulate(section: TemperatureChamberSection, world: Any) -> Any:
-    from devices.temperature_chamber.emulator import ChamberEmulator
-
-    emu = ChamberEmulator(world, baud=section.baud, address=section.address, time_constant_s=section.time_constant_s)
-    emu.start()
-    return emu
-
-
-DEVICE_KIND = DeviceKind("temperature_chamber", TemperatureChamberSection, _open, _emulate)

@@ -1,4 +1,4 @@
-"""Emulator of the temperature chamber's controller (protocol in devices.temperature_chamber.driver).
+"""Emulator of the temperature chamber's controller (protocol in devices.temperature_chamber.protocol).
 
 The chamber's physics is one model per world, `world.shared("temperature_chamber", ...)`, so
 that the voltmeter's accelerometer sits at the same temperature: the working set point ramps
@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
-from devices.temperature_chamber import driver as tc
+from devices.temperature_chamber import protocol as tc
 from models.chamber_thermal import ramped_lag
 
 AMBIENT_C = 20.0
@@ -123,35 +123,13 @@ class ChamberEmulator(PtyEmulator):
         self._rx += data
         while (i := self._rx.find(tc.EOT)) >= 0:
             del self._rx[:i]
-            message = self._take_message()
+            message = tc.take_message(self._rx)
             if message is None:
                 break
             if message[0] == self.address and not self.faults.take(Fault.NO_ANSWER):
                 self._handle(*message[1:])
         if len(self._rx) > 512:
             self._rx.clear()
-
-    def _take_message(self) -> tuple[bytes, str, str | None, bool] | None:
-        """(address, mnemonic, data or None for a read, BCC good) of the message at the buffer's start."""
-        buf = self._rx
-        if len(buf) < 8:
-            return None
-        address, rest = bytes(buf[1:5]), bytes(buf[5:])
-        if rest[:1] == tc.STX:
-            end = rest.find(tc.ETX)
-            if end < 0 or len(rest) < end + 2:
-                return None
-            del buf[: 5 + end + 2]
-            text = rest[1:end].decode("ascii", "replace")
-            return address, text[:2], text[2:], rest[end + 1] == tc.bcc(rest[1 : end + 1])
-        end = rest.find(tc.ENQ)
-        if end < 0:
-            if tc.EOT in rest:  # a new message began: this one was cut short
-                del buf[:1]
-                return self._take_message()
-            return None
-        del buf[: 5 + end + 1]
-        return address, rest[:end].decode("ascii", "replace"), None, True
 
     # ---- protocol
 

@@ -21,49 +21,27 @@ are retried (READ? measures again, which is harmless); settings are checked thro
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
 
-from devices.config import SerialSection, in_range, spec
 from devices.errors import DeviceFault, DriverError, FrameError, LimitError
-from devices.registry import DeviceKind
 from devices.serial_port import SerialDevice, with_retries
+from devices.voltmeter.protocol import (
+    DEVICE,
+    MAX_SAMPLES,
+    NPLC_LIMITS,
+    OVERLOAD_V,
+    OVERRANGE,
+    RANGES_V,
+    parse_readings,
+    reading_s,
+)
 from station.clock import Clock, WallClock
 
-DEVICE = "voltmeter"
-RANGES_V = (0.2, 2.0, 20.0, 200.0, 1000.0)
-OVERRANGE = 1.05
-NPLC_LIMITS = (0.01, 50.0)
-MAX_SAMPLES = 1024
-OVERLOAD_V = 9.9e37
-CONVERSIONS_PER_READING = 2  # auto-zero: signal and reference
-NR3 = re.compile(rb"[+-]\d\.\d+E[+-]\d{2}")
 T = TypeVar("T")
-
-
-def reading_s(nplc: float, samples: int, line_hz: float) -> float:
-    """Station time one READ? takes."""
-    return samples * CONVERSIONS_PER_READING * nplc / line_hz
-
-
-def parse_readings(line: bytes, samples: int) -> np.ndarray:
-    """`samples` NR3 readings in volts; FrameError if the line is anything else."""
-    fields = line.split(b",")
-    if len(fields) != samples or not all(NR3.fullmatch(f) for f in fields):
-        raise FrameError(DEVICE, f"expected {samples} NR3 readings, got {line[:80]!r}")
-    return np.array([float(f) for f in fields])
-
-
-@dataclass(frozen=True)
-class VoltmeterSection(SerialSection):
-    """[voltmeter]: the port and the mains frequency that sets the aperture of one power-line cycle."""
-
-    line_hz: float = spec((lambda v: v in (50.0, 60.0), "50 or 60 (the mains frequency, Hz)"))
-    timeout_s: float = spec(in_range(0.0, 10.0, lo_open=True))
 
 
 @dataclass(frozen=True)
@@ -172,19 +150,3 @@ class Voltmeter(SerialDevice):
         if self._setting != (range_v, nplc, samples):
             self.configure(range_v, nplc, samples)
         return self.read()
-
-
-def _open(section: VoltmeterSection, clock: Clock) -> Voltmeter:
-    return Voltmeter(section.port or "", baud=section.baud, line_hz=section.line_hz, timeout_s=section.timeout_s,
-                     clock=clock).open()  # fmt: skip
-
-
-def _emulate(section: VoltmeterSection, world: Any) -> Any:
-    from devices.voltmeter.emulator import VoltmeterEmulator
-
-    emu = VoltmeterEmulator(world, baud=section.baud, line_hz=section.line_hz)
-    emu.start()
-    return emu
-
-
-DEVICE_KIND = DeviceKind("voltmeter", VoltmeterSection, _open, _emulate)

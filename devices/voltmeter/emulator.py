@@ -1,4 +1,4 @@
-"""Emulator of the precision voltmeter (protocol in devices.voltmeter.driver), wired to the tumbled accelerometer.
+"""Emulator of the precision voltmeter (protocol in devices.voltmeter.protocol), wired to the tumbled accelerometer.
 
 The input is the output of a pendulous accelerometer on the indexing head: one model per
 world (`world.shared("pendulous_accelerometer", ...)`, a `TumbledAccelerometer`), evaluated by
@@ -7,7 +7,7 @@ models.pendulous_accelerometer (seed 001 eqs. 1 and 4) at the head's angle
 (`world.shared("temperature_chamber", ...)`, ambient when the station has no chamber). The
 head is sampled on every poll so that the hysteresis branch follows the path it turned.
 
-READ? integrates in station time: the reply goes out once `devices.voltmeter.driver.reading_s` has
+READ? integrates in station time: the reply goes out once `devices.voltmeter.protocol.reading_s` has
 passed; commands that arrive meanwhile wait, as on the instrument. Each reading adds the
 accelerometer's white noise over its aperture and the meter's own (0.15 ppm of range at 10 PLC).
 
@@ -27,13 +27,10 @@ import numpy as np
 
 from devices.pty_link import Fault, PtyEmulator, garble, truncate
 from devices.temperature_chamber.emulator import ChamberThermal
-from devices.voltmeter import driver as vm
+from devices.voltmeter import protocol as vm
 from models.pendulous_accelerometer import AccelerometerModel, branch_after_move, noise_sigma_g, output_v
 
 METER_NOISE_OF_RANGE = 0.15e-6  # rms at 10 PLC, scaling as 1/sqrt(NPLC)
-# SCPI long forms to the short forms this emulator matches on.
-SHORT = {"CONFIGURE": "CONF", "VOLTAGE": "VOLT", "SENSE": "SENS", "RANGE": "RANG", "NPLCYCLES": "NPLC",
-         "SAMPLE": "SAMP", "COUNT": "COUN", "SYSTEM": "SYST", "ERROR": "ERR"}  # fmt: skip
 IDENTITY = "KEITHLEY INSTRUMENTS INC.,MODEL 2002,4230517,A20  /A02"
 ERROR_QUEUE = 10
 
@@ -144,11 +141,7 @@ class VoltmeterEmulator(PtyEmulator):
 
     def _handle(self, command: str) -> None:
         self.commands.append(command)
-        header, _, arg = command.partition(" ")
-        nodes = [SHORT.get(n, n) for n in header.upper().lstrip(":").split(":")]
-        if nodes[0] == "SENS":
-            nodes = nodes[1:]
-        path = ":".join(nodes)
+        path, arg = vm.command_path(command)
         match path:
             case "*IDN?":
                 self._reply(IDENTITY)
@@ -212,4 +205,4 @@ class VoltmeterEmulator(PtyEmulator):
         volts[np.abs(volts) > vm.OVERRANGE * self.range_v] = vm.OVERLOAD_V
         if self.faults.take(VoltmeterFault.OVERLOAD):
             volts[:] = vm.OVERLOAD_V
-        return ",".join(f"{v:+.8E}" for v in volts)
+        return vm.format_readings(volts)

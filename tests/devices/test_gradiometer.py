@@ -12,6 +12,7 @@ import pytest
 
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError
 from devices.gradiometer import driver as gm
+from devices.gradiometer import kind as gk
 from devices.gradiometer.emulator import GradiometerEmulator
 from devices.pty_link import Fault
 from devices.world import SimStation
@@ -146,10 +147,10 @@ def test_disconnect(rig) -> None:
 def test_open_checks_the_instrument_against_the_station_file(rig) -> None:
     world, emu, grad = rig
     grad.close()
-    section = gm.GradiometerSection(port=emu.port, baud=115_200, address=1, resolution_arcsec=0.005, range_arcsec=60.0)
+    section = gk.GradiometerSection(port=emu.port, baud=115_200, address=1, resolution_arcsec=0.005, range_arcsec=60.0)
     with pytest.raises(DeviceFault) as info:
-        gm.open_gradiometer(section, world.clock)
+        gk.open_gradiometer(section, world.clock)
     assert info.value.field == "range_arcsec" and info.value.value == 600.0 and "60" in str(info.value)
-    ok = gm.open_gradiometer(gm.GradiometerSection(emu.port, 115_200, 1, 0.005, 600.0), world.clock)
+    ok = gk.open_gradiometer(gk.GradiometerSection(emu.port, 115_200, 1, 0.005, 600.0), world.clock)
     assert ok.read().n > 0
     ok.close()

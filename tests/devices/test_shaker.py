@@ -15,8 +15,9 @@ import pytest
 from devices.config import load_station_config
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
 from devices.pty_link import Fault
-from devices.shaker.driver import G_STANDARD_MPS2, ShakerController, check_random, random_sigmas
+from devices.shaker.driver import ShakerController
 from devices.shaker.emulator import ShakerEmulator
+from devices.shaker.envelope import G_STANDARD_MPS2, check_random, random_sigmas
 from models.shaker_motion import ShakerMotion
 
 from .conftest import make_world

@@ -13,7 +13,8 @@ from scipy.integrate import solve_ivp
 
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
 from devices.pty_link import Fault
-from devices.temperature_chamber import driver as tc
+from devices.temperature_chamber import protocol as tc
+from devices.temperature_chamber.driver import TemperatureChamber
 from devices.temperature_chamber.emulator import PV_NOISE_C, ChamberEmulator, ChamberFault
 from devices.world import SimStation
 from models.chamber_thermal import ramped_lag, time_to_band_s
@@ -74,10 +75,10 @@ def test_ramped_lag_solves_the_first_order_lag_of_a_ramped_set_point() -> None:
 
 
 @pytest.fixture
-def rig() -> Iterator[tuple[SimStation, ChamberEmulator, tc.TemperatureChamber]]:
+def rig() -> Iterator[tuple[SimStation, ChamberEmulator, TemperatureChamber]]:
     world = SimStation(clock=VirtualClock(50.0))
     with ChamberEmulator(world, time_constant_s=60.0) as emu:
-        chamber = tc.TemperatureChamber(emu.port, setpoint_min_c=-40, setpoint_max_c=80, ramp_max_c_per_min=10,
+        chamber = TemperatureChamber(emu.port, setpoint_min_c=-40, setpoint_max_c=80, ramp_max_c_per_min=10,
                                         timeout_s=TIMEOUT_S, retries=RETRIES).open()  # fmt: skip
         try:
             yield world, emu, chamber

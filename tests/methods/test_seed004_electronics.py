@@ -13,7 +13,8 @@ import pytest
 
 from devices.config import ConfigError, load_station_config
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
-from devices.piga_electronics import driver as pe
+from devices.piga_electronics import protocol as pe
+from devices.piga_electronics.driver import PigaElectronics
 from devices.piga_electronics.emulator import PigaElectronicsEmulator
 from devices.pty_link import Fault
 from devices.world import SimStation
@@ -27,10 +28,10 @@ SETTLE_S = 2.0  # station seconds the emulated servo takes to follow an offset c
 
 
 @pytest.fixture
-def rig() -> Iterator[tuple[SimStation, PigaElectronicsEmulator, pe.PigaElectronics]]:
+def rig() -> Iterator[tuple[SimStation, PigaElectronicsEmulator, PigaElectronics]]:
     world = SimStation(clock=VirtualClock(20.0))
     with PigaElectronicsEmulator(world, settle_s=SETTLE_S) as emu:
-        driver = pe.PigaElectronics(emu.port, offset_max_arcsec=10.0, timeout_s=0.3, poll_s=0.5,
+        driver = PigaElectronics(emu.port, offset_max_arcsec=10.0, timeout_s=0.3, poll_s=0.5,
                                     clock=world.clock).open()  # fmt: skip
         try:
             yield world, emu, driver

@@ -1,0 +1,37 @@
+"""The shaker as a device a station may have: how it opens and how it is emulated (its [shaker] section, the
+table's envelope, is devices.shaker.envelope.ShakerSection)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from devices.errors import DriverError
+from devices.registry import DeviceKind
+from devices.shaker.driver import ShakerController
+from devices.shaker.envelope import ShakerSection
+from devices.shaker.protocol import DEVICE
+from station.clock import Clock
+
+
+def open_shaker(section: ShakerSection, clock: Clock) -> ShakerController:
+    if section.port is None:
+        raise DriverError(DEVICE, "no serial port configured for [shaker]")
+    del clock  # the controller keeps its own time
+    shaker = ShakerController(section.port, section, baud=section.baud).open()
+    try:
+        shaker.identify()
+    except DriverError:
+        shaker.close()
+        raise
+    return shaker
+
+
+def emulate_shaker(section: ShakerSection, world: Any) -> Any:
+    from devices.shaker.emulator import ShakerEmulator
+
+    emulator = ShakerEmulator(world, section)
+    emulator.start()
+    return emulator
+
+
+DEVICE_KIND = DeviceKind("shaker", ShakerSection, open_shaker, emulate_shaker)
