@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 from engine.registry import get_procedure
 from station.jsonsafe import json_safe
@@ -39,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
         return CANNOT_ANALYSE
     with open(report_path, "w") as f:
         f.write(analysis.report_html)
+    for name, content in analysis.files.items():  # beside the report, e.g. certificate-<uid>.pdf
+        (Path(report_path).parent / Path(name).name).write_bytes(content)
     json.dump(json_safe({"results": analysis.results, "summary": analysis.summary}), sys.stdout)
     return 0
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from collections.abc import Callable, Generator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ class Analysis:
     results: dict[str, dict]  # method -> JSON result, stored with the session
     report_html: str  # a self-contained HTML report
     summary: str  # a few lines for the console
+    files: dict[str, bytes] = field(default_factory=dict)  # written beside the report (a certificate, ...)
 
 
 Analyser = Callable[[Session], Analysis]

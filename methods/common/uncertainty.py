@@ -1,0 +1,230 @@
+"""Uncertainty budget of identified coefficients after the GUM (JCGM 100:2008).
+
+A budget holds, for a vector of coefficients y = f(x), one row per input quantity:
+
+- Type A (GUM 4.2): the least-squares fit itself; its covariance is sigma^2 (X^T W X)^-1
+  (seed 000 eq. 22) with nu = n - p degrees of freedom (eq. 21);
+- Type B (GUM 4.3): every measured or specified input x_i with value, standard
+  uncertainty u(x_i) and its degrees of freedom (infinite unless stated), with the
+  sensitivity c_i = dy/dx_i obtained by re-running the identification at x_i +- u(x_i)
+  (central difference of the exact model, GUM 5.1.3 note 2).
+
+Combined standard uncertainty (GUM eq. 10/13): Cov(y) = Cov_A + sum_i c_i c_i^T u^2(x_i)
+(+ the correlated pairs given as one block); effective degrees of freedom by the
+Welch-Satterthwaite formula (GUM eq. G.2b) nu_eff = u_c^4 / sum_i (c_i u_i)^4 / nu_i;
+coverage factor k = t_{(1+p)/2}(nu_eff) from Student's t (GUM G.3) and expanded
+uncertainty U = k u_c (GUM 6.2).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.stats
+
+SourceType = Literal["A", "B"]
+COVERAGE_PROBABILITY = 0.95
+MIN_RELIABLE_DOF = 10  # below this the Type A estimate of sigma is itself uncertain by > 22 % (GUM E.4.3)
+
+
+def finite_or_none(x: float) -> float | None:
+    """JSON has no infinity: an infinite dof (Type B only) is written as null with a note."""
+    return float(x) if math.isfinite(x) else None
+
+
+class UncertaintyError(ValueError):
+    """An input to the budget that is not a finite, non-negative standard uncertainty."""
+
+
+def coverage_factor(dof: float, probability: float = COVERAGE_PROBABILITY) -> float:
+    """k = t_{(1+p)/2}(nu) (GUM G.3.4); the normal quantile for infinite nu."""
+    if not 0.0 < probability < 1.0:
+        raise UncertaintyError(f"coverage probability {probability!r}: expected 0 < p < 1")
+    if not dof > 0:
+        raise UncertaintyError(f"effective degrees of freedom {dof!r}: expected > 0")
+    q = 0.5 * (1.0 + probability)
+    return float(scipy.stats.norm.ppf(q) if math.isinf(dof) else scipy.stats.t.ppf(q, dof))
+
+
+def welch_satterthwaite(contributions: np.ndarray, dofs: np.ndarray) -> float:
+    """nu_eff = u_c^4 / sum_i u_i^4 / nu_i for the contributions u_i = |c_i| u(x_i) (GUM eq. G.2b)."""
+    u = np.asarray(contributions, dtype=float)
+    nu = np.asarray(dofs, dtype=float)
+    uc4 = float(np.sum(u**2)) ** 2
+    finite = np.isfinite(nu) & (u > 0)
+    denom = float(np.sum(u[finite] ** 4 / nu[finite]))
+    return math.inf if denom == 0.0 else uc4 / denom
+
+
+@dataclass(frozen=True)
+class Source:
+    """One row of the budget: an input quantity and its sensitivities (one per coefficient)."""
+
+    source: str
+    type: SourceType
+    value: float
+    standard_uncertainty: float
+    unit: str
+    sensitivity: np.ndarray  # dy_j / dx, one per coefficient (for Type A: ones, u given per coefficient)
+    dof: float = math.inf
+    note: str = ""
+    in_combined: bool = True  # False: listed for the record, already inside another row (no double counting)
+    contribution_override: np.ndarray | None = None  # Type A: sigma_k per coefficient
+
+    @property
+    def contribution(self) -> np.ndarray:
+        """|c_j| u(x) per coefficient (GUM 5.1.3 u_j(y))."""
+        if self.contribution_override is not None:
+            return np.asarray(self.contribution_override, dtype=float)
+        return np.abs(self.sensitivity) * self.standard_uncertainty
+
+
+@dataclass
+class Budget:
+    names: tuple[str, ...]
+    values: np.ndarray
+    units: Mapping[str, str]
+    sources: list[Source] = field(default_factory=list)
+    cov_a: np.ndarray | None = None  # full Type A covariance of the fit
+    extra_cov: np.ndarray | None = None  # correlated Type B blocks (pairs with correlation), added once
+    probability: float = COVERAGE_PROBABILITY
+
+    def covariance(self) -> np.ndarray:
+        """Cov(y) = Cov_A + sum_B c c^T u^2 (+ the correlated blocks), GUM eq. 13 in matrix form."""
+        p = len(self.names)
+        cov = np.zeros((p, p)) if self.cov_a is None else np.array(self.cov_a, dtype=float)
+        for s in self.sources:
+            if s.type == "B" and s.in_combined:
+                c = np.asarray(s.sensitivity, dtype=float) * s.standard_uncertainty
+                cov += np.outer(c, c)
+        if self.extra_cov is not None:
+            cov += self.extra_cov
+        return cov
+
+    def standard_uncertainty(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.covariance()))
+
+    def effective_dof(self) -> np.ndarray:
+        rows = [s for s in self.sources if s.in_combined]
+        contrib = np.array([s.contribution for s in rows]).reshape(len(rows), len(self.names))
+        dofs = np.array([s.dof for s in rows])
+        out = []
+        for j in range(len(self.names)):
+            u = contrib[:, j]
+            # the correlated blocks count as infinite-dof Type B: they enlarge u_c, not the denominator
+            extra = 0.0 if self.extra_cov is None else max(float(self.extra_cov[j, j]), 0.0)
+            u_all = np.append(u, math.sqrt(extra))
+            out.append(welch_satterthwaite(u_all, np.append(dofs, math.inf)))
+        return np.array(out)
+
+    def coverage_factors(self) -> np.ndarray:
+        return np.array([coverage_factor(nu, self.probability) for nu in self.effective_dof()])
+
+    def expanded_uncertainty(self) -> np.ndarray:
+        return self.coverage_factors() * self.standard_uncertainty()
+
+    def few_dof(self) -> list[str]:
+        """Coefficients whose effective dof are below MIN_RELIABLE_DOF (the report flags them)."""
+        return [n for n, nu in zip(self.names, self.effective_dof(), strict=True) if nu < MIN_RELIABLE_DOF]
+
+    def coefficients_json(self) -> dict:
+        u, nu, k = self.standard_uncertainty(), self.effective_dof(), self.coverage_factors()
+        return {
+            n: {
+                "value": float(v),
+                "unit": self.units.get(n, ""),
+                "standard_uncertainty": float(u[j]),
+                "effective_dof": finite_or_none(float(nu[j])),
+                "effective_dof_note": "infinite (Type B only)" if math.isinf(nu[j]) else "",
+                "coverage_factor": float(k[j]),
+                "coverage_probability": self.probability,
+                "expanded_uncertainty": float(k[j] * u[j]),
+            }
+            for j, (n, v) in enumerate(zip(self.names, self.values, strict=True))
+        }
+
+    def to_json(self) -> dict:
+        return {
+            "coefficients": self.coefficients_json(),
+            "covariance": {"names": list(self.names), "matrix": self.covariance().tolist()},
+            "budget": [
+                {
+                    "source": s.source,
+                    "type": s.type,
+                    "value": float(s.value),
+                    "unit": s.unit,
+                    "standard_uncertainty": float(s.standard_uncertainty),
+                    "dof": finite_or_none(float(s.dof)),
+                    "sensitivity": dict(zip(self.names, map(float, s.sensitivity), strict=True)),
+                    "contribution": dict(zip(self.names, map(float, s.contribution), strict=True)),
+                    "in_combined": s.in_combined,
+                    "note": s.note,
+                }
+                for s in self.sources
+            ],
+            "few_dof": self.few_dof(),
+            "min_reliable_dof": MIN_RELIABLE_DOF,
+        }
+
+
+def type_a_source(names: Sequence[str], cov: np.ndarray, dof: int, note: str = "") -> Source:
+    """The fit's own scatter (GUM 4.2.3): u_A(k_j) = sqrt(Cov_jj), nu = n - p."""
+    sig = np.sqrt(np.diag(np.asarray(cov, dtype=float)))
+    return Source(
+        "least-squares fit (Type A, seed 000 eqs. 21-22)",
+        "A",
+        0.0,
+        0.0,
+        "",
+        np.ones(len(names)),
+        dof=float(dof),
+        note=note or f"sigma^2 (X^T W X)^-1 with {dof} degrees of freedom",
+        contribution_override=sig,
+    )
+
+
+def check_uncertainty(name: str, value: float, u: float) -> None:
+    """A clear error naming the input when value or standard uncertainty are unusable."""
+    if not math.isfinite(value):
+        raise UncertaintyError(f"input {name!r}: value {value!r} is not a finite number")
+    if not (math.isfinite(u) and u >= 0.0):
+        raise UncertaintyError(f"input {name!r}: standard uncertainty {u!r}: expected a finite number >= 0")
+
+
+def sensitivity(refit: Callable[[float], np.ndarray], x0: float, step: float) -> np.ndarray:
+    """dy/dx by the central difference (y(x0 + h) - y(x0 - h)) / 2h of the whole identification."""
+    if not step > 0:
+        raise UncertaintyError(f"finite-difference step {step!r}: expected > 0")
+    return (np.asarray(refit(x0 + step)) - np.asarray(refit(x0 - step))) / (2.0 * step)
+
+
+def type_b_source(
+    name: str,
+    value: float,
+    u: float,
+    unit: str,
+    refit: Callable[[float], np.ndarray],
+    *,
+    step: float | None = None,
+    note: str = "",
+    dof: float = math.inf,
+    in_combined: bool = True,
+) -> Source:
+    """A Type B row with its sensitivity from the refit at value +- step (step = u unless given)."""
+    check_uncertainty(name, value, u)
+    h = step if step is not None else (u if u > 0 else max(abs(value), 1.0) * 1e-6)
+    c = sensitivity(refit, value, h)
+    return Source(name, "B", value, u, unit, c, dof=dof, note=note, in_combined=in_combined)
+
+
+def type_a_only(
+    names: Sequence[str], values: np.ndarray, cov: np.ndarray, dof: int, units: Mapping[str, str], note: str = ""
+) -> Budget:
+    """A budget whose only source is the fit (methods whose Type B inputs are negligible or not stated)."""
+    return Budget(
+        tuple(names), np.asarray(values, dtype=float), units, [type_a_source(names, cov, dof, note)], cov_a=cov
+    )
