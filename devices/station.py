@@ -56,6 +56,9 @@ TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often; each drain
 # Reference marks report each crossing as an ASCII line of about 35 bytes at 115 200 baud
 # (330 lines per wall second): at 10 Hz, station time may run at most 10x while they are timed.
 REFERENCE_MAX_SPEED = 10.0
+# The vibration table's devices (devices.registry kinds with core=True), in the order they open: the drive
+# first, the serial devices after it.
+CORE_DEVICES = ("servo", "grating", "reference", "counter", "indexing_head")
 
 
 @dataclass
@@ -85,32 +88,22 @@ class StationDevices:
     def open(cls, config: StationConfig, clock: Clock | None = None) -> StationDevices:
         """Open every device of `config` (ports must be filled in); DriverError names the one that failed."""
         clock = clock or WallClock()
-        missing = [n for n in ("grating", "reference", "counter", "indexing_head") if getattr(config, n).port is None]
+        missing = [n for n in CORE_DEVICES[1:] if getattr(config, n).port is None]
         if missing:
             raise InterlockError("station", f"no serial port configured for {', '.join(missing)}")
         opened: list[Callable[[], None]] = []
+        kinds = device_kinds()
+        devices: StationDevices | None = None
+        wiring: dict[str, dict[str, Any]] = {  # what only the station knows, by core device
+            "servo": {"limits": ServoLimits.from_config(config)},
+            "indexing_head": {"motion_permitted": lambda: devices is not None and devices.table_at_rest()},
+        }
+        core: dict[str, Any] = {}
         try:
-            servo = VibrationTableServo(config.servo, ServoLimits.from_config(config), clock)
-            servo.open()
-            opened.append(servo.close)
-            g, r, c, h = config.grating, config.reference, config.counter, config.indexing_head
-            grating = GratingReadHead(g.port, baud=g.baud, clock=clock).open()
-            opened.append(grating.close)
-            reference = ReferenceMarks(r.port, baud=r.baud, clock=clock).open()
-            opened.append(reference.close)
-            counter = CounterTimer(c.port, baud=c.baud, clock=clock).open()
-            opened.append(counter.close)
-            devices: StationDevices | None = None
-            head = IndexingHead(
-                h.port,
-                baud=h.baud,
-                settle_tol_deg=h.settle_tol_deg,
-                settle_time_s=h.settle_time_s,
-                clock=clock,
-                motion_permitted=lambda: devices is not None and devices.table_at_rest(),
-            ).open()
-            opened.append(head.close)
-            kinds = device_kinds()
+            for name in CORE_DEVICES:
+                core[name] = kinds[name].open(getattr(config, name), clock, **wiring.get(name, {}))
+                opened.append(core[name].close)
+            servo, grating, reference, counter, head = (core[name] for name in CORE_DEVICES)
             extra = {}
             for name, section in config.extras.items():
                 extra[name] = kinds[name].open(section, clock)
@@ -403,11 +396,6 @@ def simulated_station(
     The world runs on `clock` (default: a VirtualClock `speed` times real time); each
     station gets its own CAN channel so that several can run in one process.
     """
-    from devices.counter_timer.emulator import CounterEmulator
-    from devices.grating.emulator import GratingEmulator
-    from devices.indexing_head.emulator import IndexingEmulator
-    from devices.reference_marks.emulator import ReferenceEmulator
-    from devices.servo.emulator import ServoEmulator
     from devices.world import SimStation
 
     if not config.simulated:
@@ -418,18 +406,10 @@ def simulated_station(
     config = dataclasses.replace(config, servo=servo_cfg)
     emulators: dict[str, Any] = {}
     try:
-        emulators["servo"] = ServoEmulator.from_config(servo_cfg, clock, world.crank)
-        emulators["servo"].start()
-        for name, kind in (
-            ("grating", GratingEmulator),
-            ("reference", ReferenceEmulator),
-            ("counter", CounterEmulator),
-            ("indexing_head", IndexingEmulator),
-        ):
-            emulators[name] = kind(world, baud=getattr(config, name).baud)
-            emulators[name].start()
-        kinds = device_kinds()
+        for name in CORE_DEVICES:
+            emulators[name] = kinds[name].emulate(getattr(config, name), world)
         for name, section in config.extras.items():
+    kinds = device_kinds()
             emulators[name] = kinds[name].emulate(section, world)
         ports = {name: emu.port for name, emu in emulators.items() if getattr(emu, "port", None)}
         devices = StationDevices.open(config.with_serial_ports(**ports), clock)

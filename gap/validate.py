@@ -39,12 +39,10 @@ import argparse
 import contextlib
 import json
 import math
-import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
-from multiprocessing import get_context
 from pathlib import Path
 from unittest import mock
 
@@ -64,6 +62,7 @@ from models.inputs import instrument_inputs, instrument_rate_radps
 from models.plan import PointSpec, equal_angle_positions_deg, preset_pulses, seed000_plan
 from models.precession import N_PHASES, PeriodicRate, PrecessionWindow, periodic_rate
 from models.session_sim import simulate_session
+from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.jsonsafe import json_safe
 
 # Directions of injection (parameter values before scaling to the target SNR).
@@ -430,21 +429,25 @@ def run(
     ool: Sequence[str] = OUT_OF_LIBRARY,
     leave_one_out: bool = False,
     progress: Callable[[int, int, dict], None] | None = None,
+    executor: ExecutorSpec | None = None,
+    results_path: str | Path | None = None,
 ) -> dict:
+    """Every case on `executor` (default: `workers` local processes), each logged to `results_path` (JSON
+    lines) as it finishes; a run with the same settings and file resumes with the cases not yet done."""
     todo = cases(designs, snrs, reps, n_null, seed, effects, ool, leave_one_out)
-    workers = workers or os.cpu_count() or 1
+    spec = executor or ExecutorSpec("local", workers=workers)
+    settings = {
+        "designs": list(designs),
+        "snrs": list(snrs),
+        "reps": reps,
+        "n_null": n_null,
+        "seed": seed,
+        "effects": list(effects),
+        "out_of_library": list(ool),
+        "leave_one_out": leave_one_out,
+    }
     t0 = time.perf_counter()
-    results = []
-    with contextlib.ExitStack() as stack:
-        if workers > 1:
-            pool = stack.enter_context(get_context("fork").Pool(workers))
-            stream = pool.imap_unordered(run_case, todo, chunksize=1)
-        else:
-            stream = map(run_case, todo)
-        for k, r in enumerate(stream, start=1):
-            results.append(r)
-            if progress:
-                progress(k, len(todo), r)
+    results = run_cases(run_case, todo, spec, results=results_path, settings=settings, progress=progress)
     twin = default_twin()
     look = {}
     for dn in designs:
@@ -455,17 +458,7 @@ def run(
         "collinear_cos": COLLINEAR_COS,
         "summary": summarise(results, look),
         "cases": results,
-        "settings": {
-            "designs": list(designs),
-            "snrs": list(snrs),
-            "reps": reps,
-            "n_null": n_null,
-            "seed": seed,
-            "effects": list(effects),
-            "out_of_library": list(ool),
-            "leave_one_out": leave_one_out,
-            "workers": workers,
-        },
+        "settings": settings | {"executor": spec.kind, "scheduler": spec.scheduler, "workers": spec.workers},
         "wall_s": time.perf_counter() - t0,
     }
 
@@ -480,7 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out-of-library", nargs="*", choices=OUT_OF_LIBRARY, default=list(OUT_OF_LIBRARY))
     p.add_argument("--leave-one-out", action="store_true", help="also inject each effect left out of the library")
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--workers", type=int, default=None, help="processes (default: every core)")
+    add_executor_options(p)  # --executor local|dask, --scheduler, --results CASES.jsonl (resumed), --workers
     p.add_argument("--json", metavar="OUT.json", help="write every case and the scores here")
     p.add_argument("--quiet", action="store_true", help="no line per case on standard error")
     args = p.parse_args(argv)
@@ -505,6 +498,8 @@ def main(argv: list[str] | None = None) -> int:
         args.out_of_library,
         args.leave_one_out,
         None if args.quiet else progress,
+        spec_from_args(args),
+        args.results,
     )
     if args.json:
         Path(args.json).write_text(json.dumps(json_safe(out), indent=2, allow_nan=False))

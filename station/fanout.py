@@ -148,7 +148,7 @@ def open_executor(spec: ExecutorSpec) -> Iterator[cf.Executor]:
             client = stack.enter_context(Client(spec.scheduler, timeout="30s"))
         else:
             cluster = stack.enter_context(
-                LocalCluster(n_workers=spec.n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
+                LocalCluster(n_workers=spec.n_workers, threads_per_worker=1, processes=True, dashboard_address=":0")
             )
             client = stack.enter_context(Client(cluster))
         yield client.get_executor(pure=False)
@@ -194,6 +194,11 @@ def run_cases(
     elif todo:
         with open_executor(spec) as ex:
             futures = {ex.submit(fn, c): k for k, c in todo}
-            for f in cf.as_completed(futures):
-                finished(futures[f], f.result())
+            try:
+                for f in cf.as_completed(futures):
+                    finished(futures[f], f.result())
+            except BaseException:  # Ctrl-C or a failed case: the cases not started are not run
+                for f in futures:
+                    f.cancel()
+                raise
     return [out[k] for k in keys]

@@ -52,7 +52,7 @@ def dask_scheduler() -> Iterator[str]:
     """Address of a running LocalCluster of 2 single-threaded worker processes (an "existing cluster")."""
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         yield cluster.scheduler_address
 
 
