@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
 import threading
 from pathlib import Path
+
+import zmq
 
 from app.console import (
     DEFAULT_PROCEDURE,
@@ -35,9 +38,31 @@ from methods.seed000.identify import METHODS, identify
 from models.config import TwinConfig, TwinConfigError, default_twin
 from models.plan import seed000_plan
 from models.session_sim import simulate_session
+from station.errors import StationError
 from station.interchange import SessionFormatError, read_session, write_session
 from station.store import SessionStore, StoreError
 from web.cli import add_commands as add_panel_commands
+
+
+def positive_float(text: str) -> float:
+    """argparse type of --speed: a finite number > 0 (0 would stop the simulated station's clock)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number; allowed: a number > 0, e.g. 1000") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text} is not allowed: station seconds per wall second must be a finite "
+                                         "number > 0, e.g. 1 (real time) or 1000")  # fmt: skip
+    return value
+
+
+def existing_store(path: str | Path) -> Path:
+    """The path of a store that must already exist (sessions, export): a missing one is an error, not a new file."""
+    path = Path(path)
+    if not path.is_file():
+        raise StoreError(f"--db {path}: no session store there (a store is made by `station run`, `calibrate`, "
+                         "`serve` or `import`; pass --db FILE)")  # fmt: skip
+    return path
 
 
 def _load_twin(path: str | None) -> TwinConfig:
@@ -50,6 +75,7 @@ def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid
     config = load_station(args.station)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    twin = _load_twin(args.twin)  # a bad --twin is refused by the dry run too
     plan = plan_procedure(spec, params, config.station_model())
     if args.dry_run:
         describe_plan(plan, sys.stdout)
@@ -58,7 +84,7 @@ def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid
         kind = f"simulated, seed {args.seed}, {args.speed:g}x real time" if config.simulated else "real"
         print(f"station: {config.path} ({kind}); store: {store.path}")
         with (
-            open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
+            open_station(config, twin, seed=args.seed, speed=args.speed) as hw,
             controller_for(config, hw, store, out, args.telemetry) as controller,
         ):
             outcome = run_with_progress(
@@ -140,14 +166,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_sessions(args: argparse.Namespace) -> int:
-    with SessionStore(args.db) as store:
+    with SessionStore(existing_store(args.db)) as store:
         for s in store.sessions():
             print(f"{s['uid']}  {s['created_utc']}  {s['procedure']:32s} {s['status']:9s} {s['n_points']:4d} points")
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    with SessionStore(args.db) as store:
+    with SessionStore(existing_store(args.db)) as store:
         write_session(store.load_session(args.uid), args.out_dir, overwrite=args.overwrite)
     print(f"exported {args.uid} to {args.out_dir}")
     return 0
@@ -195,9 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, default=0, help="random seed of a simulated station")
         p.add_argument(
             "--speed",
-            type=float,
+            type=positive_float,
             default=DEFAULT_SPEED,
-            help=f"simulated station seconds per wall second (default {DEFAULT_SPEED:g})",
+            help=f"simulated station seconds per wall second, > 0 (default {DEFAULT_SPEED:g}; ignored by a real "
+            "station)",
         )
         p.add_argument("--serial", default="SIM-PIGA-0001", help="instrument serial number")
         p.add_argument("--telemetry", metavar="ENDPOINT", help="publish telemetry on this zmq endpoint")
@@ -209,50 +236,53 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("run", help="run a procedure file on a station")
-    p.add_argument("procedure_file")
+    p.add_argument("procedure_file", help="procedure TOML: `procedure = NAME` and [params] (config/procedures/)")
     station_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("resume", help="continue a crashed or aborted session")
-    p.add_argument("uid")
+    p.add_argument("uid", help="the session's uid (`station sessions` lists them)")
     station_options(p)
     p.set_defaults(func=cmd_resume)
 
     p = sub.add_parser("serve", help="keep a station under remote control (for the web panel)")
     station_options(p)
     p.add_argument("--name", default="station", help="station id in telemetry topics (default: station)")
-    p.add_argument("--control", default="tcp://127.0.0.1:5560", help="control endpoint (REP) to bind")
+    p.add_argument("--control", default="tcp://127.0.0.1:5560",
+                   help="control endpoint (zmq REP) to bind (default tcp://127.0.0.1:5560)")  # fmt: skip
     p.add_argument("--token-env", metavar="VAR", help="require the control token held in this environment variable")
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("identify", help="identify coefficients from a piga-session/1 directory")
-    p.add_argument("session_dir")
+    p.add_argument("session_dir", help="a piga-session/1 directory (session.json, points.csv, ...)")
     p.add_argument("--json", help="write the result here instead of standard output")
-    p.add_argument("--method", choices=METHODS, default="integral")
+    p.add_argument("--method", choices=METHODS, default="integral",
+                   help="integral: integral precession with exact window means (default); baseline: the integer "
+                   "periodic vibration model of seed 000 eq. 35 (no kz)")  # fmt: skip
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("simulate", help="write a simulated seed-000 session as piga-session/1")
-    p.add_argument("out_dir")
-    p.add_argument("--twin")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--raw", action="store_true")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("out_dir", help="the piga-session/1 directory to write")
+    p.add_argument("--twin", help="twin configuration TOML (default: embedded, models/data/default_twin.toml)")
+    p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same session (default 0)")
+    p.add_argument("--raw", action="store_true", help="also write the raw streams (grating, pulse edges, references)")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("sessions", help="list the sessions in a store")
-    p.add_argument("--db", default="out/station.sqlite")
+    p.add_argument("--db", default="out/station.sqlite", help="the store (default: out/station.sqlite)")
     p.set_defaults(func=cmd_sessions)
 
     p = sub.add_parser("export", help="export a stored session as piga-session/1")
-    p.add_argument("uid")
-    p.add_argument("out_dir")
-    p.add_argument("--db", default="out/station.sqlite")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("uid", help="the session's uid (`station sessions` lists them)")
+    p.add_argument("out_dir", help="the piga-session/1 directory to write")
+    p.add_argument("--db", default="out/station.sqlite", help="the store (default: out/station.sqlite)")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("import", help="import a piga-session/1 directory into a store")
-    p.add_argument("session_dir")
-    p.add_argument("--db", default="out/station.sqlite")
+    p.add_argument("session_dir", help="a piga-session/1 directory, validated whole before anything is stored")
+    p.add_argument("--db", default="out/station.sqlite", help="the store, made if missing (default out/station.sqlite)")
     p.set_defaults(func=cmd_import)
 
     for name, func, text in (
@@ -275,9 +305,17 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except (
         SessionFormatError, TwinConfigError, FitError, StoreError, FileExistsError, ConfigError, ProcedureError,
-        ParameterError, ValidationError, ControlError, DriverError,
+        ParameterError, ValidationError, ControlError, DriverError, StationError, ValueError,
     ) as exc:  # fmt: skip
         print(f"station {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a path that cannot be read or written: name it and say why
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"station {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except zmq.ZMQError as exc:  # --control / --telemetry endpoints
+        print(f"station {args.command}: error: {exc} (an endpoint is tcp://HOST:PORT, ipc://PATH or inproc://NAME,"
+              f" and its port must be free)", file=sys.stderr)  # fmt: skip
         return 2
 
 

@@ -8,6 +8,7 @@ VirtualClock and opens the very same drivers on them).
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from collections.abc import Iterator
@@ -22,8 +23,10 @@ from devices.config import StationConfig, load_station_config
 from devices.station import StationDevices, simulated_station
 from engine.planning import Plan
 from engine.protocols import StationHardware
-from engine.runner import State
+from engine.registry import get_procedure
+from engine.runner import FINAL_STATES, State
 from models.config import TwinConfig
+from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, format_rows, verdict
 from station.interchange import write_session
 from station.store import SessionStore
 from station.telemetry import TelemetryPublisher
@@ -67,18 +70,44 @@ def describe_plan(plan: Plan, out: TextIO) -> None:
         print(f"  {key:28s} {s:9.1f} s", file=out)
 
 
-def watch(controller: StationController, plan: Plan, out: TextIO) -> RunOutcome:
-    """A progress bar over the plan's station time, with ETA, until the run ends."""
+PLAIN_STEP = 0.1  # a log (stderr not a terminal) gets one progress line per tenth of the plan
+
+
+def watch(controller: StationController, plan: Plan, err: TextIO | None = None, analysed: bool = False) -> RunOutcome:
+    """Progress on stderr until the run ends: a bar with ETA over the plan's station time on a terminal,
+    one line per tenth in a log; then the analysis-and-report stage, timed, until the outcome is there."""
+    err = err or sys.stderr
     total = max(plan.total_s, 1.0)
-    bar = tqdm(total=round(total), unit="s", file=out, dynamic_ncols=True, mininterval=0.2,
+    tty = err.isatty()
+    bar = tqdm(total=round(total), unit="s", file=err, dynamic_ncols=True, mininterval=0.2, disable=not tty,
                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} station-s [{elapsed}<{remaining}{postfix}]")  # fmt: skip
+    next_line = PLAIN_STEP
     with bar:
         while (outcome := controller.wait(0.2)) is None:
             st = controller.status()
+            if st["state"] in FINAL_STATES:
+                break  # measuring is over; the analysis runs in its child process
             bar.n = round(st["fraction"] * total)
             bar.set_postfix_str(f"{st['state']} {st['key']} {st['done']}/{st['total']}", refresh=False)
             bar.refresh()
+            if not tty and st["fraction"] >= next_line:
+                print(f"progress: {100 * st['fraction']:.0f} % of {total / 3600:.2f} h of station time, "
+                      f"{st['done']}/{st['total']} measurements, at {st['key']}", file=err, flush=True)  # fmt: skip
+                next_line = math.floor(st["fraction"] / PLAIN_STEP + 1) * PLAIN_STEP
         bar.n = round(controller.status()["fraction"] * total)
+    if outcome is None:
+        st = controller.status()
+        print(f"measuring {st['state']}: {st['done']}/{st['total']} measurements", file=err, flush=True)
+        t0 = time.perf_counter()
+        if st["state"] == State.FINISHED and analysed:
+            print("analysis and report: fitting and writing the HTML report (in a child process) ...", file=err,
+                  flush=True)  # fmt: skip
+        while (outcome := controller.wait(1.0)) is None:
+            if tty:
+                print(f"\ranalysis and report: {time.perf_counter() - t0:.0f} s", end="", file=err, flush=True)
+        if outcome.analysis is not None:
+            print(f"{chr(13) if tty else ''}analysis and report: done in {time.perf_counter() - t0:.1f} s of wall "
+                  "time", file=err, flush=True)  # fmt: skip
     return outcome
 
 
@@ -90,7 +119,9 @@ def run_with_progress(
     instrument_serial: str = "",
     resume_uid: str | None = None,
     out: TextIO | None = None,
+    err: TextIO | None = None,
 ) -> RunOutcome:
+    """Start (or resume) the run and watch it: facts on `out` (stdout), progress and stages on `err` (stderr)."""
     out = out or sys.stdout
     if resume_uid:
         uid, plan = controller.resume_session(resume_uid)
@@ -99,7 +130,7 @@ def run_with_progress(
     print(f"session {uid}: {procedure}, {len(plan.measurements)} measurements, "
           f"estimated {plan.total_s / 3600:.2f} h of station time", file=out)  # fmt: skip
     t0 = time.perf_counter()
-    outcome = watch(controller, plan, out)
+    outcome = watch(controller, plan, err, analysed=get_procedure(procedure).analyse is not None)
     station_h = controller.engine.progress.elapsed_s / 3600
     print(f"{outcome.state}: {station_h:.2f} h of station time in {time.perf_counter() - t0:.1f} s of wall time",
           file=out)  # fmt: skip
@@ -111,13 +142,39 @@ def run_with_progress(
 def write_outputs(store: SessionStore, outcome: RunOutcome, out_dir: Path, out: TextIO) -> None:
     """Print the analysis, write its JSON, export the session as piga-session/1."""
     if outcome.analysis is not None:
-        print(outcome.analysis.summary, file=out)
+        print(describe_results(outcome.analysis.results, outcome.analysis.summary), file=out)
         result = out_dir / f"result-{outcome.session_uid}.json"
         result.write_text(json.dumps(outcome.analysis.results, indent=2))
         print(f"report: {outcome.report_path}\nresult: {result}", file=out)
     export = out_dir / f"session-{outcome.session_uid}"
     write_session(store.load_session(outcome.session_uid), export, overwrite=True)
     print(f"piga-session/1: {export}", file=out)
+    results = outcome.analysis.results if outcome.analysis is not None else None
+    print(verdict(str(outcome.state), results, outcome.faults), file=out)
+
+
+def describe_results(results: dict, summary: str) -> str:
+    """The coefficients with their units, u and U = k u, each fit's residual sigma and mu vs mu_c, and what
+    the uncertainty means; the method's own summary where it states no quantities with values."""
+    lines: list[str] = []
+    rows = coefficient_rows(results)
+    for name in dict.fromkeys(r.result for r in rows):
+        doc = results.get(name, {}) if isinstance(results.get(name), dict) else {}
+        head = f"{name}:"
+        if doc.get("n_points") is not None:
+            head += f" {doc['n_points']} points, {doc.get('dof', '?')} degrees of freedom"
+        lines.append(head)
+        lines += format_rows([r for r in rows if r.result == name])
+        if isinstance(doc.get("sigma_residual"), float):
+            unit = doc.get("units", {}).get("sigma_residual", "")
+            lines.append(f"  residual sigma = {doc['sigma_residual']:.3e} {unit}".rstrip())
+        if doc.get("mu") is not None and doc.get("mu_c") is not None:
+            lines.append(f"  mu = {doc['mu']:.2f}, mu_c = {doc['mu_c']:.2f} (dimensionless)")
+    if not rows:
+        lines.append(summary)
+    if rows:
+        lines.append(f"({UNCERTAINTY_NOTE}; {MU_NOTE})")
+    return "\n".join(lines)
 
 
 def exit_code(outcome: RunOutcome) -> int:
