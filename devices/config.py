@@ -151,16 +151,11 @@ class StationConfig:
         )
 
 
-_SECTIONS: dict[str, type] = {
-    "station": StationSection,
-    "limits": LimitsSection,
-    "servo": ServoSection,
-    "grating": SerialSection,
-    "reference": SerialSection,
-    "counter": SerialSection,
-    "indexing_head": IndexingHeadSection,
-    "payload": PayloadSection,
-}
+def _required_sections() -> dict[str, type]:
+    """Every section a station file must have, by name: the station's own and those of the vibration table's
+    five devices (devices.registry kinds with core=True)."""
+    core = {name: kind.section for name, kind in device_kinds().items() if kind.core}
+    return {"station": StationSection, "limits": LimitsSection, **core, "payload": PayloadSection}
 
 
 def _convert(path: Path, key: str, value: Any, hint: Any) -> Any:
@@ -255,15 +250,16 @@ def load_station_config(path: str | Path) -> StationConfig:
     simulated = doc.pop("simulated", False)
     if not isinstance(simulated, bool):
         raise ConfigError(path, "simulated", simulated, "true or false")
-    kinds = device_kinds()
+    required = _required_sections()
+    kinds = {name: kind for name, kind in device_kinds().items() if name not in required}
     for key in doc:
-        if key not in _SECTIONS and key not in kinds:
-            allowed = f"sections {', '.join(_SECTIONS)}, optional devices {', '.join(kinds) or 'none'}, and simulated"
+        if key not in required and key not in kinds:
+            allowed = f"sections {', '.join(required)}, optional devices {', '.join(kinds) or 'none'}, and simulated"
             raise ConfigError(path, key, doc[key], allowed)
-    for name in _SECTIONS:
+    for name in required:
         if name not in doc:
             raise ConfigError(path, f"[{name}]", None, "a required section")
-    sections = {name: _section(path, name, doc[name], simulated, cls) for name, cls in _SECTIONS.items()}
+    sections = {name: _section(path, name, doc[name], simulated, cls) for name, cls in required.items()}
     extras = {name: _section(path, name, doc[name], simulated, kinds[name].section) for name in doc if name in kinds}
     cfg = StationConfig(path=path, simulated=simulated, **sections, extras=extras)
     _cross_check(cfg)

@@ -1,4 +1,4 @@
-"""Devices beyond the vibration-table core, found by name: voltmeters, chambers, IMUs, shakers, ...
+"""Every device a station may have, found by name: the vibration table's five, voltmeters, chambers, IMUs, ...
 
 A device package's kind module (`devices/<device>/kind.py`) that defines a module attribute
 
@@ -14,6 +14,12 @@ and, on a simulated station, its emulator is started first with
 `close()`); `open` then receives the section with the emulator's port.
 Procedures reach it as `ctx.hw.device(name)` and check its limits in planning
 through `ctx.model.section(name)`.
+
+The five devices of the vibration table (servo, grating, reference, counter,
+indexing_head) are found the same way, with `core=True`: their sections are
+required, they are fields of devices.config.StationConfig, and devices.station
+opens them with the wiring only a station knows as keyword arguments of `open`
+(the servo's limits, the head's motion interlock).
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ class DeviceKind:
     section: type  # frozen dataclass of the section
     open: Callable[[Any, Clock], Any]  # (section, clock) -> opened driver with close()
     emulate: Callable[[Any, Any], Any]  # (section, SimStation) -> started emulator with .port and close()
+    core: bool = False  # one of the five devices every station has: a required section, a StationConfig field
 
 
 @cache

@@ -405,11 +405,11 @@ def simulated_station(
     servo_cfg = dataclasses.replace(config.servo, channel=f"{config.servo.channel}-{uuid.uuid4().hex[:8]}")
     config = dataclasses.replace(config, servo=servo_cfg)
     emulators: dict[str, Any] = {}
+    kinds = device_kinds()
     try:
         for name in CORE_DEVICES:
             emulators[name] = kinds[name].emulate(getattr(config, name), world)
         for name, section in config.extras.items():
-    kinds = device_kinds()
             emulators[name] = kinds[name].emulate(section, world)
         ports = {name: emu.port for name, emu in emulators.items() if getattr(emu, "port", None)}
         devices = StationDevices.open(config.with_serial_ports(**ports), clock)
