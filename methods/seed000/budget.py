@@ -36,7 +36,7 @@ from methods.common.uncertainty import (
     type_b_source,
 )
 from methods.seed000.identify import COEFFICIENT_UNITS, Compensation, Identification, design, point_weights
-from models.config import InstrumentCoefficients, StationGeometry, TwinConfig
+from models.config import InstrumentCoefficients, TwinConfig
 from models.precession import PrecessionWindow, periodic_rate
 from station.session import PointRecord, Session
 from station.tomlfile import read_toml
@@ -83,16 +83,22 @@ class Measured:
     origin: str
 
 
-def measured_inputs(params: Mapping, refs: Mapping[str, Reference]) -> dict[str, Measured]:
-    """z0, z1 (and their correlation), axs1, eps_f: the procedure's params where given, else the references."""
+def measured_inputs(params: Mapping, refs: Mapping[str, Reference], compensated: bool = True) -> dict[str, Measured]:
+    """z0, z1 (and their correlation), axs1, eps_f: the procedure's params where given, else the references.
+
+    For an identification that did not compensate them (`compensated` False) the input's value is 0 and a
+    measured value v that was left uncorrected is folded into its uncertainty, u = sqrt(u^2 + v^2).
+    """
 
     def one(key: str, value_key: str, sigma_key: str) -> Measured:
         v = float(params.get(value_key, 0.0) or 0.0)
         s = params.get(sigma_key)
-        if s is not None:
-            return Measured(v, float(s), f"measured: params {value_key} +- {sigma_key}")
-        origin = "compensated value" if v else "not compensated"
-        return Measured(v, refs[key].standard_uncertainty, f"{origin}; u from the references ({refs[key].distribution})")
+        u = float(s) if s is not None else refs[key].standard_uncertainty
+        origin = f"u from params {sigma_key}" if s is not None else f"u from the references ({refs[key].distribution})"
+        if not compensated and v:
+            return Measured(0.0, math.hypot(u, v), f"measured {v:.3g} not compensated here: u = sqrt(u^2 + v^2); "
+                            + origin)  # fmt: skip
+        return Measured(v, u, ("compensated; " if v else "not compensated (none measured); ") + origin)
 
     out = {
         "zs1_z0_m": one("zs1_z0_m", "zs1_z0_m", "zs1_z0_sigma_m"),
@@ -141,8 +147,7 @@ class _Refit:
 def _exact_cfg(session: Session, result: Identification, **station_changes) -> TwinConfig:
     st = session.station
     k = dict(zip(result.names, result.values, strict=True))
-    geo = StationGeometry(st.A0_m, st.latitude_deg, st.g_mps2, st.earth_rate_radps, st.pulses_per_rev)
-    geo = replace(geo, **station_changes)
+    geo = replace(st, **station_changes)
     coefs = InstrumentCoefficients(k0=0.0, kz=k.get("kz", 0.56), kzz=k["kzz"], ky=k["ky"], k3=k["k3"])
     return TwinConfig(station=geo, instrument=coefs)
 
@@ -184,11 +189,14 @@ def seed000_budget(
     result: Identification,
     params: Mapping | None = None,
     references: Mapping[str, Reference] | None = None,
+    *,
+    compensated: bool = True,
 ) -> Budget:
-    """The GUM budget of `result` (an integral or baseline identification of `session`)."""
+    """The GUM budget of `result` (an integral or baseline identification of `session`); `compensated`: whether
+    `result` used the params' measured Zs1, axs1 and eps_f."""
     params = dict(params if params is not None else session.meta.get("params", {}))
     refs = dict(references) if references is not None else load_references()
-    meas = measured_inputs(params, refs)
+    meas = measured_inputs(params, refs, compensated)
     st = session.station
     values = {k: m.value for k, m in meas.items()} | {"latency_s": 0.0, "A0_m": st.A0_m, "g_mps2": st.g_mps2}
     refit = _Refit(session, result, values)
@@ -237,10 +245,17 @@ def seed000_budget(
     r_t = refs["timer_resolution_s"]
     c_t = timer_resolution_contribution(session, refit, r_t.standard_uncertainty)
     sources.append(
-        Source("timer resolution (every stamp)", "B", 0.0, r_t.standard_uncertainty, "s",
-               c_t / r_t.standard_uncertainty if r_t.standard_uncertainty else c_t, note=f"{r_t.distribution}; "
-               "random per stamp, root-sum-square over all stamps: already in the fit's scatter (Type A), not added",
-               in_combined=False)  # fmt: skip
+        Source(
+            "timer resolution (every stamp)",
+            "B",
+            0.0,
+            r_t.standard_uncertainty,
+            "s",
+            c_t / r_t.standard_uncertainty if r_t.standard_uncertainty else c_t,
+            note=f"{r_t.distribution}; "
+            "random per stamp, root-sum-square over all stamps: already in the fit's scatter (Type A), not added",
+            in_combined=False,
+        )
     )
     by_name = {s.source: s for s in sources}
     c0 = by_name[labels["zs1_z0_m"]].sensitivity * meas["zs1_z0_m"].u

@@ -24,10 +24,12 @@ import numpy as np
 from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MeasurePoint, Note
+from methods.common.certificate import render_html, render_pdf
 from methods.seed000.alignment import multi_position, two_position
+from methods.seed000.budget import seed000_budget
 from methods.seed000.identify import METHODS, Compensation, Identification, identify
 from methods.seed000.planning import design_quality, relative_sensitivity
-from methods.seed000.report import render_report
+from methods.seed000.report import certificate, render_report
 from models.plan import (
     SEED000_FREQS_HZ,
     SEED000_WINDOW_S,
@@ -59,32 +61,60 @@ COMPENSATION = (
     Param("zs1_z1_m_s", float, default=0.0, min=-1e-4, max=1e-4, unit="m s/rad", help="measured Zs1(w): z1"),
     Param("axs1_rad", float, default=0.0, min=-1e-3, max=1e-3, unit="rad",
           help="measured parasitic rotation axs1 (eq. 34); 0 leaves it uncompensated"),
+    Param("eps_f", float, default=0.0, min=-1e-3, max=1e-3, unit="1",
+          help="measured relative frequency error (Table 6): w = w_cmd (1 + eps_f); 0 leaves it uncompensated"),
+)  # fmt: skip
+# Standard uncertainties of the measured inputs, from the error-source experiments (methods/seed000/
+# procedure_error_sources.py); left out, the budget takes them from config/instruments/references.toml.
+UNCERTAINTIES = (
+    Param("zs1_z0_sigma_m", float, default=None, min=0.0, max=1e-3, unit="m", help="u(z0) of the Zs1 line fit"),
+    Param("zs1_z1_sigma_m_s", float, default=None, min=0.0, max=1e-4, unit="m s/rad", help="u(z1) of the line fit"),
+    Param("zs1_z0_z1_corr", float, default=0.0, min=-1.0, max=1.0, help="correlation of z0 and z1 of the line fit"),
+    Param("axs1_sigma_rad", float, default=None, min=0.0, max=1e-3, unit="rad", help="u(axs1) of the gradiometer"),
+    Param("eps_f_sigma", float, default=None, min=0.0, max=1e-3, unit="1", help="u(eps_f) of the stability test"),
 )  # fmt: skip
 
 
 def _compensation(params: dict) -> Compensation | None:
-    z0, z1, axs1 = (float(params.get(k, 0.0)) for k in ("zs1_z0_m", "zs1_z1_m_s", "axs1_rad"))
-    if z0 == z1 == axs1 == 0.0:
+    z0, z1, axs1, eps_f = (float(params.get(k) or 0.0) for k in ("zs1_z0_m", "zs1_z1_m_s", "axs1_rad", "eps_f"))
+    if z0 == z1 == axs1 == eps_f == 0.0:
         return None
-    return Compensation(zs1_m=(lambda w: z0 + z1 * w) if (z0 or z1) else None, axs1_rad=axs1)
+    return Compensation(zs1_m=(lambda w: z0 + z1 * w) if (z0 or z1) else None, axs1_rad=axs1, eps_f=eps_f)
 
 
 def _summary(results: dict[str, Identification]) -> str:
     lines = []
     for m, r in results.items():
-        coefs = ", ".join(f"{n} = {v:.6e} ± {s:.1e}" for n, v, s in zip(r.names, r.values, r.sigmas, strict=True))
-        lines.append(f"{m}: {coefs}; sigma = {r.sigma_residual:.3e} rad/s, mu = {r.mu:.2f} (mu_c = {r.mu_c:.2f})")
+        if r.budget is not None:
+            U, k = r.budget.expanded_uncertainty(), r.budget.coverage_factors()
+            coefs = ", ".join(f"{n} = {v:.6e} ± {x:.1e} (U, k = {kk:.2f})"
+                              for n, v, x, kk in zip(r.names, r.values, U, k, strict=True))  # fmt: skip
+        else:
+            coefs = ", ".join(f"{n} = {v:.6e} ± {s:.1e}" for n, v, s in zip(r.names, r.values, r.sigmas, strict=True))
+        verdict = "no outlier" if r.reliable else "possible outlier"
+        few = r.budget.few_dof() if r.budget is not None else []
+        flag = f"; few dof ({r.dof}) for {', '.join(few)}: t-based U" if few else ""
+        lines.append(f"{m}: {coefs}; sigma of Y (eq. 21) = {r.sigma_Y_eq21:.3e} rad/s, mu = {r.mu_eq28:.2f} "
+                     f"(mu_c = {r.mu_c_eq28:.2f}, eq. 28): {verdict}{flag}")  # fmt: skip
     return "\n".join(lines)
 
 
 def _analyse(session: Session, order: tuple[str, ...], title: str) -> Analysis:
+    """Identify, budget each identification (GUM), the report, and the certificate of the primary one."""
+    params = session.meta.get("params", {})
     results = {m: identify(session, m) for m in order}
-    comp = _compensation(session.meta.get("params", {}))
+    comp = _compensation(params)
     if comp is not None:
         results["integral_compensated"] = identify(session, "integral", comp)
+    for m, r in results.items():
+        r.budget = seed000_budget(session, r, params, compensated=m == "integral_compensated")
     uid = session.meta.get("store_uid", "")
-    html = render_report(session, results, title=f"Session {uid}: {title}", config=session.meta.get("params"))
-    return Analysis({m: r.to_json() for m, r in results.items()}, html, _summary(results))
+    html = render_report(session, results, title=f"Session {uid}: {title}", config=params)
+    primary = "integral_compensated" if comp is not None else order[0]
+    cert = certificate(session, results, primary, procedure_title=title)
+    files = {f"certificate-{uid or 'session'}.html": render_html(cert).encode(),
+             f"certificate-{uid or 'session'}.pdf": render_pdf(cert)}  # fmt: skip
+    return Analysis({m: r.to_json() for m, r in results.items()}, html, _summary(results), files)
 
 
 def analyse_integral(session: Session) -> Analysis:
@@ -117,6 +147,7 @@ def _multiposition(p: dict):
         _positions(equal_angle_positions_deg(10), "indexing positions (seed 000: 10 equal angles)"),
         *COMMON,
         *COMPENSATION,
+        *UNCERTAINTIES,
     ),
     analyse=analyse_integral,
 )

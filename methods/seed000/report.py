@@ -1,6 +1,7 @@
 """Self-contained HTML report of a calibration session (plots as inline SVG, no external assets).
 
-Coefficients with uncertainties, evaluation (sigma, mu vs mu_c), residual and
+Coefficients with their GUM uncertainties (u_A, u_c, nu_eff, k, U), evaluation (eq. 21's
+sigma and the per-rate sigma, eq. 28 as the seed defines it beside the joint variant), residual and
 proportional-residual plots in the manner of seed 000 Figs. 10-11, the timing
 capture table in the manner of Table 8, and the station and instrument configuration.
 """
@@ -8,71 +9,132 @@ capture table in the manner of Table 8, and the station and instrument configura
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
+from datetime import UTC, datetime
+from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
+from methods.common.certificate import (
+    NOT_MEASURED,
+    NOT_RECORDED,
+    Certificate,
+    InstrumentSpec,
+    load_instrument_spec,
+    load_laboratory,
+    result_rows,
+)
+from methods.common.uncertainty import MIN_RELIABLE_DOF, Budget, coverage_factor
+from methods.seed000.budget import load_references, traceability
 from methods.seed000.identify import Identification
 from models.regressors import COEFFICIENTS
-from station.htmlkit import document, esc, mapping_table, svg
+from station.htmlkit import document, esc, mapping_table, svg, table
 from station.session import Session
 
 _UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g²", "ky": "rad/s/g²", "k3": "rad/s/g³"}
 
 
+def _fmt(x: float, spec: str = ".2e") -> str:
+    """A number, or the reason there is none (no nan in a report)."""
+    if x is None or not math.isfinite(x):
+        return "∞ (Type B only)" if x == math.inf else "not available"
+    return format(x, spec)
+
+
 def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float] | None) -> str:
     head = "<tr><th class=l>coefficient</th><th class=l>unit</th>"
     for m in results:
-        head += f"<th>{esc(m)} value</th><th>{esc(m)} σ</th>"
+        head += f"<th>{esc(m)} value</th><th>u<sub>A</sub> (eq. 22)</th><th>u<sub>c</sub></th><th>ν<sub>eff</sub></th>"
+        head += "<th>k (95 %)</th><th>U</th>"
         if truth:
-            head += f"<th>{esc(m)} error</th>"
+            head += f"<th>{esc(m)} error / u<sub>c</sub></th>"
     if truth:
         head += "<th>true (twin)</th>"
     rows = [head + "</tr>"]
+    span = 7 if truth else 6
     for name in COEFFICIENTS:
         row = f"<tr><td class=l>{name}</td><td class=l>{_UNITS[name]}</td>"
         for r in results.values():
             if name in r.names:
                 v, s = r.coefficient(name)
-                row += f"<td>{v:.6e}</td><td>{s:.2e}</td>"
+                j = r.names.index(name)
+                if r.budget is not None:
+                    u, nu = r.budget.standard_uncertainty()[j], r.budget.effective_dof()[j]
+                    k = r.budget.coverage_factors()[j]
+                else:
+                    u, nu, k = s, float(r.dof), coverage_factor(r.dof)
+                row += f"<td>{v:.6e}</td><td>{s:.2e}</td><td>{u:.2e}</td><td>{_fmt(nu, '.1f')}</td><td>{k:.2f}</td>"
+                row += f"<td>{k * u:.2e}</td>"
                 if truth:
-                    row += f"<td>{v - truth[name]:+.2e}</td>"
+                    row += f"<td>{(v - truth[name]) / u:+.2f}</td>"
             else:
-                row += "<td>—</td><td>—</td>" + ("<td>—</td>" if truth else "")
+                row += f"<td colspan={span}>not identifiable by this model</td>"
         if truth:
             row += f"<td>{truth[name]:.6e}</td>"
         rows.append(row + "</tr>")
-    ev = "<tr><td class=l>σ residual</td><td class=l>rad/s</td>"
-    mu = "<tr><td class=l>μ vs μc (eq. 28)</td><td class=l></td>"
-    span = 3 if truth else 2
-    for r in results.values():
-        ev += f"<td colspan={span}>{r.sigma_residual:.3e} (dof {r.dof})</td>"
-        cls = "ok" if r.mu < r.mu_c else "bad"
-        verdict = "accepted" if r.mu < r.mu_c else "possible outlier"
-        mu += f"<td colspan={span} class={cls}>{r.mu:.3f} vs {r.mu_c:.3f}: {verdict}</td>"
     tail = "<td></td>" if truth else ""
-    rows += [ev + tail + "</tr>", mu + tail + "</tr>"]
-    return "<table>" + "".join(rows) + "</table>"
+    ev = "<tr><td class=l>σ of one rate (joint fit)</td><td class=l>rad/s</td>"
+    ev21 = "<tr><td class=l>σ of Y (eq. 21)</td><td class=l>rad/s</td>"
+    mu = "<tr><td class=l>μ vs μc (eq. 28, residuals of Y)</td><td class=l></td>"
+    muj = "<tr><td class=l>μ vs μc (variant: joint residuals)</td><td class=l></td>"
+    for r in results.values():
+        ev += f"<td colspan={span}>{_fmt(r.sigma_residual, '.3e')} (dof {r.dof}, weights: {esc(r.weighting)})</td>"
+        ev21 += f"<td colspan={span}>{_fmt(r.sigma_Y_eq21, '.3e')} (n = {len(r.vib_ids)} test points)</td>"
+        cls = "ok" if r.reliable else "bad"
+        verdict = "no outlier" if r.reliable else "possible outlier"
+        mu += f"<td colspan={span} class={cls}>{_fmt(r.mu_eq28, '.3f')} vs {_fmt(r.mu_c_eq28, '.3f')}: {verdict}</td>"
+        muj += f"<td colspan={span}>{_fmt(r.mu, '.3f')} vs {_fmt(r.mu_c, '.3f')} (N = {r.n_points})</td>"
+    rows += [x + tail + "</tr>" for x in (ev, ev21, mu, muj)]
+    notes = [
+        "<p>u<sub>A</sub>: the fit's standard uncertainty (eq. 22, Type A); u<sub>c</sub>: combined with every Type B "
+        "input of the budget (GUM); ν<sub>eff</sub> by Welch-Satterthwaite; k from Student's t at 95 %. "
+        "σ of one rate is the residual σ of the joint fit of all measured rates; eq. 21's σ is that of "
+        "Y = vibration − static rate, which carries the static point's noise as well (about √2 larger). "
+        "Eq. 28 is tested as the seed defines it, on the residuals of Y with N the number of test points; the joint "
+        "variant (all rates, N all points) sees about μ/√2 and is shown for comparison only.</p>"
+    ]
+    for m, r in results.items():
+        few = r.budget.few_dof() if r.budget is not None else ([] if r.dof >= MIN_RELIABLE_DOF else list(r.names))
+        if few:
+            notes.append(
+                f"<p class=bad>{esc(m)}: {', '.join(few)} rest on fewer than {MIN_RELIABLE_DOF} effective degrees of "
+                f"freedom ({r.dof} in the fit): σ itself is uncertain by about {100 / math.sqrt(2 * r.dof):.0f} %, "
+                "so U uses Student's t (k above) and a design with more points is advised for a reliable "
+                "uncertainty.</p>"
+            )
+    return "<table>" + "".join(rows) + "</table>" + "".join(notes)
+
+
+def residual_figure(results: Mapping[str, Identification]):
+    """Residuals of Y (eq. 21) per method on their own axis, and proportional residuals (eq. 29), legends outside."""
+    n = len(results)
+    fig, axes = plt.subplots(n + 1, 1, figsize=(7.5, 2.3 * (n + 1)), squeeze=False)
+    axes = axes[:, 0]
+    for ax, ((m, r), marker) in zip(axes[:n], zip(results.items(), "os^", strict=False), strict=False):
+        x = np.arange(1, r.Y_residuals_eq21.size + 1)
+        ax.axhline(0, color="0.5", lw=0.6)
+        ax.plot(x, r.Y_residuals_eq21 * 1e6, marker=marker, ls="-", lw=0.8, ms=3.5, label=f"{m}: e of Y")
+        ax.axhspan(-r.sigma_Y_eq21 * 1e6, r.sigma_Y_eq21 * 1e6, color="C0", alpha=0.12, label="±σ (eq. 21)")
+        ax.set(ylabel="e (µrad/s)", title=f"{m}: residuals of Y (seed 000 Fig. 10a/11a)")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    ax = axes[n]
+    for (m, r), marker in zip(results.items(), "os^", strict=False):
+        x = np.arange(1, r.proportional_residuals.size + 1)
+        ax.plot(x, np.abs(r.proportional_residuals), marker=marker, ls="-", lw=0.8, ms=3.5, label=m)
+    ax.set(title="Proportional residuals |e / (a cos θ)| (eq. 29)", xlabel="vibration point", ylabel="rad/s/g",
+           yscale="log")  # fmt: skip
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    for a in axes:
+        a.grid(alpha=0.3)
+        a.tick_params(labelsize=8)
+    fig.tight_layout()
+    return fig
 
 
 def _residual_plots(results: Mapping[str, Identification]) -> str:
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
-    for (m, r), marker in zip(results.items(), "os^", strict=False):
-        x = np.arange(1, r.Y_residuals.size + 1)
-        axes[0].plot(x, r.Y_residuals, marker=marker, ls="-", lw=0.8, label=m)
-        axes[1].plot(x, np.abs(r.proportional_residuals), marker=marker, ls="-", lw=0.8, label=m)
-    axes[0].set(title="Residuals e (Fig. 10a/11a)", xlabel="vibration point", ylabel="rad/s")
-    axes[1].set(
-        title="Proportional residuals |e / (a cos θ)| (eq. 29)",
-        xlabel="vibration point",
-        ylabel="rad/s/g",
-        yscale="log",
-    )
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        ax.legend()
-    return svg(fig)
+    return svg(residual_figure(results))
 
 
 def _timing_table(session: Session) -> str:
@@ -90,7 +152,7 @@ def _timing_table(session: Session) -> str:
         st = static.get(round(p.position_deg, 9))
         rows.append(
             f"<tr><td>{p.position_deg:g}</td><td>{p.freq_hz:g}</td><td>{p.Np}</td><td>{p.t1_s:.7f}</td>"
-            f"<td>{p.Tm_s:.6f}</td><td>{p.t2_s:.7f}</td><td>{st.Tm_s if st else float('nan'):.6f}</td></tr>"
+            f"<td>{p.Tm_s:.6f}</td><td>{p.t2_s:.7f}</td><td>{f'{st.Tm_s:.6f}' if st else 'none'}</td></tr>"
         )
     return "<table>" + "".join(rows) + "</table>"
 
@@ -107,8 +169,10 @@ def render_report(
     serial = session.meta.get("instrument_serial") or "not recorded"
     parts = [
         f"<p>Instrument {esc(serial)}; {len(session.points)} points; {esc(session.notes)}</p>",
-        "<h2>Coefficients (integral precession, seed 000 eqs. 19-22)</h2>",
+        "<h2>Coefficients (integral precession, seed 000 eqs. 19-22; GUM expanded uncertainty)</h2>",
         _coef_table(results, truth),
+        "<h2>Uncertainty budget (GUM, JCGM 100)</h2>",
+        budget_section(results),
         "<h2>Residuals</h2>",
         _residual_plots(results),
         "<h2>Timing capture (as seed 000 Table 8)</h2>",
@@ -118,3 +182,150 @@ def render_report(
     if config:
         parts.append("<h2>Configuration</h2><pre>" + esc(json.dumps(config, indent=2, default=str)) + "</pre>")
     return document(title, parts)
+
+
+# ---- budget and certificate ------------------------------------------------------------------------------
+
+
+def budget_rows(budget: Budget, *, with_sensitivity: bool = False) -> tuple[list[str], list[list[str]]]:
+    """Header and rows of the budget table: source, type, value, u(x), nu, then per coefficient |c| u (and c)."""
+    header = ["source", "type", "value x", "u(x)", "ν"]
+    for n in budget.names:
+        if with_sensitivity:
+            header.append(f"c = ∂{n}/∂x")
+        header.append(f"u_i({n}) ({_UNITS[n]})")
+    rows = []
+    for s in budget.sources:
+        label = s.source + ("" if s.in_combined else " [listed, not added]")
+        val = "—" if s.type == "A" else f"{s.value:.4g} {s.unit}".strip()
+        ux = "—" if s.type == "A" else f"{s.standard_uncertainty:.2e} {s.unit}".strip()
+        row = [label, s.type, val, ux, "∞" if math.isinf(s.dof) else f"{s.dof:g}"]
+        for c, u in zip(s.sensitivity, s.contribution, strict=True):
+            if with_sensitivity:
+                row.append("—" if s.type == "A" else f"{c:.3e}")
+            row.append(f"{u:.2e}")
+        rows.append(row)
+    uc, nu, k = budget.standard_uncertainty(), budget.effective_dof(), budget.coverage_factors()
+    totals = (
+        ("combined standard uncertainty u_c", [f"{u:.2e}" for u in uc]),
+        ("effective dof ν_eff (Welch-Satterthwaite)", ["∞" if math.isinf(v) else f"{v:.1f}" for v in nu]),
+        ("expanded U = k u_c (k from t at 95 %)", [f"{kk * u:.2e} (k {kk:.2f})" for kk, u in zip(k, uc, strict=True)]),
+    )
+    for label, cells in totals:
+        row = [label, "", "", "", ""]
+        for c in cells:
+            row += ["", c] if with_sensitivity else [c]
+        rows.append(row)
+    return header, rows
+
+
+def budget_section(results: Mapping[str, Identification]) -> str:
+    parts = []
+    for m, r in results.items():
+        if r.budget is None:
+            continue
+        header, rows = budget_rows(r.budget, with_sensitivity=True)
+        parts.append(f"<h3>{esc(m)}</h3>" + table(header, rows))
+    return "".join(parts)
+
+
+def _environment(session: Session) -> list[tuple[str, str]]:
+    """Temperature from the points' temperature_c column or the measurements' arrays, else not measured."""
+    temps = [float(p.extra["temperature_c"]) for p in session.points if p.extra.get("temperature_c") not in (None, "")]
+    for m in session.measurements:
+        if "temperature_c" in m.arrays:
+            temps += [float(x) for x in np.ravel(m.arrays["temperature_c"])]
+    out = []
+    if temps:
+        out.append(("temperature", f"{min(temps):.2f} to {max(temps):.2f} °C ({len(temps)} readings of the station's "
+                                   "sensors)"))  # fmt: skip
+    else:
+        out.append(("temperature", f"{NOT_MEASURED} (the station has no temperature sensor on this session)"))
+    out.append(("humidity, pressure, magnetic field", f"{NOT_MEASURED} (no sensor on the station)"))
+    return out
+
+
+def provenance_of(session: Session) -> dict:
+    """The session's provenance (issue 14) if it has one, else an empty record."""
+    prov = getattr(session, "provenance", None) or session.meta.get("provenance") or {}
+    return dict(prov)
+
+
+def _or(v: object) -> str:
+    return NOT_RECORDED if v in (None, "") else str(v)
+
+
+def certificate(
+    session: Session,
+    results: Mapping[str, Identification],
+    primary: str,
+    *,
+    spec: InstrumentSpec | None = None,
+    procedure_title: str = "",
+) -> Certificate:
+    """The calibration certificate of a seed-000 session from its `primary` identification (with a budget)."""
+    spec = spec or load_instrument_spec()
+    r = results[primary]
+    if r.budget is None:
+        raise ValueError(f"identification {primary!r} has no uncertainty budget: a certificate needs one")
+    prov = provenance_of(session)
+    uid = _or(session.meta.get("store_uid"))
+    simulated = bool(prov.get("simulated")) if prov.get("simulated") is not None else "SIM" in str(
+        prov.get("instrument_serial") or session.meta.get("instrument_serial") or "")  # fmt: skip
+    serial = prov.get("instrument_serial") or session.meta.get("instrument_serial")
+    proc = session.meta.get("procedure") or "seed000.integral_precession"
+    issued = datetime.now(UTC).isoformat(timespec="seconds")
+    span_s = max((p.start_s + p.Tm_s for p in session.points), default=0.0)
+    dates = [
+        ("date of calibration (session start)", _or(prov.get("created_utc"))),
+        ("duration of the measurements", f"{span_s / 3600:.2f} h of session time ({len(session.points)} points)"),
+        ("date of issue", issued),
+    ]
+    ident = [
+        ("station", _or(prov.get("station_id"))),
+        ("instrument", spec.model),
+        ("manufacturer", spec.manufacturer),
+        ("serial number", _or(serial)),
+        ("specification (instrument file)", f"{spec.specification} ({Path(spec.path).name})"),
+        ("calibration session", uid),
+        ("method", f"integral precession on the linear vibration table (seed 000 eqs. 19-22, exact window means); "
+                   f"{r.method} identification, weighted joint least squares ({r.weighting})"),
+        ("procedure and version", f"{proc} {procedure_title}; software {_or(prov.get('software_version'))}"),
+        ("operator", _or(prov.get("operator"))),
+        ("host", _or(prov.get("host"))),
+        ("simulated", "yes: digital twin, seed " + _or(prov.get("seed")) if simulated else "no"),
+    ]  # fmt: skip
+    rows = result_rows(r.budget.coefficients_json(), spec)
+    remarks = [
+        f"Reliability (seed 000 eq. 28 on the residuals of Y): μ = {_fmt(r.mu_eq28, '.2f')} against μc = "
+        f"{_fmt(r.mu_c_eq28, '.2f')}: {'no outlier' if r.reliable else 'POSSIBLE OUTLIER: results to be reviewed'}. "
+        f"σ of Y (eq. 21) {_fmt(r.sigma_Y_eq21, '.3e')} rad/s; σ of one rate (joint fit) {r.sigma_residual:.3e} "
+        f"rad/s with {r.dof} degrees of freedom.",
+        "The expanded uncertainty U = k u_c has a coverage probability of about 95 %; k is Student's t at the "
+        "Welch-Satterthwaite effective degrees of freedom of each coefficient (GUM G.4).",
+    ]
+    few = r.budget.few_dof()
+    if few:
+        remarks.append(f"Few degrees of freedom: {', '.join(few)} rest on fewer than {MIN_RELIABLE_DOF} effective "
+                       "degrees of freedom; their U uses the larger t factor and a design with more points is "
+                       "advised for a reliable uncertainty.")  # fmt: skip
+    if any(x.conformity == "not decided" for x in rows):
+        remarks.append("'not decided': the value lies within U of a limit, so conformity cannot be stated at 95 %.")
+    refs = load_references()
+    header, brows = budget_rows(r.budget)
+    return Certificate(
+        certificate_id=f"CERT-{uid}",
+        title="Calibration certificate: PIGA nonlinear error coefficients",
+        laboratory=load_laboratory(),
+        identification=ident,
+        dates=dates,
+        environment=_environment(session),
+        results=rows,
+        decision_rule=f"{spec.decision_rule_name}: {spec.decision_rule}",
+        traceability=traceability(refs),
+        budget_header=header,
+        budget_rows=brows,
+        figures=[lambda: residual_figure({primary: r})],
+        remarks=remarks,
+        simulated=simulated,
+    )
