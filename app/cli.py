@@ -38,6 +38,7 @@ from methods.seed000.identify import METHODS, identify
 from models.config import TwinConfig, TwinConfigError, default_twin
 from models.plan import seed000_plan
 from models.session_sim import simulate_session
+from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.errors import StationError
 from station.interchange import SessionFormatError, read_session, write_session
 from station.store import SessionStore, StoreError
@@ -133,6 +134,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
         controller_for(config, hw, store, out, telemetry, args.name) as controller,
     ):
+        if args.sync_to:  # each session to the central history once it has ended and its analysis is stored
+            controller.after_run.append(SyncAfterRun(store, args.sync_to, args.sync_arrays, args.name))
         server = ControlServer(controller, args.control, token=token).start()
         print(f"station {args.name} ({config.path}): control {server.endpoint}, telemetry {telemetry}, "
               f"store {store.path}", flush=True)  # fmt: skip
@@ -251,6 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--control", default="tcp://127.0.0.1:5560",
                    help="control endpoint (zmq REP) to bind (default tcp://127.0.0.1:5560)")  # fmt: skip
     p.add_argument("--token-env", metavar="VAR", help="require the control token held in this environment variable")
+    add_serve_options(p)  # --sync-to URL --sync-arrays DIR
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("identify", help="identify coefficients from a piga-session/1 directory")
@@ -292,6 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=text, add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
         p.set_defaults(func=func)
+    add_sync_command(sub)
     add_panel_commands(sub)
     return parser
 

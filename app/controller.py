@@ -68,6 +68,7 @@ class StationController:
         self._worker: threading.Thread | None = None
         self._outcome: RunOutcome | None = None
         self._started = threading.Event()
+        self.after_run: list[Callable[[RunOutcome], None]] = []  # called in the worker once a run has ended
 
     # ---- library and planning ------------------------------------------------------------
 
@@ -179,6 +180,8 @@ class StationController:
                 self.store.add_event(uid, "analysis", f"analysis failed: {exc}", "error")
                 self.publish("fault", {"kind": "analysis", "message": str(exc)})
         self._outcome = RunOutcome(uid, state, analysis, report, faults)
+        for hook in self.after_run:  # `station serve --sync-to`: the session to the central history
+            hook(self._outcome)
 
     def _analyse(self, spec: ProcedureSpec, uid: str) -> tuple[Analysis, Path]:
         """The procedure's analysis in a child process (app.analysis_job), results into the store."""

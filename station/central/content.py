@@ -21,7 +21,7 @@ import numpy as np
 from station.session import Session
 from station.store import SessionStore
 
-SYNCED_STATUSES = ("finished", "aborted", "failed", "imported")  # a running session is not pushed yet
+SYNCED_STATUSES = ("finished", "aborted", "failed", "interrupted", "imported")  # not while running
 FINAL_STATUSES = ("finished", "imported")  # a central copy in one of these cannot grow any more
 RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 

@@ -45,7 +45,7 @@ CREATE TABLE sessions (
     created_utc TIMESTAMPTZ NOT NULL,
     procedure TEXT NOT NULL,
     instrument_serial TEXT NOT NULL DEFAULT '',
-    status TEXT NOT NULL CHECK (status IN ('running', 'finished', 'aborted', 'failed', 'imported')),
+    status TEXT NOT NULL,  -- the store's statuses (running, finished, aborted, failed, interrupted, imported)
     station_json TEXT NOT NULL,
     config_json TEXT NOT NULL DEFAULT '{}',
     notes TEXT NOT NULL DEFAULT '',
