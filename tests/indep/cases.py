@@ -1,0 +1,271 @@
+"""Validation cases for the gap diagnosis: one independent session directory and its truth.
+
+Contract (the gap diagnosis is scored against it):
+
+    make_case(seed, kind, out_dir, *, snr=None, family=None, raw=None) -> dict
+
+kind is "null", a library effect name (`LIBRARY`), "pair:A+B" (two library effects, each scaled
+to `snr` on its own channel, then both applied) or "ool:<name>" (`OUT_OF_LIBRARY`). family None
+and raw None are drawn from the seed; snr None is drawn from (5, 10, 30). The same seed gives the
+same design, instrument, noise and crank phases whatever the kind (so a null and an effect case of
+one seed differ only by the effect); the same seed and kind give the same directory bit for bit.
+
+Returned truth (JSON-able): kind, effects, params {effect: {param: value}}, in_library, family,
+n_points, raw, snr (requested; None for null), snr_achieved {effect: snr}, channel (the channel
+each effect was scaled on; "A_channel+B_channel" for pairs), separable (pairs: whether each
+signature stays >= SEPARABLE_SIGMA away from everything the other effect's parameters reproduce,
+linearised, on all channels of this session; None otherwise), noise {...,"stated": bool},
+coefficients, plausible (every parameter within its physical bound), seed, design.
+
+    python -m indep.cases OUT_DIR --n N [--seed S]   (PYTHONPATH=tests)
+
+writes N cases (nulls, each library effect at SNR 5/10/30, pairs, out-of-library) as
+OUT_DIR/case_XXXX/ with one JSON line per case in OUT_DIR/truth.jsonl.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from indep.effects import (
+    EFFECTS,
+    LIBRARY,
+    OUT_OF_LIBRARY,
+    Context,
+    combined,
+    scale_to_snr,
+    signature,
+    with_effect,
+)
+from indep.generator import (
+    FAMILIES,
+    Truth,
+    draw_session,
+    plan_pulses,
+    random_coefficients,
+    random_design,
+    random_noise,
+    simulate,
+    write_session,
+)
+from indep.world import Coefficients
+
+__all__ = ["FAMILIES", "LIBRARY", "OUT_OF_LIBRARY", "SNR_LEVELS", "make_case"]
+SNR_LEVELS = (5.0, 10.0, 30.0)
+SEPARABLE_SIGMA = 3.0
+_MIN_STATIC_RATE = 3e-6  # rad/s: k0 is redrawn until every static rate is at least this (window rule)
+
+
+def _parse_kind(kind: str) -> tuple[list[str], bool]:
+    if kind == "null":
+        return [], True
+    if kind.startswith("pair:"):
+        names = kind[5:].split("+")
+        if len(names) != 2 or any(n not in LIBRARY for n in names) or names[0] == names[1]:
+            raise ValueError(f"kind={kind!r}: a pair is 'pair:A+B' with two different effects of {LIBRARY}")
+        return names, True
+    if kind.startswith("ool:"):
+        name = kind[4:]
+        if name not in OUT_OF_LIBRARY:
+            raise ValueError(f"kind={kind!r}: out-of-library effects are {OUT_OF_LIBRARY}")
+        return [name], False
+    if kind in LIBRARY:
+        return [kind], True
+    raise ValueError(f"kind={kind!r}: allowed 'null', {LIBRARY}, 'pair:A+B' or 'ool:<name>' with {OUT_OF_LIBRARY}")
+
+
+def _jsonable(x: object) -> object:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    return x
+
+
+def _context(seed: int, family: str | None, raw: bool | None) -> tuple[Context, bool, np.random.Generator]:
+    rng = np.random.default_rng([seed, 0])
+    fam = family if family is not None else FAMILIES[int(rng.integers(len(FAMILIES)))]
+    if fam not in FAMILIES:
+        raise ValueError(f"family={fam!r}: allowed {FAMILIES}")
+    with_raw = bool(rng.random() < 0.5) if raw is None else bool(raw)
+    state_noise = bool(rng.random() < 0.7)
+    design = random_design(rng, fam)
+    co = random_coefficients(rng)
+    for _ in range(50):  # keep every static rate away from zero (module docstring of generator)
+        rates = [abs(_static_rate(co, th)) for th in design.positions_deg]
+        if min(rates) >= _MIN_STATIC_RATE:
+            break
+        co = random_coefficients(rng)
+    noise = random_noise(rng)
+    truth = Truth(co, noise=noise)
+    plan = plan_pulses(design, co)
+    draws = draw_session(rng, len(plan), with_raw, plan)
+    ctx = Context(design, truth, draws, plan, with_raw)
+    ctx.rows0 = simulate(design, truth, draws, plan)
+    return ctx, state_noise, rng
+
+
+def _static_rate(co: Coefficients, theta_deg: float) -> float:
+    from indep.generator import nominal_rate
+
+    return nominal_rate(co, theta_deg, 0.0)
+
+
+def _linear_family(ctx: Context, truth: Truth, name: str, params: dict[str, float]) -> np.ndarray:
+    """Columns: d(combined signature)/d(parameter) of one effect at its parameters (finite differences)."""
+    eff = EFFECTS[name]
+    s0 = combined(signature(ctx, with_effect(truth, eff, params)), ctx)
+    cols = []
+    for k, v in params.items():
+        if not isinstance(v, float) or k in ("pattern_seed", "order_seed", "n_windows"):
+            continue
+        h = 1e-3 * abs(v) if v else 1e-3 * eff.bounds.get(k, 1.0)
+        p = dict(params)
+        p[k] = v + h
+        cols.append((combined(signature(ctx, with_effect(truth, eff, p)), ctx) - s0) / h)
+    return np.array(cols).T
+
+
+def _distance(v: np.ndarray, J: np.ndarray) -> float:
+    """Distance of v from the column span of J (whitened units: standard deviations)."""
+    if J.size == 0:
+        return float(np.linalg.norm(v))
+    return float(np.linalg.norm(v - J @ np.linalg.lstsq(J, v, rcond=None)[0]))
+
+
+def make_case(
+    seed: int,
+    kind: str,
+    out_dir: Path,
+    *,
+    snr: float | None = None,
+    family: str | None = None,
+    raw: bool | None = None,
+) -> dict:
+    """Write one session directory for (seed, kind) and return its truth (module docstring)."""
+    names, in_library = _parse_kind(kind)
+    if snr is not None and not (isinstance(snr, (int, float)) and math.isfinite(snr) and snr > 0):
+        raise ValueError(f"snr={snr!r}: must be a finite number > 0")
+    ctx, state_noise, rng = _context(int(seed), family, raw)
+    rng_eff = np.random.default_rng([int(seed), 1, zlib.crc32(kind.encode())])
+    if names and snr is None:
+        snr = float(rng_eff.choice(SNR_LEVELS))
+    truth, params, channels, achieved = ctx.truth, {}, {}, {}
+    for name in names:
+        eff = EFFECTS[name]
+        p0 = eff.draw(rng_eff, ctx)
+        assert snr is not None
+        p, ch, s = scale_to_snr(eff, p0, float(snr), ctx)
+        params[name], channels[name], achieved[name] = p, ch, s
+    for name in names:
+        truth = with_effect(truth, EFFECTS[name], params[name])
+    separable = None
+    if len(names) == 2:
+        a, b = names
+        sig_a = combined(signature(ctx, with_effect(ctx.truth, EFFECTS[a], params[a])), ctx)
+        sig_b = combined(signature(ctx, with_effect(ctx.truth, EFFECTS[b], params[b])), ctx)
+        sig_0 = combined(signature(ctx, ctx.truth), ctx)
+        ja = _linear_family(ctx, ctx.truth, a, params[a])
+        jb = _linear_family(ctx, ctx.truth, b, params[b])
+        d_ab = _distance(sig_b - sig_0, ja)
+        d_ba = _distance(sig_a - sig_0, jb)
+        separable = bool(min(d_ab, d_ba) >= SEPARABLE_SIGMA)
+    plausible = all(
+        abs(v) <= EFFECTS[n].bounds.get(k, math.inf)
+        for n in names
+        for k, v in params[n].items()
+        if isinstance(v, float)
+    )
+    noise_rng = np.random.default_rng([int(seed), 2])
+    rows = write_session(
+        Path(out_dir),
+        ctx.design,
+        truth,
+        noise_rng,
+        raw=ctx.raw,
+        state_noise=state_noise,
+        draws=ctx.draws,
+        plan=ctx.plan,
+        raw_optional=(bool(rng.random() < 0.5), bool(rng.random() < 0.5)),
+    )
+    noise = ctx.truth.noise
+    assert noise is not None
+    d = ctx.design
+    return _jsonable(
+        {
+            "kind": kind,
+            "effects": names,
+            "params": params,
+            "in_library": in_library,
+            "family": d.family,
+            "n_points": len(rows),
+            "raw": ctx.raw,
+            "snr": snr if names else None,
+            "snr_achieved": achieved,
+            "channel": "+".join(channels[n] for n in names) if names else None,
+            "separable": separable,
+            "noise": {**noise.as_dict(), "stated": state_noise},
+            "coefficients": ctx.truth.co.as_dict(),
+            "plausible": plausible,
+            "seed": int(seed),
+            "design": {
+                "positions_deg": list(d.positions_deg),
+                "freqs_hz": list(d.freqs_hz),
+                "window_revs": d.window_revs,
+                "static_repeats": d.static_repeats,
+                "order": d.order,
+                "max_window_s": d.max_window_s,
+                "session_s": rows[-1].start_s + rows[-1].true_Tm_s,
+            },
+        }
+    )  # type: ignore[return-value]
+
+
+def batch_kinds(n: int, rng: np.random.Generator) -> list[tuple[str, float | None]]:
+    """A mix of kinds: nulls, library effects at each SNR level, pairs, out-of-library effects."""
+    kinds: list[tuple[str, float | None]] = []
+    pool = [("null", None)]
+    pool += [(e, s) for e in LIBRARY for s in SNR_LEVELS]
+    pool += [(f"ool:{e}", 10.0) for e in OUT_OF_LIBRARY]
+    for _ in range(n):
+        u = rng.random()
+        if u < 0.15:
+            kinds.append(("null", None))
+        elif u < 0.3:
+            a, b = rng.choice(LIBRARY, 2, replace=False)
+            kinds.append((f"pair:{a}+{b}", float(rng.choice(SNR_LEVELS))))
+        else:
+            kinds.append(pool[int(rng.integers(len(pool)))])
+    return kinds
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m indep.cases", description=__doc__.split("\n")[0])
+    ap.add_argument("out_dir", type=Path)
+    ap.add_argument("--n", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0, help="seed of the first case")
+    args = ap.parse_args(argv)
+    if args.n < 1:
+        ap.error(f"--n {args.n}: must be >= 1")
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    kinds = batch_kinds(args.n, np.random.default_rng([args.seed, 99]))
+    with (args.out_dir / "truth.jsonl").open("w") as fh:
+        for k, (kind, snr) in enumerate(kinds):
+            case_dir = args.out_dir / f"case_{k:04d}"
+            truth = make_case(args.seed + k, kind, case_dir, snr=snr)
+            truth["dir"] = case_dir.name
+            fh.write(json.dumps(truth, sort_keys=True) + "\n")
+            print(f"{case_dir.name}: {kind} snr={truth['snr']} {truth['family']} n={truth['n_points']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
