@@ -37,7 +37,7 @@ from devices.indexing_head.driver import IndexingHead
 from devices.reference_marks.driver import ReferenceMarks
 from devices.registry import device_kinds
 from devices.servo.driver import ServoLimits, VibrationTableServo
-from engine.protocols import Event, FrequencyEstimate, MotionRecord, ServoReading, WindowResult
+from engine.protocols import Event, FrequencyEstimate, MotionRecord, ServoReading, Stoppable, WindowResult
 from models.config import TwinConfig
 from station.clock import Clock, VirtualClock, WallClock, speed_at_most
 from station.session import StationInfo
@@ -317,8 +317,8 @@ class StationDevices:
         return {"drive_state": self.servo.state, "drive_fault": fault, "head_held": self.head.held}
 
     def _extra_actions(self, name: str) -> list[Callable[[], object]]:
-        """A further device's own safe_stop / emergency_stop, for those that move something (a shaker)."""
-        return [getattr(d, name) for d in self.extra.values() if callable(getattr(d, name, None))]
+        """The safe_stop / emergency_stop of every further device that moves something (engine.protocols.Stoppable)."""
+        return [getattr(d, name) for d in self.extra.values() if isinstance(d, Stoppable)]
 
 
 class _DisplayTrace:

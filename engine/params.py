@@ -7,12 +7,14 @@ the value and what is allowed, before anything moves.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, BeforeValidator, Field, ValidationError, create_model
 
 from station.errors import InputError
+from station.validation import SETTINGS, Defect, defects
 
 
 class ParameterError(InputError):
@@ -47,37 +49,51 @@ class Param:
                 "choices": list(self.choices) if self.choices else None, "unit": self.unit, "help": self.help,
                 "required": self.required, "allowed": self.allowed()}  # fmt: skip
 
-    def _number(self, value: Any, where: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise ParameterError(f"{where} = {value!r}: expected {self.allowed()}")
-        if (self.min is not None and value < self.min) or (self.max is not None and value > self.max):
-            raise ParameterError(f"{where} = {value!r}: out of range, allowed {self.allowed()}")
-        return value
-
-    def coerce(self, value: Any, procedure: str) -> Any:
-        where = f"procedure {procedure!r} parameter {self.name!r}"
+    def annotation(self) -> Any:
+        """The parameter's type with its bounds, as pydantic validates it."""
+        bounds = Field(ge=self.min, le=self.max)
         if self.kind is list:
-            if isinstance(value, str) or not isinstance(value, Sequence) or not value:
-                raise ParameterError(f"{where} = {value!r}: expected a non-empty {self.allowed()}")
-            return [float(self._number(v, f"{where}[{i}]")) for i, v in enumerate(value)]
-        if self.kind is bool:
-            if not isinstance(value, bool):
-                raise ParameterError(f"{where} = {value!r}: expected true or false")
-            return value
+            return Annotated[list[Annotated[float, bounds]], Field(min_length=1)]
         if self.kind is str:
-            if not isinstance(value, str) or (self.choices and value not in self.choices):
-                raise ParameterError(f"{where} = {value!r}: expected {self.allowed()}")
-            return value
+            return Literal[tuple(self.choices)] if self.choices else str
         if self.kind is int:
-            if isinstance(value, float) and value.is_integer():
-                value = int(value)
-            if not isinstance(value, int) or isinstance(value, bool):
-                raise ParameterError(f"{where} = {value!r}: expected a whole number, {self.allowed()}")
-        return self.kind(self._number(value, where))
+            return Annotated[int, BeforeValidator(_whole), bounds]
+        if self.kind is float:
+            return Annotated[float, bounds]
+        return self.kind
+
+    def message(self, procedure: str, defect: Defect) -> str:
+        """The defect in the words of a procedure file: parameter, value, what is allowed."""
+        where = f"procedure {procedure!r} parameter {self.name!r}{defect.field[len(self.name) :]}"
+        if defect.kind == "missing":
+            return f"procedure {procedure!r}: missing parameter {self.name!r} ({self.allowed()})"
+        if defect.kind in ("greater_than_equal", "less_than_equal"):
+            return f"{where} = {defect.value!r}: out of range, allowed {self.allowed()}"
+        if self.kind is list and defect.field == self.name:
+            return f"{where} = {defect.value!r}: expected a non-empty {self.allowed()}"
+        if self.kind is bool:
+            return f"{where} = {defect.value!r}: expected true or false"
+        if self.kind is int:
+            return f"{where} = {defect.value!r}: expected a whole number, {self.allowed()}"
+        return f"{where} = {defect.value!r}: expected {self.allowed()}"
+
+
+def _whole(value: Any) -> Any:
+    """A whole number written as a float (TOML 3.0) is the int 3."""
+    return int(value) if isinstance(value, float) and value.is_integer() else value
+
+
+def params_model(procedure: str, declared: Sequence[Param]) -> type[BaseModel]:
+    """The pydantic model of a procedure's parameters: the one declaration that the run, the dry run and
+    the panel's form (its JSON schema) use."""
+    fields: dict[str, Any] = {
+        p.name: (p.annotation(), Field(... if p.required else p.default, description=p.help or None)) for p in declared
+    }
+    return create_model(f"Params[{procedure}]", __config__=SETTINGS, **fields)
 
 
 def validate_params(procedure: str, declared: Sequence[Param], given: Mapping[str, Any]) -> dict[str, Any]:
-    """Typed parameters with defaults filled in; ParameterError on the first defect."""
+    """Typed parameters with defaults filled in; ParameterError on the first defect (unknown names first)."""
     known = {p.name: p for p in declared}
     unknown = sorted(set(given) - set(known))
     if unknown:
@@ -85,12 +101,10 @@ def validate_params(procedure: str, declared: Sequence[Param], given: Mapping[st
             f"procedure {procedure!r}: unknown parameter(s) {', '.join(map(repr, unknown))}; "
             f"allowed: {', '.join(known) or 'none'}"
         )
-    out: dict[str, Any] = {}
-    for p in declared:
-        if p.name in given:
-            out[p.name] = p.coerce(given[p.name], procedure)
-        elif p.required:
-            raise ParameterError(f"procedure {procedure!r}: missing parameter {p.name!r} ({p.allowed()})")
-        else:
-            out[p.name] = p.default
-    return out
+    model = params_model(procedure, declared)
+    try:
+        return model.model_validate(dict(given)).model_dump()
+    except ValidationError as exc:
+        order = list(known)
+        first = min(defects(exc, model.model_fields), key=lambda d: order.index(d.field.split("[")[0]))
+        raise ParameterError(known[first.field.split("[")[0]].message(procedure, first)) from None

@@ -1,7 +1,11 @@
-"""What the engine needs of a station: the seam between the engine and the drivers.
+"""What the engine needs of a station: the device protocols it owns and their value types.
 
-`devices.station.StationDevices` implements it, for a real station and, with
-the same driver code, for the simulated one.
+The engine drives a station only through these. `devices.station.StationDevices`
+implements `StationHardware` for a real station and, with the same driver code,
+for the simulated one; each device driver implements the small protocols that
+fit it (`Stoppable` for anything that moves, `Checkable` for a device with a
+health check), and the station's stops reach a device by its protocol, never by
+guessing at its methods. The value types are what the drivers hand the engine.
 """
 
 from __future__ import annotations
@@ -15,11 +19,8 @@ import numpy as np
 from station.clock import Clock
 from station.session import StationInfo
 
-
-class StationHardware(Protocol):
-    clock: Clock
-
 # ---------------------------------------------------------------- value types
+
 
 @dataclass
 class WindowResult:
@@ -67,13 +68,11 @@ class Event:
     value: int = 0
 
 
-
 @dataclass(frozen=True)
 class FrequencyEstimate:
     f_hz: float  # fbar, mean of the per-period frequencies
     sigma_rel: float  # sigma_f / f, seed 000 section 6.1.2
     periods_s: np.ndarray
-
 
 
 @dataclass(frozen=True)
@@ -84,7 +83,6 @@ class ServoReading:
     freq_hz: float
     velocity_radps: float
     position_rad: float  # wraps with the drive's 32-bit position counter
-
 
 
 @dataclass(frozen=True)
@@ -120,6 +118,12 @@ class Closable(Protocol):
     """An opened device or emulator that releases its port or bus on close()."""
 
     def close(self) -> None: ...
+
+
+class StationHardware(Protocol):
+    """The station as the engine drives it: index, vibrate, time a window, capture, stop."""
+
+    clock: Clock
 
     @property
     def station(self) -> StationInfo: ...

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from engine.params import Param, ParameterError, validate_params
+from engine.params import Param, ParameterError, params_model, validate_params
 from station.errors import InputError
 from station.session import Session
 from station.tomlfile import read_toml
@@ -52,8 +52,9 @@ class ProcedureSpec:
         return validate_params(self.name, self.params, given)
 
     def describe(self) -> dict:
-        """Name, title and declared parameters, for forms and listings."""
-        return {"name": self.name, "title": self.title, "params": [p.describe() for p in self.params]}
+        """Name, title and declared parameters (and their JSON schema, from the same declaration), for forms."""
+        return {"name": self.name, "title": self.title, "params": [p.describe() for p in self.params],
+                "schema": params_model(self.name, self.params).model_json_schema()}  # fmt: skip
 
 
 _REGISTRY: dict[str, ProcedureSpec] = {}
@@ -110,3 +111,12 @@ def load_procedure_file(path: str | Path) -> tuple[ProcedureSpec, dict[str, Any]
         return spec, spec.validate(params)
     except ParameterError as exc:
         raise ProcedureError(f"procedure file {path}: {exc}") from None
+
+
+def procedure_file_serial(path: str | Path) -> str:
+    """The instrument serial number a procedure file names (`instrument_serial`), '' when it names none."""
+    path = Path(path)
+    serial = read_toml(path, "procedure file", ProcedureError).get("instrument_serial", "")
+    if not isinstance(serial, str):
+        raise ProcedureError(f"procedure file {path}: 'instrument_serial' = {serial!r}: expected text, e.g. \"PIGA-0042\"")
+    return serial.strip()

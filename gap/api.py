@@ -32,13 +32,15 @@ from gap import candidates as cl
 from gap.attribute import ALPHA, AMBIGUOUS_DBIC, MAX_EFFECTS, Scored, Selection, forward_select
 from gap.design import GapInputError, PointDesign, check_geometry
 from gap.fit import Channels, Linearisation, ModelFit, evaluate, fit_model
-from gap.forward import CALIBRATED
+from gap.forward import CALIBRATED, predict
 from gap.heldout import Folds, HeldOut, heldout, shrink
 from gap.identifiability import IdentifiabilityReport, assess
 from gap.localise import detectors, maps, significant, standardised, where_text
 from gap.noise import (
+    RATE_FORM_GRID,
     HonestNoise,
     PureError,
+    StatedNoise,
     TimingNoise,
     excess_scatter_pvalue,
     honest_noise,
@@ -48,9 +50,9 @@ from gap.noise import (
     timing_noise,
     timing_rate_sd_radps,
 )
-from gap.rawstreams import raw_evidence, raw_summary_text
-from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide
-from methods.common.least_squares import FitError
+from gap.rawstreams import GratingRecord, raw_evidence, raw_summary_text
+from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide, family_level
+from methods.common.least_squares import FitError, fit_joint
 from models.config import TwinConfig, TwinConfigError, default_twin
 from station.jsonsafe import json_safe
 from station.session import Session
@@ -85,6 +87,13 @@ class GapReport:
     def effects(self) -> list[str]:
         return list(self.verdict.effects)
 
+    def _repr_html_(self) -> str:
+        """Rich display in a notebook: the HTML report's body (gap.report_html.render)."""
+        from gap.report_html import render
+        from station.notebook import html_fragment
+
+        return html_fragment(render(self))
+
     def to_json(self) -> dict:
         return json_safe(
             {
@@ -109,37 +118,66 @@ class GapReport:
 
 
 def _check_fittable(design: PointDesign) -> None:
-    n_pos = design.positions_deg.size
+    n_lev = design.n_levels
     if not design.vib.any():
         raise GapInputError("the session has no vibration points: the calibrated coefficients need vibration")
-    if design.n_points <= n_pos + len(CALIBRATED):
+    if design.n_points <= n_lev + len(CALIBRATED):
         raise GapInputError(
-            f"too few points to fit: {design.n_points} points cannot fit {n_pos} static levels and "
+            f"too few points to fit: {design.n_points} points cannot fit the bias k0 and "
             f"{len(CALIBRATED)} calibrated coefficients ({', '.join(CALIBRATED)})"
         )
 
 
-def _channels(design: PointDesign, twin: TwinConfig, tn: TimingNoise) -> Channels:
-    """Observations whitened by the scatter of the twin refitted (window-length weights first, then timing)."""
-    weights = rate_weights(design, twin)
+def _rate_form(design: PointDesign, twin: TwinConfig) -> float:
+    """Constant fraction f of the rate variance (gap.noise) by the profile likelihood of the twin refitted.
+
+    l(f) = -(n / 2) ln(RSS_w(f) / n) + (1 / 2) sum ln w_i(f): the weights' shape, sigma0 profiled out."""
+    pred = predict(design, twin)
+    y = design.rate_radps - pred.base_radps
+    best, best_ll = 0.0, -math.inf
+    for f in RATE_FORM_GRID:
+        w = rate_weights(design, twin, constant_fraction=f)
+        try:
+            fit = fit_joint(y, design.level_index, pred.units_radps, CALIBRATED, w)
+        except FitError as exc:
+            raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
+        rss = float(np.sum(w * fit.residuals**2))
+        ll = -0.5 * design.n_points * math.log(max(rss, 1e-300) / design.n_points) + 0.5 * float(np.sum(np.log(w)))
+        if ll > best_ll + 1e-9:
+            best, best_ll = f, ll
+    return best
+
+
+def _channels(
+    design: PointDesign, twin: TwinConfig, tn: TimingNoise, stated: StatedNoise, grating: GratingRecord | None
+) -> Channels:
+    """Observations whitened by their noise: the stated noise where the session states it, else estimated
+    (the rate variance's form by likelihood, its level by the scatter of the twin refitted; timing first)."""
+    if stated.repeatability_radps is not None:
+        sigma_w = stated.repeatability_radps
+        weights = rate_weights(design, twin, tn.sigma_tau_s, sigma_w, constant_fraction=1.0)
+        return Channels(design, twin, weights, sigma_w, tn.sigma_tau_s, grating, 1.0, True, tn.stated)
+    f = _rate_form(design, twin)
+    weights = rate_weights(design, twin, constant_fraction=f)
     try:
-        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s), twin)
+        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s, None, f), twin)
     except FitError as exc:
         raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
     rss = float(np.sum(weights * probe.lin.residuals**2))
     floor = 1e-12 * float(np.max(np.abs(design.rate_radps)))
     sigma_w = max(math.sqrt(rss / probe.lin.dof), floor, 1e-300)
     # The timing term of the weights needs sigma0: the probe's is close enough (it is a small term).
-    return Channels(design, twin, rate_weights(design, twin, tn.sigma_tau_s, sigma_w), sigma_w, tn.sigma_tau_s)
+    weights = rate_weights(design, twin, tn.sigma_tau_s, sigma_w, constant_fraction=f)
+    return Channels(design, twin, weights, sigma_w, tn.sigma_tau_s, grating, f, False, tn.stated)
 
 
-def _noise_check(fit: ModelFit, pe: PureError | None, twin: TwinConfig) -> NoiseCheck:
-    """Residual scatter of a fit against an independent reference (repeats, else the twin's noise model)."""
+def _noise_check(fit: ModelFit, pe: PureError | None, ch: Channels) -> NoiseCheck:
+    """Residual scatter of a fit against an independent reference: the stated repeatability, else repeats."""
+    if ch.rate_sigma_known:
+        p = excess_scatter_pvalue(fit.sigma0_hat_radps, fit.dof_rate, ch.sigma0_radps)
+        return NoiseCheck("stated instrument repeatability", ch.sigma0_radps, p)
     if pe is not None and pe.dof >= 3 and fit.dof_rate > pe.dof:
         return NoiseCheck("pure error of repeats", pe.sigma0_radps, lack_of_fit_pvalue(fit.rss_rate, fit.dof_rate, pe))
-    if twin.noise.rate_noise_radps > 0:
-        p = excess_scatter_pvalue(fit.sigma0_hat_radps, fit.dof_rate, twin.noise.rate_noise_radps)
-        return NoiseCheck("twin noise model", twin.noise.rate_noise_radps, p)
     return NoiseCheck("none", None, None)
 
 
@@ -208,7 +246,8 @@ def _candidate_table(
                 "delta_chi2_timing": s.dchi2_tau,
                 "heldout_gap_with_it": G,
                 "heldout_rank": by_heldout.index(name) + 1 if name in by_heldout else None,
-                "rivals_within_delta_bic": s.rivals,
+                "rivals_reproducing_it": s.rivals,
+                "beyond_bounds": s.beyond_bounds,
                 "fit_converged": s.fit.converged,
             }
         table.append(entry)
@@ -224,10 +263,18 @@ def _noise_json(
     checks: tuple[NoiseCheck, NoiseCheck],
     tn: TimingNoise,
     design: PointDesign,
+    ch: Channels,
+    stated: StatedNoise,
 ) -> dict:
     return {
-        "model": "var(wbar_i) = sigma0^2 T_ref / Tm_i (white rate noise over the window) "
-        "+ (|wbar_i| sigma_tau / Tm_i)^2 (the two time stamps of Tm)",
+        "model": "var(wbar_i) = sigma0^2 (f + (1 - f) T_ref / Tm_i) (f: a per-window repeatability; 1 - f: white "
+        "rate noise over the window) + (|wbar_i| sigma_tau / Tm_i)^2 (the two time stamps of Tm)",
+        "constant_fraction_f": ch.constant_fraction,
+        "stated_by_session": stated.to_json(),
+        "rate_noise_known": ch.rate_sigma_known,
+        "timing_noise_known": ch.tau_sigma_known,
+        "static_model": "one bias k0 for the whole session; every position's static rate is the twin's "
+        "k0 + kz c + kzz c^2 + ky (1 - c^2) + k3 c^3 - earth rate (no free per-position level)",
         "T_ref_s": twin.noise.rate_noise_ref_s,
         "sigma0_radps": honest.sigma0_radps,
         "sigma0_dof": honest.dof,
@@ -235,7 +282,6 @@ def _noise_json(
         "sigma0_twin_fit_radps": base.sigma0_hat_radps,
         "sigma0_final_fit_radps": final.sigma0_hat_radps,
         "pure_error": None if pe is None else {"sigma0_radps": pe.sigma0_radps, "dof": pe.dof, "groups": pe.groups},
-        "twin_nominal_sigma0_radps": twin.noise.rate_noise_radps,
         "excess_scatter_before": vars(checks[0]),
         "excess_scatter_after": vars(checks[1]),
         "timing": {
@@ -265,8 +311,10 @@ def diagnose(
     check_geometry(session, twin)
     design = PointDesign.from_session(session)
     _check_fittable(design)
-    tn = timing_noise(design, twin)
-    ch = _channels(design, twin, tn)
+    stated = StatedNoise.from_meta(session.meta)
+    tn = timing_noise(design, twin, stated)
+    grating = GratingRecord.from_session(session, design, tn.sigma_tau_s / math.sqrt(2.0), stated.grating_noise_m)
+    ch = _channels(design, twin, tn, stated, grating)
     lin = Linearisation(ch, cl.library(exclude=exclude))
     base = fit_model(lin, [])
     dof0 = base.dof_rate
@@ -281,8 +329,11 @@ def diagnose(
     dets_before = detectors(ch, base)
     dets_after = detectors(ch, final)
     pe = pure_error(design, final.rate_resid_radps, ch.weights)
-    structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None]
-    honest = honest_noise(pe, final.r_white, ch.n_rate, final.dof_rate, ch.sigma0_radps, structure)
+    structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None and d.channel == "rate"]
+    if ch.rate_sigma_known:
+        honest = HonestNoise(ch.sigma0_radps, 0, "stated by the session (instrument_repeatability_radps)")
+    else:
+        honest = honest_noise(pe, final.r_white, ch.n_rate, final.dof_rate, ch.sigma0_radps, structure)
     kappa = honest.sigma0_radps / ch.sigma0_radps
     ident.noise_ratio = 1.0 / kappa
 
@@ -290,7 +341,8 @@ def diagnose(
     folds = Folds.of(design)
 
     def ho(fit: ModelFit) -> HeldOut:
-        return heldout(fit.J, fit.r_white, design, folds, kappa, honest.sigma0_radps, tn.sigma_tau_s)
+        g_index = None if grating is None else grating.index
+        return heldout(fit.J, fit.r_white, design, folds, kappa, honest.sigma0_radps, tn.sigma_tau_s, g_index)
 
     h_base = ho(base)
     h_final = ho(final) if selection.chosen else h_base
@@ -298,7 +350,7 @@ def diagnose(
     for s in selection.steps[0] if selection.steps else []:
         h = ho(s.fit)
         shrinks[s.name] = (h.G, shrink(h_base, h))
-    checks = (_noise_check(base, pe, twin), _noise_check(final, pe, twin))
+    checks = (_noise_check(base, pe, ch), _noise_check(final, pe, ch))
     verdict = decide(dof0, selection, ident, dets_before, dets_after, *checks, shrink(h_base, h_final))
 
     z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s
@@ -309,8 +361,9 @@ def diagnose(
     maps_before = maps(design, z_before, tau_z_before)
     maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
     where = {
-        "summary": where_text(maps_before, dets_before, ALPHA) + (f" {raw_summary_text(raw)}." if raw else ""),
-        "after_effects": where_text(maps_after, dets_after, ALPHA) if maps_after else None,
+        "summary": where_text(maps_before, dets_before, family_level(dets_before))
+        + (f" {raw_summary_text(raw)}." if raw else ""),
+        "after_effects": where_text(maps_after, dets_after, family_level(dets_after)) if maps_after else None,
         "maps": maps_before,
         "maps_after_effects": maps_after,
         "structure_tests_before": [d.to_json() for d in dets_before],
@@ -333,7 +386,7 @@ def diagnose(
         gap_after=h_final,
         where=where,
         identifiability=ident,
-        noise=_noise_json(twin, honest, base, final, pe, checks, tn, design),
+        noise=_noise_json(twin, honest, base, final, pe, checks, tn, design, ch, stated),
         coefficients={"twin_refit": _coefficients(base), "with_effects": _coefficients(final)},
         twin_out=final.cfg if verdict.verdict == "explained" else twin,
         session_info=info,

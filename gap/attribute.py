@@ -5,16 +5,19 @@ least one parameter the calibrated terms do not absorb:
 gap.identifiability) is fitted jointly with the calibrated
 coefficients and the effects already chosen (gap.fit.fit_model), then
 - evidence: the F-test of the rate channel, F = (dRSS / m) / (RSS / dof),
-  with m the candidate's fitted rate parameters; for the period identities
-  (frequency_error) the chi-square test of d chi^2_tau with 1 dof; a
-  candidate acting on both channels takes the smaller p-value times 2;
-- information criterion: BIC = n_r ln(RSS_r / n_r) + chi^2_tau + k ln(n_r + n_tau).
+  with m the candidate's fitted rate parameters; for the other channels (period
+  identities, grating harmonics) the chi-square test of their d chi^2 with as
+  many dof as the candidate has parameters acting there; a candidate acting on
+  both takes the smaller p-value times 2;
+- information criterion: BIC = n_r ln(RSS_r / n_r) + chi^2_other + k ln(n_rows).
 A candidate is accepted when its p-value is below ALPHA / (number tested at that
-step) (Bonferroni) and it lowers the BIC; among those the lowest BIC wins.
-Candidates whose BIC is within AMBIGUOUS_DBIC of the winner's (short of
-"strong" evidence, Kass and Raftery 1995) are its rivals: this session does
-not tell them apart. Selection stops at max_effects; one more
-step then says whether a further effect would still have been accepted.
+step) (Bonferroni), it lowers the BIC and every fitted parameter is within its
+physically plausible bound (gap.candidates, at 2 sigma); among those the lowest
+BIC wins. Another candidate within bounds that reproduces the winner's fit on
+every channel (its chi^2, rate rows in the winner's sigma^2, within
+REPRODUCE_CHI2 of the winner's) is a rival: this session does not tell them
+apart. Selection stops at max_effects; one more step then says whether a
+further effect would still have been accepted.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
 from scipy import stats
 
 from gap.fit import Linearisation, ModelFit, fit_model
@@ -30,6 +34,9 @@ from gap.fit import Linearisation, ModelFit, fit_model
 ALPHA = 0.01
 AMBIGUOUS_DBIC = 6.0
 MAX_EFFECTS = 3
+# A rival reproduces the winner when the data prefer the winner by less than a 1-dof test at ALPHA.
+REPRODUCE_CHI2 = float(stats.chi2.isf(ALPHA, 1))
+BOUND_SIGMAS = 2.0
 
 
 @dataclass
@@ -43,21 +50,43 @@ class Scored:
     bic: float
     dbic: float  # vs the reference model (negative = better)
     drss_sigma2: float  # rate dRSS in units of the reference sigma0^2
-    dchi2_tau: float
-    rivals: list[str] = field(default_factory=list)  # within AMBIGUOUS_DBIC when chosen
+    dchi2_tau: float  # of the other channels (period identities and grating)
+    rivals: list[str] = field(default_factory=list)  # reproduce the winner (REPRODUCE_CHI2) when chosen
+    beyond_bounds: list[str] = field(default_factory=list)  # parameters fitted beyond their plausible bound
+
+    @property
+    def plausible(self) -> bool:
+        return not self.beyond_bounds
+
+
+def beyond_bounds(fit: ModelFit, name: str) -> list[str]:
+    """Parameters of effect `name` whose fitted |value| exceeds its bound by more than BOUND_SIGMAS sd."""
+    rows = zip(fit.free, fit.values, fit.sigmas, strict=True)
+    return [fp.param for fp, v, sd in rows if fp.effect == name and abs(v) - BOUND_SIGMAS * sd > fp.bound]
+
+
+def _chi2_total(fit: ModelFit, s2_rate: float) -> float:
+    return fit.rss_rate / s2_rate + fit.chi2_tau + fit.chi2_grating
 
 
 def _timing_params(fit: ModelFit) -> int:
     return sum(1 for fp in fit.free if fp.effect == "frequency_error")
 
 
-def bic(fit: ModelFit, n_rate: int, n_tau: int) -> float:
-    """Schwarz's criterion of the joint rate and period-identity fit (the timing chi^2 has known sigma)."""
+def _other_params(fit: ModelFit, n_rate: int) -> int:
+    """Free parameters whose columns move the timing or grating rows."""
+    n_lin = fit.J.shape[1] - len(fit.free)
+    return int(np.sum(np.linalg.norm(fit.J[n_rate:, n_lin:], axis=0) > 0))
+
+
+def bic(fit: ModelFit, n_rate: int, n_other: int) -> float:
+    """Schwarz's criterion of the joint fit (the timing and grating chi^2 are whitened by their noise)."""
     k = fit.n_rate_params + _timing_params(fit)
-    return n_rate * math.log(fit.rss_rate / n_rate) + fit.chi2_tau + k * math.log(n_rate + n_tau)
+    chi2_other = fit.chi2_tau + fit.chi2_grating
+    return n_rate * math.log(fit.rss_rate / n_rate) + chi2_other + k * math.log(n_rate + n_other)
 
 
-def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_tau: int) -> Scored:
+def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_other: int) -> Scored:
     """Evidence for adding candidate `name` (fit) to the reference model (ref)."""
     m_rate = fit.n_rate_params - ref.n_rate_params
     drss = ref.rss_rate - fit.rss_rate
@@ -65,15 +94,15 @@ def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_tau: int) -> S
     if m_rate > 0 and fit.dof_rate > 0:
         F = (drss / m_rate) / (fit.rss_rate / fit.dof_rate)
         p_rate = float(stats.f.sf(F, m_rate, fit.dof_rate)) if F > 0 else 1.0
-    acts_on_tau = _timing_params(fit) > _timing_params(ref)
-    dchi = ref.chi2_tau - fit.chi2_tau
-    p_tau = float(stats.chi2.sf(dchi, 1)) if acts_on_tau and dchi > 0 else 1.0
+    m_other = _other_params(fit, n_rate) - _other_params(ref, n_rate)
+    dchi = (ref.chi2_tau + ref.chi2_grating) - (fit.chi2_tau + fit.chi2_grating)
+    p_other = float(stats.chi2.sf(dchi, m_other)) if m_other > 0 and dchi > 0 else 1.0
     p = p_rate
-    if acts_on_tau:
-        p = min(1.0, 2.0 * min(p_rate, p_tau)) if m_rate > 0 else p_tau
-    b_ref, b = bic(ref, n_rate, n_tau), bic(fit, n_rate, n_tau)
+    if m_other > 0:
+        p = min(1.0, 2.0 * min(p_rate, p_other)) if m_rate > 0 else p_other
+    b_ref, b = bic(ref, n_rate, n_other), bic(fit, n_rate, n_other)
     s0 = ref.rss_rate / max(ref.dof_rate, 1)
-    return Scored(name, fit, F, p, b, b - b_ref, drss / s0, dchi)
+    return Scored(name, fit, F, p, b, b - b_ref, drss / s0, dchi, beyond_bounds=beyond_bounds(fit, name))
 
 
 @dataclass
@@ -96,20 +125,23 @@ def _step(
     drop: frozenset[str],
 ) -> tuple[list[Scored], Scored | None]:
     """Score every candidate of `names` on top of `current`; the accepted one, if any."""
-    d = lin.ch.design
-    n_rate, n_tau = d.n_points, int(d.vib.sum())
+    n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
     scored = []
     for name in names:
         fit = fit_model(lin, [*chosen, name], drop=drop)
         if fit.dof_rate > 0:
-            scored.append(score(current, fit, name, n_rate, n_tau))
+            scored.append(score(current, fit, name, n_rate, n_other))
     scored.sort(key=lambda s: s.bic)
     limit = ALPHA / max(len(scored), 1)
-    ok = [s for s in scored if s.p_value < limit and s.dbic < 0]
+    ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
     if not ok:
         return scored, None
     best = ok[0]
-    best.rivals = [s.name for s in scored if s is not best and s.bic - best.bic < AMBIGUOUS_DBIC]
+    s2 = best.fit.rss_rate / max(best.fit.dof_rate, 1)
+    chi_best = _chi2_total(best.fit, s2)
+    best.rivals = [
+        s.name for s in scored if s is not best and s.plausible and _chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2
+    ]
     return scored, best
 
 

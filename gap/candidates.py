@@ -31,6 +31,7 @@ class FreeParam:
     unit: str
     scale: float  # typical magnitude (seed 000 where given)
     fd_step: float  # finite-difference step in parameter units
+    bound: float = float("inf")  # largest physically plausible |value| (a fit beyond it explains nothing)
 
     @property
     def key(self) -> str:
@@ -49,12 +50,20 @@ class Candidate:
         return EFFECTS[self.name].cause
 
 
-def _fp(effect: str, param: str, scale: float, step_fraction: float = 1e-2) -> FreeParam:
-    return FreeParam(effect, param, EFFECTS[effect].parameters[param], scale, scale * step_fraction)
+def _fp(effect: str, param: str, scale: float, step_fraction: float = 1e-2, bound: float | None = None) -> FreeParam:
+    """bound: the largest plausible magnitude, BOUND_FACTOR x the typical one unless the physics says otherwise."""
+    b = BOUND_FACTOR * scale if bound is None else bound
+    return FreeParam(effect, param, EFFECTS[effect].parameters[param], scale, scale * step_fraction, b)
+
+
+# A lab's plausible range: an order of magnitude above the typical size (seed 000 Tables 5-7, 6.1).
+BOUND_FACTOR = 10.0
+ARCSEC_RAD = 4.84813681109536e-06
 
 
 def _library() -> dict[str, Candidate]:
-    idx = tuple(_fp("index_harmonics", f"{p}{k}", 5e-6) for k in range(1, 5) for p in ("c", "s"))
+    # seed 003: arc-second angle errors of an indexing head; 10" at most.
+    idx = tuple(_fp("index_harmonics", f"{p}{k}", 5e-6, bound=10 * ARCSEC_RAD) for k in range(1, 5) for p in ("c", "s"))
     cands = [
         # seed 000 eq. 32: Zs1 = -0.1299 mm + 0.0032 mm s/rad * w; Zc1 not given, 50 um assumed.
         Candidate(
@@ -75,10 +84,13 @@ def _library() -> dict[str, Candidate]:
                 _fp("waveform_harmonics", "Zc3", 1e-5),
             ),
         ),
-        # seed 000 Table 7: axs1 = -0.92", axc1 = 0.19".
+        # seed 000 Table 7: axs1 = -0.92", axc1 = 0.19"; 10" at most.
         Candidate(
             "parasitic_rotation",
-            (_fp("parasitic_rotation", "axs1", 4.5e-6), _fp("parasitic_rotation", "axc1", 1e-6)),
+            (
+                _fp("parasitic_rotation", "axs1", 4.5e-6, bound=10 * ARCSEC_RAD),
+                _fp("parasitic_rotation", "axc1", 1e-6, bound=10 * ARCSEC_RAD),
+            ),
             notes="ax0 is not fitted: it enters exactly as dtheta_mount (see mount_misalignment)",
         ),
         # seed 000 6.1.4: kx about 1e-5 rad/s/g^2.

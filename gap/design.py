@@ -49,6 +49,15 @@ class PointDesign:
         return int(self.theta_rad.size)
 
     @property
+    def level_index(self) -> np.ndarray:
+        """Index of each point's free static level: one bias k0 for the whole session (gap.forward)."""
+        return np.zeros(self.n_points, dtype=np.int64)
+
+    @property
+    def n_levels(self) -> int:
+        return 1
+
+    @property
     def position_rad(self) -> np.ndarray:
         return np.radians(self.positions_deg)
 

@@ -2,10 +2,12 @@
 
 Model of every recorded rate (gap.forward):
 
-    wbar_i = c_pos(i) + base_i(p) + units_i(p) . K          (K = kz, kzz, ky, k3)
+    wbar_i = k0 + base_i(p) + units_i(p) . K          (K = kz, kzz, ky, k3)
 
-and of every period identity, tau_i = Np_i (T_true - T_cmd)(p). For given
-effect parameters p the static levels c and K follow by the weighted joint
+of every period identity, tau_i = Np_i (T_true - T_cmd)(p), and of the grating's
+harmonics at every point with a raw record (gap.rawstreams.GratingRecord): rate
+rows, then timing rows, then grating rows, each whitened by its own noise. For given
+effect parameters p the bias k0 (the one free level) and K follow by the weighted joint
 least squares of methods.common.least_squares.fit_joint (weights from
 gap.noise), so the calibrated terms are refitted at every p (variable
 projection). p is fitted with finite-difference columns of the exact forward
@@ -26,7 +28,8 @@ from scipy.optimize import least_squares
 
 from gap import candidates as cl
 from gap.design import PointDesign
-from gap.forward import CALIBRATED, Prediction, predict, predict_full
+from gap.forward import CALIBRATED, Prediction, period_identity_s, predict, predict_full
+from gap.rawstreams import GratingRecord
 from methods.common.least_squares import JointFit, fit_joint
 from models.config import TwinConfig
 
@@ -48,6 +51,10 @@ class Channels:
     weights: np.ndarray  # sigma0^2 / var(wbar_i) (gap.noise.rate_weights)
     sigma0_radps: float  # rate noise at T_ref used for whitening
     sigma_tau_s: float
+    grating: GratingRecord | None = None
+    constant_fraction: float = 0.0  # of the rate variance (gap.noise)
+    rate_sigma_known: bool = False  # stated by the session: chi-square tests of the rate rows
+    tau_sigma_known: bool = False
 
     @property
     def n_rate(self) -> int:
@@ -56,6 +63,28 @@ class Channels:
     @property
     def n_tau(self) -> int:
         return int(self.design.vib.sum())
+
+    @property
+    def n_grating(self) -> int:
+        return 0 if self.grating is None else self.grating.n_rows
+
+    @property
+    def n_other(self) -> int:
+        """Rows after the rate rows: period identities, then grating harmonics."""
+        return self.n_tau + self.n_grating
+
+    def other_white(self, cfg: TwinConfig) -> np.ndarray:
+        """Whitened predictions of the timing and grating rows under cfg."""
+        d = self.design
+        tau = self.white_tau(period_identity_s(d, cfg)[d.vib])
+        if self.grating is None:
+            return tau
+        return np.concatenate([tau, self.grating.white(self.grating.predict_m(cfg))])
+
+    def other_observed_white(self) -> np.ndarray:
+        d = self.design
+        tau = self.white_tau(d.tau_s[d.vib])
+        return tau if self.grating is None else np.concatenate([tau, self.grating.observed_white()])
 
     def white_rate(self, r_radps: np.ndarray) -> np.ndarray:
         """Rows of rate residuals (or of a Jacobian) divided by each point's sigma."""
@@ -85,17 +114,17 @@ def evaluate(ch: Channels, cfg: TwinConfig) -> State:
     """Predict, refit static levels and K (fit_joint), and whiten the residuals."""
     d = ch.design
     pred = predict(d, cfg)
-    lin = fit_joint(d.rate_radps - pred.base_radps, d.pos_index, pred.units_radps, CALIBRATED, ch.weights)
+    lin = fit_joint(d.rate_radps - pred.base_radps, d.level_index, pred.units_radps, CALIBRATED, ch.weights)
     X_white = linear_design(ch, pred)
-    r = np.concatenate([ch.white_rate(lin.residuals), ch.white_tau(d.tau_s[d.vib] - pred.tau_s[d.vib])])
+    r = np.concatenate([ch.white_rate(lin.residuals), ch.other_observed_white() - ch.other_white(cfg)])
     return State(cfg, pred, lin, X_white, r)
 
 
 def linear_design(ch: Channels, pred: Prediction) -> np.ndarray:
     """Whitened columns of the static levels and K: rate rows, then zero timing rows."""
     d = ch.design
-    X = np.hstack([np.eye(d.positions_deg.size)[d.pos_index], pred.units_radps])
-    return np.vstack([ch.white_rate(X), np.zeros((ch.n_tau, X.shape[1]))])
+    X = np.hstack([np.eye(d.n_levels)[d.level_index], pred.units_radps])
+    return np.vstack([ch.white_rate(X), np.zeros((ch.n_other, X.shape[1]))])
 
 
 def model_columns(ch: Channels, K: np.ndarray, cfg_of, steps: Sequence[float]) -> np.ndarray:
@@ -104,18 +133,16 @@ def model_columns(ch: Channels, K: np.ndarray, cfg_of, steps: Sequence[float]) -
     cfg_of(j, h) is the twin with parameter j moved by h (parameter units).
     """
     d = ch.design
-    cols = np.empty((ch.n_rate + ch.n_tau, len(steps)))
+    cols = np.empty((ch.n_rate + ch.n_other, len(steps)))
     if not steps:
         return cols
-    full0, tau0 = predict_full(d, cfg_of(0, 0.0), K)
+    cfg0 = cfg_of(0, 0.0)
+    full0, _ = predict_full(d, cfg0, K)
+    other0 = ch.other_white(cfg0)
     for j, h in enumerate(steps):
-        full, tau = predict_full(d, cfg_of(j, h), K)
-        cols[:, j] = np.concatenate(
-            [
-                ch.white_rate((full - full0) / h),
-                ch.white_tau((tau[d.vib] - tau0[d.vib]) / h),
-            ]
-        )
+        cfg = cfg_of(j, h)
+        full, _ = predict_full(d, cfg, K)
+        cols[:, j] = np.concatenate([ch.white_rate((full - full0) / h), (ch.other_white(cfg) - other0) / h])
     return cols
 
 
@@ -146,10 +173,10 @@ class Linearisation:
         self.columns = {fp.key: cols[:, j] for j, fp in enumerate(self.params)}
         Xs = self.state.X_white[: ch.n_rate]
         Q, _ = np.linalg.qr(Xs / np.linalg.norm(Xs, axis=0))
-        self.Q = np.vstack([Q, np.zeros((ch.n_tau, Q.shape[1]))])
-        n_pos = ch.design.positions_deg.size
-        L = Xs[:, :n_pos]
-        self.Q_levels = np.vstack([L / np.linalg.norm(L, axis=0), np.zeros((ch.n_tau, n_pos))])
+        self.Q = np.vstack([Q, np.zeros((ch.n_other, Q.shape[1]))])
+        n_lev = ch.design.n_levels
+        L = Xs[:, :n_lev]
+        self.Q_levels = np.vstack([L / np.linalg.norm(L, axis=0), np.zeros((ch.n_other, n_lev))])
 
     def param(self, key: str) -> cl.FreeParam:
         return next(fp for fp in self.params if fp.key == key)
@@ -178,6 +205,7 @@ class ModelFit:
     rss_rate: float  # sum w e^2, (rad/s)^2
     dof_rate: int
     chi2_tau: float  # sum (e / sigma_tau)^2
+    chi2_grating: float  # sum (e / se)^2 of the grating harmonics (0 without raw records)
     J: np.ndarray  # whitened Jacobian (rate rows, then timing rows) x (levels, K, free)
     r_white: np.ndarray
     converged: bool  # least_squares met its tolerances
@@ -272,7 +300,7 @@ def _columns_at(ch, state, cfg_at, u, free, scale) -> np.ndarray:
 
 def _finish(ch, free, p0, scale, u, state: State, J_u, converged: bool) -> ModelFit:
     d = ch.design
-    n_pos = d.positions_deg.size
+    n_pos = d.n_levels
     J = np.hstack([state.X_white, J_u])
     lin = state.lin
     rss = float(np.sum(ch.weights * lin.residuals**2))
@@ -300,6 +328,7 @@ def _finish(ch, free, p0, scale, u, state: State, J_u, converged: bool) -> Model
         rss_rate=rss,
         dof_rate=dof,
         chi2_tau=float(np.sum(ch.white_tau(tau_res) ** 2)),
+        chi2_grating=float(np.sum(state.r_white[ch.n_rate + ch.n_tau :] ** 2)),
         J=J,
         r_white=state.r_white,
         converged=converged,

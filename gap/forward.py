@@ -9,9 +9,13 @@ point is the rate at rest, c0 of `periodic_rate(theta, 0)`. Bias drift adds
 the window mean of d t_session.
 
 The model is linear in the instrument coefficients, so it is returned as a
-base (every calibrated coefficient zero) plus one unit column per calibrated
-coefficient; the fit (gap.fit) takes static levels and coefficients
-from there by linear least squares.
+base (k0 and every calibrated coefficient zero; earth rate and effects kept)
+plus one unit column per calibrated coefficient; the fit (gap.fit) takes the
+bias k0 and the coefficients from there by linear least squares. Every column
+is the absolute window mean, static points included: the static rate of a
+position is what the twin predicts there (k0 + kz c + kzz c^2 + ky (1 - c^2) +
+k3 c^3 - earth rate, with index and mount angle errors in c; seed 003), never a
+free level that would absorb an angle error's static signature.
 
 A second observable comes from the timing capture itself: the period identity
 tau = t2 - t1 + Tm - Np T_cmd is Np (T_true - T_cmd), i.e. 0 for a perfect
@@ -38,9 +42,8 @@ _INSTRUMENT_TERM_EFFECTS = ("odd_quadratic", "cross_coupling", "lateral_resonanc
 class Prediction:
     """Predicted observables of every point for one twin configuration.
 
-    rate = base + units @ K reproduces the twin's wbar for coefficients K
-    (CALIBRATED order); units are referred to the static rate at each point's
-    position (the per-position level is a free parameter of the fit anyway).
+    rate = base + k0 + units @ K reproduces the twin's wbar for bias k0 and coefficients K
+    (CALIBRATED order), static and vibration points alike.
     tau_s: predicted period identity of every vibration point (0 for static).
     """
 
@@ -57,21 +60,9 @@ def unit_config(cfg: TwinConfig, coefficient: str) -> TwinConfig:
 
 
 def base_config(cfg: TwinConfig) -> TwinConfig:
-    """cfg with the calibrated coefficients zero (k0, earth rate, effect terms kept)."""
-    inst = replace(cfg.instrument, **{c: 0.0 for c in CALIBRATED})
+    """cfg with k0 and the calibrated coefficients zero (earth rate, effect terms kept)."""
+    inst = replace(cfg.instrument, k0=0.0, **{c: 0.0 for c in CALIBRATED})
     return replace(cfg, instrument=inst)
-
-
-def window_mean_radps(
-    theta_rad: float,
-    freq_true_hz: float,
-    gamma0_rad: float,
-    Tm_s: float,
-    cfg: TwinConfig,
-) -> float:
-    """wbar = phi(Tm) / Tm of one vibration window (exact closed form of PrecessionWindow)."""
-    window = PrecessionWindow(periodic_rate(theta_rad, freq_true_hz, cfg), 2.0 * math.pi * freq_true_hz, gamma0_rad)
-    return float(window.phi_rad(Tm_s)) / Tm_s
 
 
 def drift_mean_radps(d_radps2: float, start_s: np.ndarray, Tm_s: np.ndarray) -> np.ndarray:
@@ -91,16 +82,15 @@ def period_identity_s(design: PointDesign, cfg: TwinConfig) -> np.ndarray:
 def predict(design: PointDesign, cfg: TwinConfig) -> Prediction:
     """Base and unit columns of the window-mean rate of every point, and the period identity."""
     means = _window_means(design, cfg, [base_config(cfg)] + [unit_config(cfg, c) for c in CALIBRATED])
-    levels = _static_levels(design, [unit_config(cfg, c) for c in CALIBRATED])
     base = means[:, 0] + drift_mean_radps(cfg.param("bias_drift", "d"), design.start_s, design.Tm_s)
-    return Prediction(base, means[:, 1:] - levels, period_identity_s(design, cfg))
+    return Prediction(base, means[:, 1:], period_identity_s(design, cfg))
 
 
 def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Absolute window-mean rate of every point with calibrated coefficients K, and tau.
 
     One twin evaluation per point instead of five: what finite-difference columns
-    need (the static levels absorb the per-position constants it keeps).
+    need (k0 is the twin's; a difference of two predictions cancels it).
     """
     inst = replace(cfg.instrument, **dict(zip(CALIBRATED, map(float, coefficients), strict=True)))
     rate = _window_means(design, cfg, [replace(cfg, instrument=inst)])[:, 0]
@@ -114,6 +104,20 @@ def _static_levels(design: PointDesign, configs: list[TwinConfig]) -> np.ndarray
     return per_position[design.pos_index]
 
 
+def _rates_by_case(design: PointDesign, f_true: np.ndarray, configs: list[TwinConfig]) -> dict:
+    """periodic_rate of each distinct (position, true frequency) of the vibration points, per config.
+
+    Points that share a position and frequency share the rate's Fourier series (the costly part);
+    only the window's phase and length differ."""
+    out: dict[tuple[int, float], list] = {}
+    for i in np.flatnonzero(design.vib):
+        key = (int(design.pos_index[i]), float(f_true[i]))
+        if key not in out:
+            theta = float(design.position_rad[key[0]])
+            out[key] = [periodic_rate(theta, key[1], c) for c in configs]
+    return out
+
+
 def _window_means(design: PointDesign, cfg: TwinConfig, configs: list[TwinConfig]) -> np.ndarray:
     """Window-mean rate of every point under each config (points x configs), frequency and latency from cfg.
 
@@ -122,9 +126,10 @@ def _window_means(design: PointDesign, cfg: TwinConfig, configs: list[TwinConfig
     f_true = design.freq_hz * (1.0 + cfg.param("frequency_error", "eps_f"))
     latency_s = cfg.param("readhead_latency", "delta")
     out = _static_levels(design, configs)
+    rates = _rates_by_case(design, f_true, configs)
     for i in np.flatnonzero(design.vib):
         w = 2.0 * math.pi * f_true[i]
         gamma0 = -w * (design.t1_s[i] - latency_s)
-        theta = float(design.theta_rad[i])
-        out[i] = [window_mean_radps(theta, f_true[i], gamma0, design.Tm_s[i], c) for c in configs]
+        per_config = rates[(int(design.pos_index[i]), float(f_true[i]))]
+        out[i] = [float(PrecessionWindow(r, w, gamma0).phi_rad(design.Tm_s[i])) / design.Tm_s[i] for r in per_config]
     return out

@@ -1,19 +1,22 @@
 """The gap measured on data the fit did not see.
 
-Held-out units are vibration points (their rate and their period identity);
-static points always stay in the training set, since with one free static
-level per position a held-out static point could not be predicted at all.
-Three schemes: leave one position out, leave one frequency out, leave one
-block of the run order out (BLOCKS contiguous blocks of vibration points).
+Held-out units are points, each with all its rows (its rate, its period
+identity and its grating harmonics); static points are held out too, since the
+twin predicts every static rate (one bias k0, no free level per position).
+Three schemes: leave one position out, leave one frequency out (static points
+are a "frequency" of their own), leave one block of the run order out (BLOCKS
+contiguous blocks of points).
 
-For a fitted model with whitened Jacobian J and residual r (gap.fit),
-each fold refits the model linearised at the full-data estimate on the
-training rows (one Gauss-Newton step: exact for the static levels and K,
-and for effects that are linear in their parameters) and predicts the
-held-out rows. A held-out residual is standardised by its predictive
-variance, z^2 = e^2 / (sigma_i^2 + x_i^T Cov x_i), with sigma_i the honest
-noise (gap.noise): in whitened units z^2 = e^2 / (1 + h_i),
-h_i = x_i^T (J_T^T J_T)^-1 x_i.
+For a fitted model with whitened Jacobian J and residual r (gap.fit), each
+fold is the model linearised at the full-data estimate refitted on the
+training rows (one Gauss-Newton step: exact for k0 and K, and for effects that
+are linear in their parameters), in closed form from one QR factorisation
+J = Q R of all rows: with H_gg = Q_g Q_g^T the hat matrix of the held-out rows
+g, the held-out residual is e_(-g) = (I - H_gg)^-1 r_g and its predictive
+covariance (I - H_gg)^-1 = I + J_g (J_T^T J_T)^-1 J_g^T (Woodbury), so
+z_i^2 = e_(-g),i^2 / [(I - H_gg)^-1]_ii: a standardisation by the predictive
+variance sigma_i^2 + x_i^T Cov x_i with sigma_i the honest noise (gap.noise).
+The cost is one factorisation plus a |g| x |g| solve per fold: linear in points.
 
 Metric: G = mean over held-out rows of z^2, minus 1 (0 when the model is
 right; averaged over the three schemes). In rate units: the excess RMS
@@ -35,22 +38,22 @@ BLOCKS = 4
 
 @dataclass(frozen=True)
 class Folds:
-    """Held-out vibration-point sets of each scheme (indices into the points)."""
+    """Held-out point sets of each scheme (indices into the points)."""
 
     schemes: dict[str, list[np.ndarray]]
 
     @classmethod
     def of(cls, design: PointDesign) -> Folds:
-        vib = np.flatnonzero(design.vib)
+        pts = np.arange(design.n_points)
         schemes: dict[str, list[np.ndarray]] = {}
-        pos = [vib[design.pos_index[vib] == j] for j in np.unique(design.pos_index[vib])]
+        pos = [pts[design.pos_index == j] for j in np.unique(design.pos_index)]
         if len(pos) >= 2:
             schemes["leave_position_out"] = pos
-        freqs = np.unique(design.freq_hz[vib])
+        freqs = np.unique(design.freq_hz)
         if freqs.size >= 2:
-            schemes["leave_frequency_out"] = [vib[design.freq_hz[vib] == f] for f in freqs]
-        if vib.size >= 2 * BLOCKS:
-            order = vib[np.argsort(design.sequence[vib], kind="stable")]
+            schemes["leave_frequency_out"] = [pts[design.freq_hz == f] for f in freqs]
+        if pts.size >= 2 * BLOCKS:
+            order = pts[np.argsort(design.sequence, kind="stable")]
             schemes["leave_time_block_out"] = [b for b in np.array_split(order, BLOCKS) if b.size]
         return cls(schemes)
 
@@ -87,17 +90,20 @@ def _r(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _predict_fold(Jw: np.ndarray, rw: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Refit on every row but `rows` (one Gauss-Newton step) and return the held-out z^2 and leverage h."""
-    train = np.ones(rw.size, dtype=bool)
-    train[rows] = False
-    JT = Jw[train]
-    keep = np.linalg.norm(JT, axis=0) > 0
-    JT, JH = JT[:, keep], Jw[rows][:, keep]
-    pinv = np.linalg.pinv(JT, rcond=1e-11)
-    e = rw[rows] - JH @ (pinv @ rw[train])
-    h = np.sum((JH @ pinv) ** 2, axis=1)  # x (J^T J)^-1 x^T
-    return e * e / (1.0 + h), h
+def _predict_fold(Q: np.ndarray, rw: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out z^2 of `rows` and their predictive variance factor 1 + h (closed form from Q of all rows)."""
+    Qg = Q[rows]
+    A = np.eye(rows.size) - Qg @ Qg.T  # I - H_gg
+    e = np.linalg.solve(A, rw[rows])
+    v = np.diag(np.linalg.inv(A))  # 1 + x (J_T^T J_T)^-1 x^T
+    return e * e / v, v - 1.0
+
+
+def _orthonormal(J: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of J's column space (column-scaled, rank-revealing)."""
+    J = J[:, np.linalg.norm(J, axis=0) > 0]
+    U, s, _ = np.linalg.svd(J / np.linalg.norm(J, axis=0), full_matrices=False)
+    return U[:, s > 1e-10 * s.max()] if s.size else U
 
 
 def heldout(
@@ -108,46 +114,62 @@ def heldout(
     rate_sigma_ratio: float,
     sigma0_radps: float,
     sigma_tau_s: float,
+    grating_index: np.ndarray | None = None,
 ) -> HeldOut:
-    """Held-out gap of the model with whitened Jacobian J and residual r.
+    """Held-out gap of the model with whitened Jacobian J and residual r (rate, timing, then grating rows).
 
     rate_sigma_ratio = honest sigma0 / the sigma0 that whitened J and r: the rate
-    rows are re-whitened by the honest noise before anything else.
+    rows are re-whitened by the honest noise before anything else. grating_index:
+    the points with grating rows (6 each, in that order).
     """
     n = design.n_points
     vib_idx = np.flatnonzero(design.vib)
+    n_tau = vib_idx.size
     tau_row = np.full(n, -1)
-    tau_row[vib_idx] = n + np.arange(vib_idx.size)
+    tau_row[vib_idx] = n + np.arange(n_tau)
+    g_rows: dict[int, np.ndarray] = {}
+    if grating_index is not None:
+        for m, i in enumerate(grating_index):
+            g_rows[int(i)] = n + n_tau + 6 * m + np.arange(6)
     Jw, rw = J.copy(), r.copy()
     Jw[:n] /= rate_sigma_ratio
     rw[:n] /= rate_sigma_ratio
+    Q = _orthonormal(Jw)
     by_scheme: dict[str, float] = {}
-    z2_rate, z2_tau, ex_rate, ex_tau = [], [], [], []
+    z2_rate, z2_tau, z2_g, ex_rate, ex_tau = [], [], [], [], []
     for scheme, fold_list in folds.schemes.items():
         z2_scheme = []
         for held in fold_list:
-            z2, h = _predict_fold(Jw, rw, np.concatenate([held, tau_row[held]]))
-            k = held.size
+            t_rows = tau_row[held][tau_row[held] >= 0]
+            gr = [g_rows[int(i)] for i in held if int(i) in g_rows]
+            rows = np.concatenate([held, t_rows, *gr]).astype(int)
+            z2, h = _predict_fold(Q, rw, rows)
+            k, kt = held.size, t_rows.size
             z2_scheme.append(z2)
             z2_rate.append(z2[:k])
-            z2_tau.append(z2[k:])
+            z2_tau.append(z2[k : k + kt])
+            z2_g.append(z2[k + kt :])
             # Back to physical units: rate rows referred to T_ref, timing rows in seconds.
             ex_rate.append((z2[:k] - 1.0) * (1.0 + h[:k]) * sigma0_radps**2)
-            ex_tau.append((z2[k:] - 1.0) * (1.0 + h[k:]) * sigma_tau_s**2)
+            ex_tau.append((z2[k : k + kt] - 1.0) * (1.0 + h[k : k + kt]) * sigma_tau_s**2)
         by_scheme[scheme] = float(np.mean(np.concatenate(z2_scheme)) - 1.0)
     if not by_scheme:
         return HeldOut(math.nan, {}, {}, math.nan, math.nan, math.nan, 0)
+    by_channel = {
+        "rate": float(np.mean(np.concatenate(z2_rate)) - 1.0),
+        "timing": float(np.mean(np.concatenate(z2_tau)) - 1.0) if n_tau else math.nan,
+    }
+    if g_rows:
+        by_channel["grating"] = float(np.mean(np.concatenate(z2_g)) - 1.0)
+    rows_per_scheme = n + n_tau + 6 * len(g_rows)
     return HeldOut(
         G=float(np.mean(list(by_scheme.values()))),
         by_scheme=by_scheme,
-        by_channel={
-            "rate": float(np.mean(np.concatenate(z2_rate)) - 1.0),
-            "timing": float(np.mean(np.concatenate(z2_tau)) - 1.0),
-        },
-        se=math.sqrt(2.0 / (2 * vib_idx.size)),
+        by_channel=by_channel,
+        se=math.sqrt(2.0 / rows_per_scheme),
         rate_excess_rms_radps=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_rate))))),
-        timing_excess_rms_s=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_tau))))),
-        n_rows=int(sum(z.size for z in z2_rate + z2_tau)),
+        timing_excess_rms_s=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_tau))))) if n_tau else math.nan,
+        n_rows=int(sum(z.size for z in z2_rate + z2_tau + z2_g)),
     )
 
 

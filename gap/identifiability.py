@@ -133,17 +133,22 @@ class CandidateId:
 
     @property
     def identifiable(self) -> bool:
-        return bool(self.kept) and not self.collinear_with
+        """Some parameter keeps a signature off the calibrated terms. Near-collinearity with another candidate
+        is reported (collinear_with) but decides nothing: whether a rival reproduces this one's fit within its
+        plausible bounds on every channel is judged on the fits (gap.attribute)."""
+        return bool(self.kept)
 
     @property
     def reason(self) -> str:
         if not self.kept:
             return "every parameter is absorbed by the calibrated coefficients or leaves no signature"
-        if self.collinear_with:
-            return "nearly collinear with " + ", ".join(f"{n} (cos {c:.3f})" for n, c in self.collinear_with)
         weak = [p.key for p in self.params if p.status == "weak"]
         absorbed = [p.key for p in self.params if p.key not in self.kept]
         text = "identifiable"
+        if self.collinear_with:
+            text += "; in this design nearly collinear with " + ", ".join(
+                f"{n} (cos {c:.3f})" for n, c in self.collinear_with
+            )
         if absorbed:
             text += f"; not fitted (absorbed or degenerate): {', '.join(absorbed)}"
         if weak:
@@ -383,7 +388,7 @@ def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
         except WindowNeverClosesError:  # an option the twin cannot run (a rate too small to close a window)
             continue
         Xh, Ch = _columns_for(hd, tw, lin, keys)
-        X, n_levels = _stack_levels(lin.state.X_white, d.positions_deg, Xh, hd.positions_deg)
+        X, n_levels = np.vstack([lin.state.X_white, Xh]), d.n_levels  # one bias k0 shared by both
         C = np.vstack([C0, Ch])
         Q, _ = np.linalg.qr(_unit_norm(X))
         P = C - Q @ (Q.T @ C)
@@ -399,19 +404,3 @@ def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
             ok = rho >= ABSORBED_RHO and (cos is None or cos < COLLINEAR_COS)
             pid = pids[key]
             pid.separating.append(SeparatingTest(opt.label, len(opt.specs), rho, cos, pr * pid.scale, ok))
-
-
-def _stack_levels(X0: np.ndarray, pos0: np.ndarray, Xh: np.ndarray, pos_h: np.ndarray) -> tuple[np.ndarray, int]:
-    """Join two whitened linear designs (levels, then K), sharing the static level of common positions."""
-    allpos = list(np.round(pos0, 9))
-    allpos += [p for p in np.round(pos_h, 9) if p not in allpos]
-    n0, nh, n_all = pos0.size, pos_h.size, len(allpos)
-    k = X0.shape[1] - n0
-    top = np.zeros((X0.shape[0], n_all + k))
-    top[:, :n0] = X0[:, :n0]
-    top[:, n_all:] = X0[:, n0:]
-    bot = np.zeros((Xh.shape[0], n_all + k))
-    for j, p in enumerate(np.round(pos_h, 9)):
-        bot[:, allpos.index(p)] = Xh[:, j]
-    bot[:, n_all:] = Xh[:, nh:]
-    return np.vstack([top, bot]), n_all

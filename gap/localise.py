@@ -6,15 +6,21 @@ leverage of the joint fit. Maps: position x frequency, static vs vibration,
 run order (time blocks), and the period identity of the timing capture.
 
 Structure tests ("detectors"): a generic block of columns D is added to the
-fitted model and tested by F = (dRSS / r) / ((RSS - dRSS) / (dof - r)), r the
-rank of D after projecting off the model's columns. Blocks: one offset per
-frequency (vibration points); position harmonics a^2 {cos k theta, sin k theta},
-k = 1..4 (vibration points); a cubic trend in session time (every point); one
-offset per run-order block (vibration points); one point off by itself (the
-largest studentised deleted residual, Bonferroni over the points: seed 000's
-reliability test, eq. 28, made exact); and, for the period identities, a
-slope in Np T (a frequency error). They find structure that no library effect
-has to explain, and what is left after the chosen effects.
+fitted model and tested by F = (dRSS / r) / ((RSS - dRSS) / (dof - r)) on its
+channel's rows, r the rank of D after projecting off the model's columns.
+Rate blocks: one offset per position (what a free static level would absorb:
+index and mount angle errors, a bias step between positions); static position
+harmonics {cos k theta, sin k theta}, k = 1..4 (static points); one offset per
+frequency (vibration points); position harmonics a^2 {cos k theta, sin k theta}
+(vibration points); a cubic trend in session time (every point); one offset per
+run-order block; one point off by itself (the largest studentised deleted
+residual, Bonferroni over the points: seed 000's reliability test, eq. 28, made
+exact). Timing blocks (the period identities t1 + Np T - Tm - t2): a slope in
+Np T (a frequency error), one frequency error per frequency, one identity off by
+itself. Goodness of fit of each channel whose noise is known (stated by the
+session; the grating's from thousands of samples): chi-square of its whitened
+residual. They find structure that no library effect has to explain, and what
+is left after the chosen effects.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ class Detector:
     # Orthonormal whitened columns of the block off the model (rate-channel blocks only).
     basis: np.ndarray | None = field(default=None, repr=False, compare=False)
     at: str = ""  # the point, for a test of one point
+    channel: str = "rate"  # rate | timing | grating
 
     @property
     def label(self) -> str:
@@ -54,6 +61,7 @@ class Detector:
             "p_value": _r(self.p_value),
             "tests": self.what,
             "at": self.at or None,
+            "channel": self.channel,
         }
 
 
@@ -64,9 +72,20 @@ def _r(x: float) -> float | None:
 def _blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
     """Generic structure blocks (physical columns; whitened by the caller)."""
     d = ch.design
-    n, n_tau = d.n_points, ch.n_tau
+    n, n_other = d.n_points, ch.n_other
     vib = d.vib.astype(float)
     out: dict[str, tuple[np.ndarray, str]] = {}
+    if d.positions_deg.size >= 2:
+        out["position_offsets"] = (
+            np.eye(d.positions_deg.size)[d.pos_index],
+            "one offset per position (what a free static level would absorb)",
+        )
+    if (~d.vib).sum() >= 3:
+        stat = (~d.vib).astype(float)
+        cols = []
+        for k in range(1, 5):
+            cols += [stat * np.cos(k * d.theta_rad), stat * np.sin(k * d.theta_rad)]
+        out["static_position_harmonics"] = (np.column_stack(cols), "static points: cos k theta, sin k theta, k = 1..4")
     freqs = np.unique(d.freq_hz[d.vib])
     if freqs.size:
         out["frequency_offsets"] = (
@@ -94,54 +113,103 @@ def _blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
         for j, blk in enumerate(np.array_split(order, BLOCKS)):
             B[blk, j] = 1.0
         out["run_order_blocks"] = (B, f"one offset per run-order block ({BLOCKS} blocks of vibration points)")
-    return {k: (np.vstack([v, np.zeros((n_tau, v.shape[1]))]), w) for k, (v, w) in out.items()}
+    return {k: (np.vstack([v, np.zeros((n_other, v.shape[1]))]), w) for k, (v, w) in out.items()}
+
+
+def _timing_blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
+    """Generic structure of the period identities (whitened rows of the timing channel)."""
+    d = ch.design
+    v = d.vib
+    span = d.Np[v] / d.freq_hz[v]  # Np T_cmd: tau = -span eps for a frequency error eps
+    out = {"period_identity_slope": (span[:, None], "slope of t2 - t1 + Tm - Np T against Np T (a frequency error)")}
+    freqs = np.unique(d.freq_hz[v])
+    if freqs.size >= 2:
+        out["period_identity_per_frequency"] = (
+            np.column_stack([span * (d.freq_hz[v] == f) for f in freqs]),
+            "one frequency error per frequency (an error that varies with f)",
+        )
+    pad = ch.n_rate, ch.n_grating
+    return {
+        k: (np.vstack([np.zeros((pad[0], D.shape[1])), ch.white_tau(D), np.zeros((pad[1], D.shape[1]))]), w)
+        for k, (D, w) in out.items()
+    }
+
+
+def _free_on(fit: ModelFit, rows: slice) -> int:
+    """Free effect parameters whose columns move these rows."""
+    n_lin = fit.J.shape[1] - len(fit.free)
+    return int(np.sum(np.linalg.norm(fit.J[rows, n_lin:], axis=0) > 0))
+
+
+def _test_block(name, D, what, Q, r, rows: slice, rss: float, dof: int, channel: str) -> Detector | None:
+    Dp = D - Q @ (Q.T @ D)
+    U, s, _ = np.linalg.svd(Dp, full_matrices=False)
+    if not s.size or s.max() == 0:
+        return None
+    U = U[:, s > 1e-8 * s.max()]
+    k = U.shape[1]
+    dof2 = dof - k
+    if k == 0 or dof2 <= 0:
+        return None
+    drss = float(np.sum((U.T @ r) ** 2))
+    F = (drss / k) / max((rss - drss) / dof2, 1e-300)
+    return Detector(name, F, (k, dof2), float(stats.f.sf(F, k, dof2)), what, U, channel=channel)
+
+
+def _gof(name: str, chi2: float, dof: int, what: str, channel: str) -> Detector | None:
+    """Goodness of fit of a channel with known noise: chi-square of its whitened residual."""
+    if dof <= 0:
+        return None
+    return Detector(name, chi2 / dof, (dof, 0), float(stats.chi2.sf(chi2, dof)), what, channel=channel)
 
 
 def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
-    """F-tests of generic structure left in the residuals of `fit`."""
+    """F-tests of generic structure left in the residuals of `fit`, and each known-noise channel's fit."""
     d = ch.design
-    n = d.n_points
+    n, nt = d.n_points, ch.n_tau
     J = fit.J[:, np.linalg.norm(fit.J, axis=0) > 0]
     Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
     r = fit.r_white
-    rss_rate = float(r[:n] @ r[:n])
-    out = []
-    wr = np.concatenate([np.sqrt(ch.weights) / ch.sigma0_radps, np.zeros(ch.n_tau)])
+    rate, tau, grating = slice(0, n), slice(n, n + nt), slice(n + nt, n + ch.n_other)
+    rss_rate = float(r[rate] @ r[rate])
+    out: list[Detector | None] = []
+    wr = np.concatenate([np.sqrt(ch.weights) / ch.sigma0_radps, np.zeros(ch.n_other)])
     for name, (D, what) in _blocks(ch).items():
-        Dw = D * wr[:, None]
-        Dp = Dw - Q @ (Q.T @ Dw)
-        U, s, _ = np.linalg.svd(Dp, full_matrices=False)
-        if not s.size or s.max() == 0:
-            continue
-        U = U[:, s > 1e-8 * s.max()]
-        k = U.shape[1]
-        dof2 = fit.dof_rate - k
-        if k == 0 or dof2 <= 0:
-            continue
-        drss = float(np.sum((U.T @ r) ** 2))
-        F = (drss / k) / max((rss_rate - drss) / dof2, 1e-300)
-        out.append(Detector(name, F, (k, dof2), float(stats.f.sf(F, k, dof2)), what, U))
+        out.append(_test_block(name, D * wr[:, None], what, Q, r, rate, rss_rate, fit.dof_rate, "rate"))
     if fit.dof_rate >= 2:
         out.append(_single_point(d, Q, r, rss_rate, fit.dof_rate))
-    if ch.n_tau >= 3:
-        vib = d.vib
-        span = d.Np[vib] / d.freq_hz[vib]
-        e = fit.tau_resid_s
-        x = float(span @ e / (span @ span))
-        drss = x * x * float(span @ span)
-        rss = float(e @ e)
-        dof2 = ch.n_tau - 1
-        F = (drss / 1) / max((rss - drss) / dof2, 1e-300)
-        out.append(
-            Detector(
-                "period_identity_slope",
-                F,
-                (1, dof2),
-                float(stats.f.sf(F, 1, dof2)),
-                "slope of t2 - t1 + Tm - Np T against Np T (a frequency error)",
-            )
-        )
-    return out
+    if ch.rate_sigma_known:
+        what = "chi-square of the rate residuals against the stated instrument repeatability"
+        out.append(_gof("rate_goodness_of_fit", rss_rate, fit.dof_rate, what, "rate"))
+    dof_tau = nt - _free_on(fit, tau)
+    if nt >= 3:
+        rss_tau = float(r[tau] @ r[tau])
+        for name, (D, what) in _timing_blocks(ch).items():
+            out.append(_test_block(name, D, what, Q, r, tau, rss_tau, dof_tau, "timing"))
+        out.append(_single_identity(d, Q, r, tau, rss_tau, dof_tau))
+        if ch.tau_sigma_known:
+            what = "chi-square of the period identities against the stated timing noise"
+            out.append(_gof("timing_goodness_of_fit", rss_tau, dof_tau, what, "timing"))
+    if ch.n_grating:
+        chi2 = float(r[grating] @ r[grating])
+        what = "chi-square of the grating harmonics (Zs1..Zc3 at each raw record) against the twin's table motion"
+        out.append(_gof("grating_goodness_of_fit", chi2, ch.n_grating - _free_on(fit, grating), what, "grating"))
+    return [x for x in out if x is not None]
+
+
+def _single_identity(d: PointDesign, Q, r, rows: slice, rss: float, dof: int) -> Detector | None:
+    """The period identity whose own offset lowers the timing RSS most (Bonferroni over the identities)."""
+    if dof < 2:
+        return None
+    h = np.sum(Q[rows] ** 2, axis=1)
+    e = r[rows]
+    drss = e**2 / np.clip(1.0 - h, 1e-12, None)
+    i = int(np.argmax(drss))
+    F = float(drss[i]) / max((rss - float(drss[i])) / (dof - 1), 1e-300)
+    p = min(1.0, e.size * float(stats.f.sf(F, 1, dof - 1)))
+    pid = d.point_ids[int(np.flatnonzero(d.vib)[i])]
+    what = f"one period identity off by itself (the largest of {e.size}, Bonferroni)"
+    return Detector("single_identity", F, (1, dof - 1), p, what, at=pid, channel="timing")
 
 
 def _single_point(d: PointDesign, Q: np.ndarray, r: np.ndarray, rss_rate: float, dof: int) -> Detector:

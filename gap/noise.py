@@ -1,10 +1,18 @@
-"""Honest noise: rate noise from repeats or the residual dof, scaled by window length and timing.
+"""Honest noise: stated by the session, else estimated from repeats or the residual dof.
 
-White rate noise averages over the counter window, so the window-mean rate of
-point i has variance sigma0^2 T_ref / Tm_i (the twin's NoiseModel form:
-rate_noise_radps at rate_noise_ref_s); the two time stamps that bound Tm add
-(wbar_i sigma_tau / Tm_i)^2, since wbar = 2 pi P / (16384 Tm). sigma0 is
-estimated from the data, never taken from a nominal constant:
+Stated noise (session.json, physics.md): `instrument_repeatability_radps` is one
+sigma of every window's mean rate whatever its length; `timing.timing_sigma_s`
+and `timing.timer_resolution_s` give each stamp's sd sqrt(sigma^2 + res^2 / 12);
+`grating.noise_m` each grating sample's. Stated values are used as known
+(chi-square tests of each channel); nothing else is ever taken as a noise level.
+
+Unstated rate noise may be per-window constant (a repeatability) or white rate
+noise that averages down as 1/sqrt(Tm): the window-mean rate of point i has
+variance sigma0^2 (f + (1 - f) T_ref / Tm_i), the fraction f chosen by the
+profile likelihood of the twin refitted (RATE_FORM_GRID), T_ref a reference
+window only; the two time stamps that bound Tm add (wbar_i sigma_tau / Tm_i)^2,
+since wbar = 2 pi P / (16384 Tm). sigma0 is then estimated from the data and
+its own uncertainty carried into the tests (F, never chi-square with it as known):
 - from repeats (points with the same position, frequency and kind): the
   spread of their residuals about the group mean (pure error, independent of
   any model gap that repeats share), when it has PURE_ERROR_MIN_DOF dof;
@@ -15,8 +23,6 @@ estimated from the data, never taken from a nominal constant:
 The period identity tau = t2 - t1 + Tm - Np T has the noise of two time
 stamps: sigma_tau is estimated from its scatter once a single frequency error
 is allowed for, never below the counter's quantisation, tick sqrt(2 / 12).
-The twin's own rate_noise_radps is only compared with (a chi-square test),
-as one more way the station can differ from its twin.
 """
 
 from __future__ import annotations
@@ -27,10 +33,67 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from gap.design import PointDesign
+from gap.design import GapInputError, PointDesign
 from models.config import TwinConfig
 
 PURE_ERROR_MIN_DOF = 5
+RATE_FORM_GRID = (0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)  # constant fraction f of the rate variance
+
+
+@dataclass(frozen=True)
+class StatedNoise:
+    """Noise stated by session.json (physics.md); None where the session does not state it."""
+
+    repeatability_radps: float | None = None
+    timing_sigma_s: float | None = None
+    timer_resolution_s: float | None = None
+    grating_noise_m: float | None = None
+
+    @classmethod
+    def from_meta(cls, meta: dict) -> StatedNoise:
+        """Read and check the optional keys; a bad value is refused naming the key, the value and what is allowed."""
+
+        def get(where: dict, key: str, label: str) -> float | None:
+            if key not in where or where[key] is None:
+                return None
+            v = where[key]
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+            if not ok:
+                raise GapInputError(f"session.json {label} = {v!r}: a noise level must be a finite number >= 0")
+            return float(v)
+
+        def sub(key: str) -> dict:
+            v = meta.get(key) or {}
+            if not isinstance(v, dict):
+                raise GapInputError(f"session.json {key} = {v!r}: must be an object")
+            return v
+
+        timing, grating = sub("timing"), sub("grating")
+        rep = get(meta, "instrument_repeatability_radps", "instrument_repeatability_radps")
+        if rep == 0.0:
+            raise GapInputError("session.json instrument_repeatability_radps = 0: must be > 0 (one sigma of a rate)")
+        return cls(
+            rep,
+            get(timing, "timing_sigma_s", "timing.timing_sigma_s"),
+            get(timing, "timer_resolution_s", "timing.timer_resolution_s"),
+            get(grating, "noise_m", "grating.noise_m"),
+        )
+
+    @property
+    def stamp_sd_s(self) -> float | None:
+        """sd of one stamp, jitter and quantisation: sqrt(sigma^2 + res^2 / 12); None unless the jitter is stated."""
+        if self.timing_sigma_s is None:
+            return None
+        res = self.timer_resolution_s or 0.0
+        return math.sqrt(self.timing_sigma_s**2 + res * res / 12.0)
+
+    def to_json(self) -> dict:
+        return {
+            "instrument_repeatability_radps": self.repeatability_radps,
+            "timing_sigma_s": self.timing_sigma_s,
+            "timer_resolution_s": self.timer_resolution_s,
+            "grating_noise_m": self.grating_noise_m,
+        }
 
 
 def timing_rate_sd_radps(design: PointDesign, sigma_tau_s: float) -> np.ndarray:
@@ -39,10 +102,15 @@ def timing_rate_sd_radps(design: PointDesign, sigma_tau_s: float) -> np.ndarray:
 
 
 def rate_weights(
-    design: PointDesign, twin: TwinConfig, sigma_tau_s: float = 0.0, sigma0_radps: float = math.inf
+    design: PointDesign,
+    twin: TwinConfig,
+    sigma_tau_s: float = 0.0,
+    sigma0_radps: float = math.inf,
+    constant_fraction: float = 0.0,
 ) -> np.ndarray:
-    """w_i = sigma0^2 / var(wbar_i) = 1 / (T_ref / Tm_i + (timing sd_i / sigma0)^2)."""
-    var = twin.noise.rate_noise_ref_s / design.Tm_s
+    """w_i = sigma0^2 / var(wbar_i) = 1 / (f + (1 - f) T_ref / Tm_i + (timing sd_i / sigma0)^2)."""
+    f = constant_fraction
+    var = f + (1.0 - f) * twin.noise.rate_noise_ref_s / design.Tm_s
     if sigma_tau_s > 0 and math.isfinite(sigma0_radps):
         var = var + (timing_rate_sd_radps(design, sigma_tau_s) / sigma0_radps) ** 2
     return 1.0 / var
@@ -54,17 +122,24 @@ class TimingNoise:
     dof: int
     floor_s: float
     eps_f_hat: float  # the single frequency error that the period identities imply
+    stated: bool = False  # from session.json (known: chi-square tests), else estimated (dof above)
 
 
-def timing_noise(design: PointDesign, twin: TwinConfig) -> TimingNoise:
-    """sigma of the period identity after a single frequency error is fitted to it."""
-    floor = twin.noise.timer_tick_s * math.sqrt(2.0 / 12.0)
+def timing_noise(design: PointDesign, twin: TwinConfig, stated: StatedNoise | None = None) -> TimingNoise:
+    """sigma of the period identity (two stamps): stated, else its scatter once a single frequency error is fitted.
+
+    The floor is the stamps' quantisation, tick sqrt(2 / 12) (the stated resolution, else the twin's tick)."""
+    stated = stated or StatedNoise()
+    tick = stated.timer_resolution_s if stated.timer_resolution_s is not None else twin.noise.timer_tick_s
+    floor = tick * math.sqrt(2.0 / 12.0)
     v = design.vib
     span = design.Np[v] / design.freq_hz[v]  # Np T_cmd
     tau = design.tau_s[v]
     # tau = Np T_cmd (1 / (1 + eps) - 1) = span * x, linear in x.
     x = float(span @ tau / (span @ span)) if span.size else 0.0
     eps = 1.0 / (1.0 + x) - 1.0
+    if stated.stamp_sd_s is not None:
+        return TimingNoise(max(math.sqrt(2.0) * stated.stamp_sd_s, 1e-15), 0, floor, eps, True)
     dof = int(v.sum()) - 1
     if dof < 1:
         return TimingNoise(floor, 0, floor, eps)
@@ -126,7 +201,7 @@ def honest_noise(
 
 
 def excess_scatter_pvalue(sigma_hat: float, dof: int, sigma_ref: float) -> float:
-    """P(chi2_dof >= dof sigma_hat^2 / sigma_ref^2): small when the scatter exceeds the reference."""
+    """P(chi2_dof >= dof sigma_hat^2 / sigma_ref^2): small when the scatter exceeds a stated (known) sigma."""
     if sigma_ref <= 0 or dof <= 0:
         return float("nan")
     return float(stats.chi2.sf(dof * (sigma_hat / sigma_ref) ** 2, dof))

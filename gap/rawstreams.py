@@ -22,6 +22,7 @@ parameters they imply: dZs1 = dz0 + dz1 w, and the mean of each other harmonic.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from models.precession import N_PHASES, periodic_rate
 from station.session import Session
 
 MAX_SAMPLES = 200_000
+# A harmonic of the table motion is not trusted below the read head's resolution (1 nm, models.raw):
+# quantisation and interpolation leave biases of a few 0.1 nm that no sample scatter shows.
+GRATING_FLOOR_M = 1e-9
 HARMONICS = (1, 2, 3)
 _GRATING_NAMES = ("Zs1+A0", "Zc1", "Zs2", "Zc2", "Zs3", "Zc3")
 
@@ -45,11 +49,12 @@ def _design(psi: np.ndarray, with_line: np.ndarray | None = None) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _lsq(A: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _lsq(A: np.ndarray, y: np.ndarray, sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients and standard errors; sigma stated (known) or the residual scatter."""
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     res = y - A @ coef
     dof = max(y.size - A.shape[1], 1)
-    s2 = float(res @ res) / dof
+    s2 = float(res @ res) / dof if sigma is None else sigma * sigma
     cov = np.linalg.pinv(A.T @ A) * s2
     return coef, np.sqrt(np.diag(cov))
 
@@ -92,6 +97,64 @@ def _phase_se(coef: np.ndarray, w: float, sd_stamp_s: float) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class GratingRecord:
+    """The grating's harmonics at every vibration point with a raw record: a channel of the fit (gap.fit).
+
+    measured_m[k] = (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) of point index[k], read in the apparent
+    crank phase w_m (t - t1); se_m their standard errors: the least-squares scatter (the stated
+    grating noise when session.json gives it, else the fit's own residual, estimated from
+    thousands of samples) combined with the phase error of the stamp t1.
+    """
+
+    index: np.ndarray  # point indices
+    w_radps: np.ndarray  # from the record's own timing capture
+    measured_m: np.ndarray  # (points, 6)
+    se_m: np.ndarray  # (points, 6)
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.measured_m.size)
+
+    @classmethod
+    def from_session(
+        cls, session: Session, design: PointDesign, sd_stamp_s: float, noise_m: float | None = None
+    ) -> GratingRecord | None:
+        idx, ws, meas, ses = [], [], [], []
+        for i, pid in enumerate(design.point_ids):
+            raw = session.raw.get(pid)
+            if raw is None or not design.vib[i] or raw.grating_t.size <= 20:
+                continue
+            w = _apparent_w(design, i)
+            s = _stride(raw.grating_t.size)
+            t, z = raw.grating_t[s], raw.grating_z[s]
+            A = _design(w * (t - design.t1_s[i]))
+            coef, se = _lsq(A, z, noise_m)
+            idx.append(i)
+            ws.append(w)
+            meas.append(coef[1:])
+            ses.append(np.hypot(se[1:], _phase_se(coef[1:], w, sd_stamp_s)))
+        if not idx:
+            return None
+        return cls(np.array(idx), np.array(ws), np.array(meas), np.hypot(np.array(ses), GRATING_FLOOR_M))
+
+    def predict_m(self, cfg: TwinConfig) -> np.ndarray:
+        """What the twin's table motion gives for the same numbers, rows flattened (point-major)."""
+        delta = cfg.param("readhead_latency", "delta")
+        return np.concatenate([_twin_grating(float(w), delta, cfg) for w in self.w_radps])
+
+    def white(self, values_m: np.ndarray) -> np.ndarray:
+        return values_m / self.se_m.ravel()
+
+    def observed_white(self) -> np.ndarray:
+        return self.white(self.measured_m.ravel())
+
+
+def _apparent_w(design: PointDesign, i: int) -> float:
+    """w_m = 2 pi Np / (t2 + Tm - t1): the record's own frequency (no model needed)."""
+    return 2 * math.pi * int(design.Np[i]) / (design.t2_s[i] + design.Tm_s[i] - design.t1_s[i])
+
+
 def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float) -> dict:
     """Grating and pulse-rate harmonics of every vibration point with raw streams ({} if none).
 
@@ -107,8 +170,8 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
         raw = session.raw.get(pid)
         if raw is None or not design.vib[i]:
             continue
-        t1, t2, tm, n_p = design.t1_s[i], design.t2_s[i], design.Tm_s[i], int(design.Np[i])
-        w = 2 * math.pi * n_p / (t2 + tm - t1)
+        t1 = design.t1_s[i]
+        w = _apparent_w(design, i)
         f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
         entry: dict = {
             "point_id": pid,
@@ -122,7 +185,7 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
             t, z = raw.grating_t[s], raw.grating_z[s]
             coef, se = _lsq(_design(w * (t - t1)), z)
             meas = coef[1:]
-            se = np.hypot(se[1:], _phase_se(meas, w, sd_stamp_s))
+            se = np.hypot(np.hypot(se[1:], _phase_se(meas, w, sd_stamp_s)), GRATING_FLOOR_M)
             pred = _twin_grating(w, delta, cfg)
             diff = meas - pred
             entry["grating"] = {

@@ -217,7 +217,9 @@ def _noise_table(report: GapReport) -> str:
     rows = [
         ["σ0 at T_ref (rad/s)", f"{n['sigma0_radps']:.3g} ({n['source']}, {n['sigma0_dof']} dof)"],
         ["model", n["model"]],
-        ["twin's nominal σ0 (rad/s)", _num(n["twin_nominal_sigma0_radps"])],
+        ["stated by the session", ", ".join(f"{k} {v:g}" for k, v in n["stated_by_session"].items() if v is not None)
+         or "nothing (estimated)"],
+        ["static model", n["static_model"]],
         ["excess scatter, twin", f"p = {_num(n['excess_scatter_before']['p_value'], '.2g')} "
          f"against the {n['excess_scatter_before']['reference']}"],
         ["excess scatter, with effects", f"p = {_num(n['excess_scatter_after']['p_value'], '.2g')}"],

@@ -198,7 +198,7 @@ def _whitening(d: PointDesign, twin: TwinConfig) -> np.ndarray:
 def _projected(d: PointDesign, twin: TwinConfig, d_rate: np.ndarray) -> np.ndarray:
     """Whitened rate signal with the calibrated terms (static levels, kz, kzz, ky, k3) projected out."""
     sr = _whitening(d, twin)
-    X = np.hstack([np.eye(d.positions_deg.size)[d.pos_index], predict(d, twin).units_radps]) * sr[:, None]
+    X = np.hstack([np.eye(d.n_levels)[d.level_index], predict(d, twin).units_radps]) * sr[:, None]
     Q, _ = np.linalg.qr(X / np.linalg.norm(X, axis=0))
     s = d_rate * sr
     return s - Q @ (Q.T @ s)

@@ -61,21 +61,33 @@ class Verdict:
 
 def residual_checks(dets: list[Detector], noise: NoiseCheck) -> list[str]:
     """The structure tests and the excess-scatter test significant as one family (Bonferroni at ALPHA)."""
-    level = ALPHA * len(dets) / (len(dets) + 1)  # significant() divides by len(dets)
+    level = family_level(dets)  # significant() divides by len(dets)
     found = [f"{d.label} (F = {d.F:.1f}, p = {d.p_value:.1e})" for d in significant(dets, level)]
     if noise.p_value is not None and noise.p_value < ALPHA / (len(dets) + 1):
         found.append(f"excess scatter against the {noise.reference} (p = {noise.p_value:.1e})")
     return found
 
 
-def _look_alikes(selection: Selection, ident: IdentifiabilityReport) -> dict[str, list[str]]:
-    """For each chosen effect, the candidates this session cannot tell it from."""
-    out = {}
-    for s in selection.chosen:
-        alike = [n for n in ident.group(s.name) if n != s.name] + [n for n in s.rivals if n not in ident.group(s.name)]
-        if alike:
-            out[s.name] = alike
-    return out
+def family_level(dets: list[Detector]) -> float:
+    """The level at which significant() flags a member of the family of structure tests plus the noise check."""
+    return ALPHA * len(dets) / (len(dets) + 1)
+
+
+def _look_alikes(selection: Selection) -> dict[str, list[str]]:
+    """For each chosen effect, the candidates that reproduce its fit within their bounds on every channel."""
+    return {s.name: list(s.rivals) for s in selection.chosen if s.rivals}
+
+
+def _implausible(selection: Selection) -> list[str]:
+    """Candidates that would fit the first step only with parameters beyond their plausible bounds."""
+    if not selection.steps:
+        return []
+    limit = ALPHA / max(len(selection.steps[0]), 1)
+    return [
+        f"{s.name} fits only at an implausible {', '.join(s.beyond_bounds)}"
+        for s in selection.steps[0]
+        if s.beyond_bounds and s.p_value < limit and s.dbic < 0
+    ]
 
 
 def decide(
@@ -102,7 +114,7 @@ def decide(
         ref = (
             f"; residual scatter consistent with the {noise_before.reference}"
             if noise_before.reference != "none"
-            else "; no independent noise reference (no repeats, no twin noise model)"
+            else "; no independent noise reference (no repeats, no noise stated by the session)"
         )
         return Verdict(
             "no_gap", [], "no gap beyond noise: no library effect and no structure test is significant" + ref
@@ -114,7 +126,7 @@ def decide(
         remaining.append(f"held-out gap shrink only {shrink:.2f} (< {MIN_SHRINK})")
     if effects and not remaining:
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
-        alike = _look_alikes(selection, ident)
+        alike = _look_alikes(selection)
         if alike:
             named = list(dict.fromkeys([n for e in effects for n in [e, *alike.get(e, [])]]))
             why = "; ".join(f"{e} from {', '.join(a)}" for e, a in alike.items())
@@ -139,4 +151,5 @@ def decide(
             partial=effects,
             remaining=remaining,
         )
+    before = before + _implausible(selection)
     return Verdict("unexplained", [], "a gap that no library effect explains: " + "; ".join(before), remaining=before)

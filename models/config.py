@@ -7,6 +7,7 @@ rad/s for rates, g for accelerations inside the instrument model.
 
 from __future__ import annotations
 
+import functools
 import math
 import tomllib
 from collections.abc import Mapping
@@ -15,49 +16,34 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from pydantic import BaseModel, ValidationError, create_model
+
 from station import constants
 from station.errors import InputError
+from station.session import StationInfo
 from station.tomlfile import read_toml
+from station.validation import SETTINGS, defects, in_range, settings, spec
+
+NON_NEGATIVE = in_range(0.0, math.inf)
+POSITIVE = in_range(0.0, math.inf, lo_open=True)
 
 
 class TwinConfigError(InputError):
     """A twin configuration that names an unknown effect, parameter or a bad value."""
 
 
-@dataclass(frozen=True)
-class StationGeometry:
-    A0_m: float = constants.A0_M
-    latitude_deg: float = constants.LATITUDE_DEG
-    g_mps2: float = constants.G_MPS2
-    earth_rate_radps: float = constants.EARTH_RATE_RADPS
-    pulses_per_rev: int = constants.PULSES_PER_REV
-
-    @property
-    def latitude_rad(self) -> float:
-        return math.radians(self.latitude_deg)
-
-    @property
-    def pulse_angle_rad(self) -> float:
-        return 2.0 * math.pi / self.pulses_per_rev
-
-    def amplitude_ratio(self, freq_hz: float) -> float:
-        """a = A0 w^2 / g (physics.md, table motion)."""
-        w = 2.0 * math.pi * freq_hz
-        return self.A0_m * w * w / self.g_mps2
-
-
-@dataclass(frozen=True)
+@settings
 class InstrumentCoefficients:
     """Nominal PIGA rate-model terms (physics.md); seed 000 simulation values by default."""
 
-    k0: float = 1.5e-4
-    kz: float = 0.56
-    kzz: float = 6.0e-6
-    ky: float = 5.0e-6
-    k3: float = 7.0e-7
+    k0: float = constants.K0_RADPS
+    kz: float = constants.KZ_RADPS_PER_G
+    kzz: float = constants.KZZ_RADPS_PER_G2
+    ky: float = constants.KY_RADPS_PER_G2
+    k3: float = constants.K3_RADPS_PER_G3
 
 
-@dataclass(frozen=True)
+@settings
 class NoiseModel:
     """Measurement noise of one point.
 
@@ -68,11 +54,11 @@ class NoiseModel:
     quantisation (0 turns it off).
     """
 
-    rate_noise_radps: float = 0.0
-    rate_noise_ref_s: float = 560.0
-    timing_jitter_s: float = 0.0
-    timer_tick_s: float = constants.TIMER_TICK_S
-    grating_noise_m: float = 0.0
+    rate_noise_radps: float = spec(NON_NEGATIVE, default=0.0)
+    rate_noise_ref_s: float = spec(POSITIVE, default=560.0)
+    timing_jitter_s: float = spec(NON_NEGATIVE, default=0.0)
+    timer_tick_s: float = spec(NON_NEGATIVE, default=constants.TIMER_TICK_S)
+    grating_noise_m: float = spec(NON_NEGATIVE, default=0.0)
 
 
 @dataclass(frozen=True)
@@ -148,18 +134,27 @@ EFFECTS: Mapping[str, EffectSpec] = MappingProxyType(
 )
 
 
+@functools.cache
+def _effect_model(name: str) -> type[BaseModel]:
+    """The declared parameters of one effect, each a finite number with its default."""
+    spec = EFFECTS[name]
+    return create_model(f"Effect[{name}]", __config__=SETTINGS, **{k: (float, d) for k, d in spec.defaults.items()})
+
+
 def effect_params(name: str, given: Mapping[str, float] | None = None) -> Mapping[str, float]:
     """Defaults of effect `name` overlaid with `given`, validated."""
     if name not in EFFECTS:
         raise TwinConfigError(f"unknown effect {name!r}; known effects: {', '.join(EFFECTS)}")
     spec = EFFECTS[name]
-    params = dict(spec.defaults)
-    for key, value in (given or {}).items():
-        if key not in spec.parameters:
-            raise TwinConfigError(f"effect {name!r} has no parameter {key!r}; allowed: {', '.join(spec.parameters)}")
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise TwinConfigError(f"effect {name!r} parameter {key!r} = {value!r}: expected a finite number")
-        params[key] = float(value)
+    try:
+        params = _effect_model(name).model_validate(dict(given or {})).model_dump()
+    except ValidationError as exc:
+        d = next(defects(exc, _effect_model(name).model_fields))
+        if d.is_unknown:
+            allowed = ", ".join(spec.parameters)
+            raise TwinConfigError(f"effect {name!r} has no parameter {d.field!r}; allowed: {allowed}") from None
+        where = f"effect {name!r} parameter {d.field!r}"
+        raise TwinConfigError(f"{where} = {d.value!r}: expected a finite number") from None
     if name == "lateral_resonance" and (params["fr"] <= 0 or params["Q"] <= 0):
         raise TwinConfigError(f"effect 'lateral_resonance': fr = {params['fr']!r} and Q = {params['Q']!r} must be > 0")
     return MappingProxyType(params)
@@ -169,7 +164,7 @@ def effect_params(name: str, given: Mapping[str, float] | None = None) -> Mappin
 class TwinConfig:
     """Everything the twin needs: geometry, instrument, effects switched on, noise."""
 
-    station: StationGeometry = field(default_factory=StationGeometry)
+    station: StationInfo = field(default_factory=StationInfo)
     instrument: InstrumentCoefficients = field(default_factory=InstrumentCoefficients)
     effects: Mapping[str, Mapping[str, float]] = field(default_factory=lambda: MappingProxyType({}))
     noise: NoiseModel = field(default_factory=NoiseModel)
@@ -208,7 +203,7 @@ class TwinConfig:
             raise TwinConfigError(f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(allowed)}")
         kwargs: dict[str, Any] = {}
         for key, klass in (
-            ("station", StationGeometry),
+            ("station", StationInfo),
             ("instrument", InstrumentCoefficients),
             ("noise", NoiseModel),
         ):
@@ -250,16 +245,18 @@ def _asdict(obj: Any) -> dict[str, Any]:
 
 
 def _build(klass: type, data: Any, where: str) -> Any:
+    """A section of a twin file, validated by its declaration (station.validation)."""
     if not isinstance(data, Mapping):
         raise TwinConfigError(f"{where}: expected a table, got {data!r}")
-    names = {f.name: f for f in fields(klass)}
-    for key, value in data.items():
-        if key not in names:
-            raise TwinConfigError(f"{where}: unknown key {key!r}; allowed: {', '.join(names)}")
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        if not ok or not math.isfinite(value):
-            raise TwinConfigError(f"{where}: {key} = {value!r}: expected a finite number")
-    return klass(**{k: (int(v) if names[k].type == "int" else float(v)) for k, v in data.items()})
+    names = [f.name for f in fields(klass)]
+    try:
+        return klass(**data)
+    except ValidationError as exc:
+        d = next(defects(exc, klass.__pydantic_fields__))
+        if d.is_unknown:
+            raise TwinConfigError(f"{where}: unknown key {d.field!r}; allowed: {', '.join(names)}") from None
+        allowed = "a finite number" if d.is_type else d.allowed
+        raise TwinConfigError(f"{where}: {d.field} = {d.value!r}: expected {allowed}") from None
 
 
 def default_twin() -> TwinConfig:

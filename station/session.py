@@ -15,19 +15,47 @@ from typing import Any, Literal
 import numpy as np
 
 from station import constants
+from station.records import Field, RecordError, RecordType, declared
+from station.validation import Check, in_range, settings, spec
 
 PointKind = Literal["static", "vibration"]
 
 
-@dataclass(frozen=True)
-class StationInfo:
-    """The `station` object of session.json."""
+# The station keys' ranges, declared once: the station file's [station] section and session.json's `station`
+# object (piga-session/1) are checked against these.
+STATION_FIELDS: tuple[Field, ...] = (
+    Field("A0_m", "float64", "m", lo=0.0, hi=0.1, lo_open=True, doc="table displacement amplitude"),
+    Field("latitude_deg", "float64", "deg", lo=-90.0, hi=90.0, doc="station latitude"),
+    Field("g_mps2", "float64", "m/s^2", lo=9.7, hi=9.9, doc="local gravity"),
+    Field("earth_rate_radps", "float64", "rad/s", lo=7.0e-5, hi=7.5e-5, doc="earth rotation rate"),
+    Field("pulses_per_rev", "int64", "1/rev", lo=1, hi=2**31, doc="output pulses per revolution"),
+)
 
-    A0_m: float = constants.A0_M
-    latitude_deg: float = constants.LATITUDE_DEG
-    g_mps2: float = constants.G_MPS2
-    earth_rate_radps: float = constants.EARTH_RATE_RADPS
-    pulses_per_rev: int = constants.PULSES_PER_REV
+
+def _declared_range(name: str) -> Check:
+    f = next(f for f in STATION_FIELDS if f.name == name)
+    return in_range(f.lo, f.hi, lo_open=f.lo_open)
+
+
+@settings
+class StationInfo:
+    """The station's geometry and constants: the `station` object of session.json, the station file's
+    [station] section (devices.config), the twin's station (models.config); validated on construction."""
+
+    A0_m: float = spec(_declared_range("A0_m"), default=constants.A0_M)
+    latitude_deg: float = spec(_declared_range("latitude_deg"), default=constants.LATITUDE_DEG)
+    g_mps2: float = spec(_declared_range("g_mps2"), default=constants.G_MPS2)
+    earth_rate_radps: float = spec(_declared_range("earth_rate_radps"), default=constants.EARTH_RATE_RADPS)
+    pulses_per_rev: int = spec(_declared_range("pulses_per_rev"), default=constants.PULSES_PER_REV)
+
+    @property
+    def latitude_rad(self) -> float:
+        return math.radians(self.latitude_deg)
+
+    @property
+    def pulse_angle_rad(self) -> float:
+        """One output pulse's precession angle, 2 pi / pulses_per_rev."""
+        return 2.0 * math.pi / self.pulses_per_rev
 
     def amplitude_ratio(self, freq_hz):
         """a = A0 (2 pi f)^2 / g."""
@@ -77,6 +105,15 @@ class Measurement:
     kind: str
     values: dict[str, Any] = field(default_factory=dict)
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def checked(self, record_type: RecordType | None = None) -> Measurement:
+        """A typed copy, checked against its record type (given, else the one declared for its kind);
+        RecordError names the measurement, the field, the value and what is allowed."""
+        rt = record_type or declared(self.kind)
+        where = f"measurement {self.key!r}"
+        if rt is None:
+            raise RecordError(where, "kind", self.kind, "a kind some method declares (station.records.declare)")
+        return Measurement(self.key, self.kind, rt.check_values(self.values, where), rt.check_arrays(self.arrays, where))
 
 
 @dataclass

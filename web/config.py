@@ -8,6 +8,7 @@ variables named here.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -36,6 +37,23 @@ class StationEntry(BaseModel):
     token_env: str = Field("", description="environment variable holding its control token, if it has one")
 
 
+class CentralEntry(BaseModel):
+    """The lab's central calibration history (`station sync`): read instead of the stations' stores."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    url: str = Field(pattern=r"^postgresql(\+psycopg)?://", description="the PostgreSQL database (no password here: "
+                     "~/.pgpass or PGPASSWORD)")  # fmt: skip
+    arrays: Path = Field(description="the lab's array root, where `station sync --arrays` puts the raw arrays")
+
+    @field_validator("url")
+    @classmethod
+    def _no_password(cls, url: str) -> str:
+        if re.match(r"^[^:]+://[^/@]*:[^/@]*@", url):
+            raise ValueError("the URL holds a password: put it in ~/.pgpass or PGPASSWORD, not in the panel file")
+        return url
+
+
 class PanelConfig(BaseModel):
     """The whole panel configuration."""
 
@@ -51,6 +69,7 @@ class PanelConfig(BaseModel):
     # CPU that the station's real-time work on the same machine needs; it pays only over slow links.
     websocket_compression: bool = Field(False, description="permessage-deflate for remote browsers on slow links")
     stations: tuple[StationEntry, ...] = Field(min_length=1)
+    central: CentralEntry | None = Field(None, description="read the history from the central database (issue 16)")
 
     @field_validator("stations")
     @classmethod

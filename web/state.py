@@ -34,7 +34,7 @@ class Panel:
             audit=AuditLog(config.audit_log),
             relay=TelemetryRelay(config.stations),
             links={s.name: StationLink(s) for s in config.stations},
-            history=History(config.stations),
+            history=History(config.stations, config.central),
             gaps=GapDiagnoses(config.twin),
         )
 

@@ -32,7 +32,7 @@ def test_a_session_from_another_station_geometry_is_refused(twin, tmp_path, caps
 
 def test_too_few_points_to_fit_is_refused(twin):
     session = _session(twin, [0.0, 180.0], (10.0,))
-    with pytest.raises(GapInputError, match=r"too few points to fit: 4 points cannot fit 2 static levels"):
+    with pytest.raises(GapInputError, match=r"too few points to fit: 4 points cannot fit the bias k0 and 4 calibrated"):
         diagnose(session, twin)
 
 
@@ -50,10 +50,10 @@ def test_a_design_that_cannot_fit_the_calibrated_coefficients_is_refused(twin):
 
 
 def test_too_few_residual_dof_gives_cannot_tell(twin):
-    """9 points, 3 static levels + 4 coefficients: 2 dof, below the 4 the tests need."""
-    rep = diagnose(_session(twin, [0.0, 45.0, 135.0], (8.0, 10.0)), twin)
+    """6 points, the bias k0 + 4 coefficients: 1 dof, below the 4 the tests need."""
+    rep = diagnose(_session(twin, [0.0, 45.0], (8.0, 10.0)), twin)
     assert rep.verdict.verdict == "cannot_tell"
-    assert "cannot tell with this design: only 2 residual degrees of freedom" in rep.verdict.text
+    assert "cannot tell with this design: only 1 residual degrees of freedom" in rep.verdict.text
     assert rep.effects == [] and all(c["rank"] is None for c in rep.candidates)
 
 

@@ -1,0 +1,139 @@
+"""The layout is the data flow: layers import only downward, no cycles, drivers never import emulators.
+
+Layers, from the bottom: station (the core) < models (the twin) < engine < devices < methods < gap < web < app.
+A module may import its own layer and the layers below, with these exceptions, each a seam by design:
+- the engine imports no device and no method: it drives a station through engine.protocols, and the
+  procedure library is found by name (engine.registry imports the `methods` package to scan it);
+- the core (station/) knows no device, method, twin or engine;
+- emulators are the only device modules that import the twin (models), and no driver imports an emulator.
+Imports under `if TYPE_CHECKING:` count: a cycle of type hints is a cycle of knowledge.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ("station", "models", "engine", "devices", "methods", "gap", "web", "app")
+RANK = {name: i for i, name in enumerate(LAYERS)}
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for pkg in LAYERS:
+        for path in (ROOT / pkg).rglob("*.py"):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+            mods[".".join(parts)] = path
+    return mods
+
+
+MODULES = _modules()
+
+
+def _resolve(name: str) -> str | None:
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _imports(module: str) -> set[str]:
+    path = MODULES[module]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join([*parts, base] if base else parts)
+            targets = [base, *(f"{base}.{a.name}" for a in node.names)]
+        else:
+            continue
+        for target in targets:
+            resolved = _resolve(target)
+            if resolved and resolved != module:
+                found.add(resolved)
+    return found
+
+
+GRAPH = {m: _imports(m) for m in MODULES}
+
+
+def _is_emulator(module: str) -> bool:
+    return module.rsplit(".", 1)[-1] == "emulator"
+
+
+def test_the_layout_has_its_packages() -> None:
+    assert all((ROOT / pkg / "__init__.py").is_file() for pkg in LAYERS)
+    devices = [p for p in (ROOT / "devices").iterdir() if (p / "__init__.py").is_file()]
+    assert len(devices) >= 12
+    for device in devices:
+        assert {"driver.py", "emulator.py", "protocol.py", "kind.py"} <= {f.name for f in device.iterdir()}, device
+
+
+def test_no_import_cycle() -> None:
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    cycles: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in GRAPH[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for v in GRAPH:
+        if v not in index:
+            visit(v)
+    assert cycles == []
+
+
+@pytest.mark.parametrize("module", sorted(MODULES))
+def test_imports_follow_the_data_flow(module: str) -> None:
+    layer = module.split(".")[0]
+    wrong = []
+    for target in sorted(GRAPH[module]):
+        to = target.split(".")[0]
+        if RANK[to] > RANK[layer]:
+            if not (module == "engine.registry" and target == "methods"):  # the library, scanned by name
+                wrong.append(target)
+        elif layer == "engine" and to == "devices":
+            wrong.append(target)
+        elif (
+            layer == "devices"
+            and to == "models"
+            and not _is_emulator(module)
+            and not module.startswith(("devices.world", "devices.station"))
+        ):
+            wrong.append(target)
+        elif (
+            layer == "devices"
+            and _is_emulator(target)
+            and not (_is_emulator(module) or module.endswith(".kind") or module in ("devices.station", "devices.world"))
+        ):
+            wrong.append(target)
+    assert wrong == [], f"{module} imports {wrong} against the layout"
