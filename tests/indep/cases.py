@@ -16,6 +16,9 @@ each effect was scaled on; "A_channel+B_channel" for pairs), separable (pairs: w
 signature stays >= SEPARABLE_SIGMA away from everything the other effect's parameters reproduce,
 linearised, on all channels of this session; None otherwise), noise {...,"stated": bool},
 coefficients, plausible (every parameter within its physical bound), seed, design.
+`case_mimic(seed, kind, ...)` tells, for an out-of-library case, which library effect comes
+closest on all channels and whether it stays within plausible bounds (a case no diagnosis can
+tell from the library); it is slow, so make_case leaves it out.
 
     python -m indep.cases OUT_DIR --n N [--seed S]   (PYTHONPATH=tests)
 
@@ -29,6 +32,7 @@ import argparse
 import json
 import math
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -136,21 +140,63 @@ def _linear_family(ctx: Context, truth: Truth, name: str, params: dict[str, floa
 
 def _distance(v: np.ndarray, J: np.ndarray) -> float:
     """Distance of v from the column span of J (whitened units: standard deviations)."""
+    return _fit(v, J)[0]
+
+
+def _fit(v: np.ndarray, J: np.ndarray) -> tuple[float, np.ndarray]:
     if J.size == 0:
-        return float(np.linalg.norm(v))
-    return float(np.linalg.norm(v - J @ np.linalg.lstsq(J, v, rcond=None)[0]))
+        return float(np.linalg.norm(v)), np.zeros(0)
+    x = np.linalg.lstsq(J, v, rcond=None)[0]
+    return float(np.linalg.norm(v - J @ x)), x
 
 
-def make_case(
-    seed: int,
-    kind: str,
-    out_dir: Path,
-    *,
-    snr: float | None = None,
-    family: str | None = None,
-    raw: bool | None = None,
-) -> dict:
-    """Write one session directory for (seed, kind) and return its truth (module docstring)."""
+def library_mimic(ctx: Context, sig: np.ndarray) -> dict:
+    """The library effect whose linearised parameters come closest to a signature on all channels.
+
+    Each library effect's Jacobian is taken at zero (finite steps of 1e-3 of its plausible bound);
+    returns the closest effect, the distance left (standard deviations) and whether the fitted
+    parameters stay within the plausible bounds. An out-of-library case with a small distance and
+    fitted parameters within bounds is one that no diagnosis can tell from a library effect.
+    """
+    s0 = combined(signature(ctx, ctx.truth), ctx)
+    best: dict = {"effect": None, "distance_sigma": math.inf, "within_bounds": False}
+    for name in LIBRARY:
+        eff = EFFECTS[name]
+        p0 = {k: 0.0 for k in eff.bounds}
+        if name == "lateral_resonance":  # linearise in kx L0^2 about a mid resonance
+            p0 = {"L0": 0.0, "fr_hz": 1.5 * max(ctx.design.freqs_hz), "Q": 8.0, "phiL_rad": 0.0, "kx": 0.0}
+            cols, keys = [], ["kxL2"]
+            p = dict(p0, L0=0.01, kx=1e-5)
+            cols.append((combined(signature(ctx, with_effect(ctx.truth, eff, p)), ctx) - s0) / 1e-9)
+            J, bounds = np.array(cols).T, np.array([eff.bounds["kx"] * eff.bounds["L0"] ** 2])
+        else:
+            cols, keys = [], list(p0)
+            for k in keys:
+                h = 1e-3 * eff.bounds[k]
+                cols.append((combined(signature(ctx, with_effect(ctx.truth, eff, dict(p0, **{k: h}))), ctx) - s0) / h)
+            J, bounds = np.array(cols).T, np.array([eff.bounds[k] for k in keys])
+        d, x = _fit(sig, J)
+        if d < best["distance_sigma"]:
+            best = {"effect": name, "distance_sigma": d, "within_bounds": bool(np.all(np.abs(x) <= bounds))}
+    return best
+
+
+@dataclass
+class _Built:
+    ctx: Context
+    state_noise: bool
+    rng: np.random.Generator
+    names: list[str]
+    in_library: bool
+    snr: float | None
+    params: dict
+    channels: dict
+    achieved: dict
+    truth: Truth
+
+
+def _build(seed: int, kind: str, snr: float | None, family: str | None, raw: bool | None) -> _Built:
+    """The case's world: design, noise, and each effect drawn and scaled to snr on its channel."""
     names, in_library = _parse_kind(kind)
     if snr is not None and not (isinstance(snr, (int, float)) and math.isfinite(snr) and snr > 0):
         raise ValueError(f"snr={snr!r}: must be a finite number > 0")
@@ -163,10 +209,41 @@ def make_case(
         eff = EFFECTS[name]
         p0 = eff.draw(rng_eff, ctx)
         assert snr is not None
-        p, ch, s = scale_to_snr(eff, p0, float(snr), ctx)
-        params[name], channels[name], achieved[name] = p, ch, s
+        params[name], channels[name], achieved[name] = scale_to_snr(eff, p0, float(snr), ctx)
     for name in names:
         truth = with_effect(truth, EFFECTS[name], params[name])
+    return _Built(ctx, state_noise, rng, names, in_library, snr, params, channels, achieved, truth)
+
+
+def case_mimic(
+    seed: int, kind: str, *, snr: float | None = None, family: str | None = None, raw: bool | None = None
+) -> dict | None:
+    """For an out-of-library case of make_case: the library effect that comes closest (library_mimic).
+
+    None for library kinds. Costs one noise-free session per library parameter (seconds), hence
+    not part of make_case; `python -m indep.cases --mimic` adds it to truth.jsonl.
+    """
+    b = _build(seed, kind, snr, family, raw)
+    if b.in_library:
+        return None
+    eff = EFFECTS[b.names[0]]
+    sig = combined(signature(b.ctx, with_effect(b.ctx.truth, eff, b.params[b.names[0]])), b.ctx)
+    return library_mimic(b.ctx, sig - combined(signature(b.ctx, b.ctx.truth), b.ctx))
+
+
+def make_case(
+    seed: int,
+    kind: str,
+    out_dir: Path,
+    *,
+    snr: float | None = None,
+    family: str | None = None,
+    raw: bool | None = None,
+) -> dict:
+    """Write one session directory for (seed, kind) and return its truth (module docstring)."""
+    b = _build(seed, kind, snr, family, raw)
+    ctx, state_noise, rng, names, in_library, snr = b.ctx, b.state_noise, b.rng, b.names, b.in_library, b.snr
+    params, channels, achieved, truth = b.params, b.channels, b.achieved, b.truth
     separable = None
     if len(names) == 2:
         a, b = names
@@ -252,6 +329,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("out_dir", type=Path)
     ap.add_argument("--n", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0, help="seed of the first case")
+    ap.add_argument("--mimic", action="store_true", help="add library_mimic to out-of-library cases (slow)")
     args = ap.parse_args(argv)
     if args.n < 1:
         ap.error(f"--n {args.n}: must be >= 1")
@@ -262,6 +340,8 @@ def main(argv: list[str] | None = None) -> int:
             case_dir = args.out_dir / f"case_{k:04d}"
             truth = make_case(args.seed + k, kind, case_dir, snr=snr)
             truth["dir"] = case_dir.name
+            if args.mimic and not truth["in_library"]:
+                truth["library_mimic"] = case_mimic(args.seed + k, kind, snr=snr)
             fh.write(json.dumps(truth, sort_keys=True) + "\n")
             print(f"{case_dir.name}: {kind} snr={truth['snr']} {truth['family']} n={truth['n_points']}")
     return 0

@@ -288,6 +288,22 @@ EFFECTS: dict[str, Effect] = {
             ("ax2s_rad", "ax2c_rad"),
             {"ax2s_rad": 60 * _AS, "ax2c_rad": 60 * _AS},
         ),
+        Effect(
+            "index_backlash",
+            False,
+            lambda r, c: {"backlash_rad": _lu(r, 2, 20) * _AS},
+            _pe(backlash_rad="backlash_rad"),
+            ("backlash_rad",),
+            {"backlash_rad": 60 * _AS},
+        ),
+        Effect(
+            "scale_factor_drift",
+            False,
+            lambda r, c: {"ks_per_s": _lu(r, 1e-11, 1e-9)},
+            _pe(kz_drift_per_s="ks_per_s"),
+            ("ks_per_s",),
+            {"ks_per_s": 1e-8},
+        ),
         Effect("quartic_term", False, lambda r, c: {"k4": _lu(r, 1e-8, 1e-7)}, _co(k4="k4"), ("k4",), {"k4": 1e-6}),
     ]
 }

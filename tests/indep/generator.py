@@ -323,9 +323,11 @@ def simulate(
     else:
         stamper = Stamper(0.0, lambda k: np.zeros(k))
     rows: list[Row] = []
-    t, pos, freq, last_move = 0.0, None, None, -math.inf
+    t, pos, freq, last_move, approach = 0.0, None, None, -math.inf, 1
     for i, (p, pulses, tm_nom) in enumerate(plan):
         if p.position_deg != pos:
+            if pos is not None:
+                approach = 1 if p.position_deg > pos else -1
             t += design.index_move_s
             last_move, pos, freq = t, p.position_deg, None
             t += design.settle_index_s
@@ -335,7 +337,8 @@ def simulate(
         t += float(draws.wait_s[i])
         sd = noise.rate_sd(tm_nom) if noise else 0.0
         eps = sd * float(draws.eps_unit[i]) if noisy else 0.0
-        win = Window(truth.co, truth.pe, p.position_deg, p.freq_hz, float(draws.gamma0_rad[i]), t, eps, last_move)
+        gamma0 = float(draws.gamma0_rad[i])
+        win = Window(truth.co, truth.pe, p.position_deg, p.freq_hz, gamma0, t, eps, last_move, approach)
         sign = win.mean_rate_sign()
         true_tm = win.first_passage(pulses + truth.miscount.get(i, 0))
         extra = None if truth.jitter_outliers_s is None else truth.jitter_outliers_s[i]

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import brentq, elementwise
@@ -96,6 +96,8 @@ class Perturbation:
     step_time_s: float = 0.0
     transient_radps: float = 0.0  # + b exp(-(t - t_move) / tau) after each index move (out of library)
     transient_tau_s: float = 600.0
+    backlash_rad: float = 0.0  # indexing head lands +-backlash/2 off, by the direction it came from (out of library)
+    kz_drift_per_s: float = 0.0  # kz (1 + ks t_window_start): scale factor drift (out of library)
 
     def index_error_rad(self, theta_rad: float) -> float:
         """dtheta_idx(theta) = sum_k ck cos k theta + sk sin k theta, k = 1..4 (physics.md, seed 003)."""
@@ -143,11 +145,15 @@ class Window:
     start_s: float
     eps_radps: float = 0.0
     last_move_s: float = -math.inf
+    approach_dir: int = 0  # +1 / -1: the indexing head's last move was toward larger / smaller theta
     st: StationConsts = field(default_factory=StationConsts)
 
     def __post_init__(self) -> None:
         th = math.radians(self.theta_deg)
         self.theta_a = th + self.pe.index_error_rad(th) + self.pe.mount_rad
+        self.theta_a += 0.5 * self.pe.backlash_rad * self.approach_dir
+        if self.pe.kz_drift_per_s:  # the scale factor of this window: kz at the window's start
+            self.co = replace(self.co, kz=self.co.kz * (1.0 + self.pe.kz_drift_per_s * self.start_s))
         self.vib = self.f_cmd_hz > 0.0
         self.f_hz = self.pe.true_freq_hz(self.f_cmd_hz) if self.vib else 0.0
         self.w = 2.0 * math.pi * self.f_hz
