@@ -191,9 +191,11 @@ def seed000_budget(
     references: Mapping[str, Reference] | None = None,
     *,
     compensated: bool = True,
+    timer_rows: bool = True,
 ) -> Budget:
     """The GUM budget of `result` (an integral or baseline identification of `session`); `compensated`: whether
-    `result` used the params' measured Zs1, axs1 and eps_f."""
+    `result` used the params' measured Zs1, axs1 and eps_f; `timer_rows` False leaves the timer-resolution
+    row (listed, not added) at zero."""
     params = dict(params if params is not None else session.meta.get("params", {}))
     refs = dict(references) if references is not None else load_references()
     meas = measured_inputs(params, refs, compensated)
@@ -243,7 +245,10 @@ def seed000_budget(
         sources.append(type_b_source(f"unmodelled second harmonic {comp_key}", 0.0, r2.standard_uncertainty, "m",
                                      harm_refit, note=f"{r2.distribution}"))  # fmt: skip
     r_t = refs["timer_resolution_s"]
-    c_t = timer_resolution_contribution(session, refit, r_t.standard_uncertainty)
+    # listed only (in the Type A scatter): `timer_rows=False` skips its 3 refits per point (Monte Carlo)
+    c_t = np.zeros(len(names))
+    if timer_rows:
+        c_t = timer_resolution_contribution(session, refit, r_t.standard_uncertainty)
     sources.append(
         Source(
             "timer resolution (every stamp)",

@@ -29,7 +29,7 @@ from methods.seed000.alignment import multi_position, two_position
 from methods.seed000.budget import seed000_budget
 from methods.seed000.identify import METHODS, Compensation, Identification, identify
 from methods.seed000.planning import design_quality, relative_sensitivity
-from methods.seed000.report import certificate, render_report
+from methods.seed000.report import certificate, render_report, result_provenance
 from models.plan import (
     SEED000_FREQS_HZ,
     SEED000_WINDOW_S,
@@ -114,7 +114,9 @@ def _analyse(session: Session, order: tuple[str, ...], title: str) -> Analysis:
     cert = certificate(session, results, primary, procedure_title=title)
     files = {f"certificate-{uid or 'session'}.html": render_html(cert).encode(),
              f"certificate-{uid or 'session'}.pdf": render_pdf(cert)}  # fmt: skip
-    return Analysis({m: r.to_json() for m, r in results.items()}, html, _summary(results), files)
+    prov = result_provenance(session)
+    docs = {m: {**r.to_json(), "provenance": prov} for m, r in results.items()}
+    return Analysis(docs, html, _summary(results), files)
 
 
 def analyse_integral(session: Session) -> Analysis:

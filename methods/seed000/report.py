@@ -251,6 +251,18 @@ def provenance_of(session: Session) -> dict:
     return dict(prov)
 
 
+def result_provenance(session: Session) -> dict:
+    """Session identity for the result JSON: uid, instrument serial, station, operator, dates, software, simulated."""
+    prov = provenance_of(session)
+    keys = ("station_id", "operator", "host", "created_utc", "software_version", "simulated", "seed")
+    out = {"session_uid": session.meta.get("store_uid") or NOT_RECORDED,
+           "instrument_serial": prov.get("instrument_serial") or session.meta.get("instrument_serial") or NOT_RECORDED,
+           "procedure": session.meta.get("procedure") or NOT_RECORDED}  # fmt: skip
+    out |= {k: (NOT_RECORDED if prov.get(k) in (None, "") else prov[k]) for k in keys}
+    out["analysed_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
+    return out
+
+
 def _or(v: object) -> str:
     return NOT_RECORDED if v in (None, "") else str(v)
 
