@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from engine.protocols import Event, StationHardware
+from station import constants
 from station.clock import Clock
 from station.errors import InputError
 from station.session import StationInfo
@@ -44,8 +45,8 @@ class StationModel:
     index_speed_deg_s: float = 10.0
     index_settle_s: float = 2.0
     max_preset: int = 2**31 - 1
-    k0_nominal_radps: float = 1.5e-4
-    kz_nominal_radps_per_g: float = 0.56
+    k0_nominal_radps: float = constants.K0_RADPS
+    kz_nominal_radps_per_g: float = constants.KZ_RADPS_PER_G
     devices: frozenset[str] = frozenset({"servo", "grating", "reference", "counter", "indexing_head"})
     sections: dict[str, Any] = field(default_factory=dict)  # config sections of further devices, by name
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station import constants
 from station.errors import StationFault
 
 
@@ -31,7 +32,7 @@ class WindowTiming:
 
 
 # Table 4: frequency stability < 5e-4. Counted periods and the grating must agree to that.
-FREQ_TOLERANCE_REL = 5e-4
+FREQ_TOLERANCE_REL = constants.FREQ_STABILITY_MAX
 # Consecutive crossings one period apart: a missed one shows as 2 periods, a spurious one as a part of one.
 PERIOD_TOLERANCE = 0.1
 # A reference crossing and the grating's mid-stroke crossing: the waveform effects of

@@ -26,6 +26,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from station import constants
+
 ARCSEC_RAD = math.pi / 648_000.0
 
 # Seed 004 section 6: K2 = 1.9e-6/g0 with no offset, lowest calibration 4.3e-7/g0 at -1", best offset -0.85"
@@ -38,7 +40,6 @@ SEED004_K2_AT_BEST_PER_G = 3.7e-7
 SEED004_BEST_OFFSET_ARCSEC = -0.85
 SEED004_REMOVED_MASS_KG = 77.8e-6
 SEED004_K2_AFTER_PER_G = 1.91e-7
-SEED004_KZ_RADPS_PER_G = 0.56
 # Not in the seed: a plausible rotor angular momentum, and the end-surface radius r_f that makes eq. 22 give
 # the seed's 77.8 mg for its 3.7e-7/g0 with that H and kz.
 ANGULAR_MOMENTUM_KGM2PS = 0.1
@@ -82,7 +83,7 @@ class FloatModel:
 
     @classmethod
     def seed004(
-        cls, kz_radps_per_g: float = SEED004_KZ_RADPS_PER_G, angular_momentum_kgm2ps: float = ANGULAR_MOMENTUM_KGM2PS
+        cls, kz_radps_per_g: float = constants.KZ_RADPS_PER_G, angular_momentum_kgm2ps: float = ANGULAR_MOMENTUM_KGM2PS
     ) -> FloatModel:
         """The float whose offset sweep gives seed 004's figures (section 6) at scale factor kz."""
         beta0_rad = -SEED004_BEST_OFFSET_ARCSEC * ARCSEC_RAD

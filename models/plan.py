@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station import constants
 from station.session import PointKind
 
 SEED000_FREQS_HZ = (8.0, 9.0, 10.0)
 SEED000_WINDOW_S = 560.0  # seed 000: P = 50 revolutions at 0 deg gives Tm about 560 s
-NOMINAL_KZ_RADPS_PER_G = 0.56
 PULSES_PER_REV = 16384
 
 
@@ -32,8 +32,8 @@ class PointSpec:
 def preset_pulses(
     position_deg: float,
     window_s: float = SEED000_WINDOW_S,
-    kz_nominal: float = NOMINAL_KZ_RADPS_PER_G,
-    k0_nominal: float = 1.5e-4,
+    kz_nominal: float = constants.KZ_RADPS_PER_G,
+    k0_nominal: float = constants.K0_RADPS,
 ) -> int:
     """Whole precession revolutions that take about window_s at this position (seed 000 5.1.4).
 

@@ -30,7 +30,14 @@ STATION_KEYS = ("A0_m", "latitude_deg", "g_mps2", "earth_rate_radps", "pulses_pe
 RAW_ARRAYS = ("grating_t", "grating_z", "pulse_t")
 # t1 + Np T - Tm = t2 holds for a perfect frequency; a frequency error eps_f breaks it by
 # eps_f Np T. The real table's frequency stability is < 5e-4 (seed 000 Table 4): allow twice that.
-MAX_PERIOD_MISMATCH = 1e-3
+from station import constants
+MAX_PERIOD_MISMATCH = 2 * constants.FREQ_STABILITY_MAX
+MAX_JSON_BYTES = 64 << 20  # session.json: declarations, provenance, notes; never arrays
+MAX_ARRAY_BYTES = 4 << 30  # one decompressed array of an .npz (raw streams of a long window reach ~100 MB)
+MEASUREMENTS_DIR = "measurements"
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,127}$")
+_RESERVED = ("sequence", "key", "arrays_file")
+OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results")  # the rest of session.json: meta  # the columns of a measurements table before its fields
 
 
 class SessionFormatError(InputError):

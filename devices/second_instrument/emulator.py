@@ -30,7 +30,7 @@ FIXTURE = "dual_fixture"
 # 30 arc-second installation tolerance of seed 003 5.3 (1.45e-4 rad).
 SEAT_ERRORS_RAD: Mapping[int, float] = {1: 0.0, 2: 1.5e-5, 3: -1.0e-5, 4: 2.5e-5}
 # PIGA B: a second instrument of seed 003's model (no cubic term) with seed 000's coefficients.
-INSTRUMENT_B = InstrumentCoefficients(k0=1.5e-4, kz=0.56, kzz=6.0e-6, ky=5.0e-6, k3=0.0)
+INSTRUMENT_B = InstrumentCoefficients(k3=0.0)
 IA_ERROR_B_RAD = -1.0e-5
 
 

@@ -14,9 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from station import constants
 from station.constants import TIMER_TICK_S
-
-TABLE4_STABILITY_MAX = 5.0e-4  # seed 000 Table 4: frequency stability < 5.0e-4
 
 
 def mean_rate_error_radps(freq_hz, sigma_f_hz, a0_m: float, kz_radps_per_g: float, g_mps2: float, periods: int = 10):
@@ -65,7 +64,7 @@ class Table6Row:
         """The relative frequency error fbar / f - 1 (the twin's frequency_error eps_f)."""
         return self.fbar_hz / self.commanded_hz - 1.0
 
-    def passes(self, stability_max: float = TABLE4_STABILITY_MAX) -> bool:
+    def passes(self, stability_max: float = constants.FREQ_STABILITY_MAX) -> bool:
         return self.stability < stability_max
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from models.plan import multiposition_plan
 from models.regressors import COEFFICIENTS, integral_regressors
 from models.window_means import window_means
+from station import constants
 from station.session import StationInfo
 
 PHASE_DRAWS = 64
@@ -60,8 +61,8 @@ def design_quality(
     station: StationInfo,
     *,
     window_s: float = 560.0,
-    k0_radps: float = 1.5e-4,
-    kz_radps_per_g: float = 0.56,
+    k0_radps: float = constants.K0_RADPS,
+    kz_radps_per_g: float = constants.KZ_RADPS_PER_G,
     sigma_p_pulses: float = 1.0,
     sigma_T_s: float = 1e-6,
     seed: int = 0,

@@ -39,6 +39,7 @@ from models.plan import (
     preset_pulses,
 )
 from models.regressors import COEFFICIENTS
+from station import constants
 from station.htmlkit import document, esc, svg, table
 from station.session import Session, StationInfo
 
@@ -298,7 +299,7 @@ def analyse_alignment(session: Session) -> Analysis:
         Param(
             "kz_radps_per_g",
             float,
-            default=0.56,
+            default=constants.KZ_RADPS_PER_G,
             min=0.01,
             max=10.0,
             unit="rad/s/g",

@@ -28,10 +28,11 @@ from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import CaptureGrating, MeasureFrequency, Note, SetVibration, Step
 from methods.seed000.error_source_report import rotation_report, stability_report, translation_report
-from methods.seed000.frequency_stability import TABLE4_STABILITY_MAX, mean_eps_f, table6_row
+from methods.seed000.frequency_stability import mean_eps_f, table6_row
 from methods.seed000.parasitic_rotation import AXES, eq34, fit_rotation, slot_means
 from methods.seed000.table_motion import crank_phase, fit_zs1, sampling_delay_error_m, waveform
 from models.table_tilt import ARCSEC_RAD
+from station import constants
 from station.clock import speed_at_most
 from station.session import Measurement, Session
 
@@ -41,7 +42,6 @@ if TYPE_CHECKING:
 
 TABLE5_FREQS_HZ = [1.0, 3.0, 5.0, 7.0, 9.0, 10.0]
 TABLE6_FREQS_HZ = [0.1, *map(float, range(1, 11))]
-KZ_SEED_RADPS_PER_G = 0.56  # seed 000's simulated PIGA
 INTEGRAL = "seed000.integral_precession"  # the procedure whose identification the results compensate
 
 TRANSLATION_PARAMS = (
@@ -57,9 +57,9 @@ STABILITY_PARAMS = (
           help="vibration frequencies (seed 000 Table 6)"),
     Param("periods", int, default=10, min=2, max=10_000, help="consecutive periods timed at each frequency (seed: 10)"),
     Param("settle_s", float, default=5.0, min=0.0, max=600.0, unit="s", help="settling after each change"),
-    Param("stability_max", float, default=TABLE4_STABILITY_MAX, min=0.0, max=1.0,
+    Param("stability_max", float, default=constants.FREQ_STABILITY_MAX, min=0.0, max=1.0,
           help="specification of sigma_f / f (seed 000 Table 4)"),
-    Param("kz_radps_per_g", float, default=KZ_SEED_RADPS_PER_G, min=0.0, max=100.0, unit="rad/s/g",
+    Param("kz_radps_per_g", float, default=constants.KZ_RADPS_PER_G, min=0.0, max=100.0, unit="rad/s/g",
           help="the instrument's kz, for eq. 33's rate error"),
 )  # fmt: skip
 
