@@ -2,7 +2,10 @@
 
 The stores are the stations' own SQLite files, read while the stations write
 them (WAL). Several stations may share one store; a session is found by its
-uid, which is unique across stores.
+uid, which is unique across stores. With a central history configured
+(`[central]` in the panel file, issue 16), every page reads the lab's
+PostgreSQL database instead, which the stations fill with `station sync`: one
+indexed query per listing, whatever the number of sessions.
 """
 
 from __future__ import annotations
@@ -18,11 +21,13 @@ from fastapi import HTTPException
 
 from engine.registry import ProcedureError, get_procedure
 from methods.seed000.identify import METHODS, identify
+from station.central.reader import CentralStore, HistoryQuery
 from station.session import Session
+from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
-from web.config import StationEntry
+from web.config import CentralEntry, StationEntry
 
-OUTCOMES = ("running", "finished", "aborted", "failed", "imported")
+OUTCOMES = ("running", "finished", "aborted", "failed", "imported", "interrupted")
 LONG_LIST = 20  # measurement values longer than this are shown by their length
 REPORT_CACHE = 8
 
@@ -50,19 +55,25 @@ class SessionFilter:
 
 @dataclass
 class _Store:
-    store: SessionStore
+    store: SessionStore | CentralStore
     stations: list[StationEntry]
 
 
 class History:
     """Read side of every configured store."""
 
-    def __init__(self, stations: Iterable[StationEntry]) -> None:
+    def __init__(self, stations: Iterable[StationEntry], central: CentralEntry | None = None) -> None:
+        stations = list(stations)
         self._stores: dict[Path, _Store] = {}
+        self._entries = {e.name: e for e in stations}
+        self._central = CentralStore(central.url, central.arrays) if central is not None else None
+        if self._central is not None:
+            stations = []  # the stations' own stores are their journals; the central history is what is read
         for entry in stations:
             key = entry.store.resolve()
             if key not in self._stores:
                 self._stores[key] = _Store(SessionStore(entry.store), [])
+                recover_interrupted(self._stores[key].store)  # running with no live process: interrupted
             self._stores[key].stations.append(entry)
         self._reports: OrderedDict[str, str] = OrderedDict()
         self._lock = threading.Lock()
@@ -70,9 +81,17 @@ class History:
     def close(self) -> None:
         for s in self._stores.values():
             s.store.close()
+        if self._central is not None:
+            self._central.close()
+
+    def _central_row(self, row: dict) -> dict:
+        return {k: v for k, v in row.items() if k != "station"} | {"stations": [row["station"]]}
 
     def sessions(self, where: SessionFilter, limit: int) -> list[dict]:
         """Matching sessions, newest first."""
+        if self._central is not None:
+            q = HistoryQuery(where.serial, where.procedure, where.outcome, where.station, where.since, where.until)
+            return [self._central_row(r) for r in self._central.history(q, limit)]
         rows = []
         for s in self._stores.values():
             names = [e.name for e in s.stations]
@@ -82,6 +101,12 @@ class History:
         return rows[:limit]
 
     def _find(self, uid: str) -> _Store:
+        if self._central is not None:
+            try:
+                station = self._central.row(uid)["station"]
+            except StoreError:
+                raise HTTPException(404, f"no session {uid!r} in the central history") from None
+            return _Store(self._central, [self._entries[station]] if station in self._entries else [])
         for s in self._stores.values():
             try:
                 s.store.session_config(uid)
@@ -95,6 +120,8 @@ class History:
 
     def row(self, uid: str) -> dict:
         s = self._find(uid)
+        if isinstance(s.store, CentralStore):
+            return self._central_row(s.store.row(uid))
         row = next(r for r in s.store.sessions() if r["uid"] == uid)
         return row | {"stations": [e.name for e in s.stations]}
 

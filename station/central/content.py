@@ -120,6 +120,10 @@ class SessionContent:
     def n_points(self) -> int:
         return len(self.points)
 
+    @property
+    def n_measurements(self) -> int:
+        return len(self.measurements)
+
 
 def provenance_of(store: SessionStore, session: Session) -> dict | None:
     """The session's provenance record if the store keeps one (issue 14), else None."""

@@ -51,6 +51,7 @@ CREATE TABLE sessions (
     notes TEXT NOT NULL DEFAULT '',
     provenance_json TEXT,
     n_points INTEGER NOT NULL,
+    n_measurements INTEGER NOT NULL,
     head_sha256 TEXT NOT NULL,
     catalog_sha256 TEXT NOT NULL,
     content_sha256 TEXT NOT NULL,

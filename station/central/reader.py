@@ -20,8 +20,10 @@ from station.central.sync import open_central
 from station.session import Measurement, PointRecord, RawStreams, Session, StationInfo
 from station.store import StoreError
 
-ROW_KEYS = ("uid", "created_utc", "procedure", "instrument_serial", "status", "n_points", "station")
-_ROW_SQL = "SELECT uid, created_utc, procedure, instrument_serial, status, n_points, station FROM sessions"
+ROW_KEYS = ("uid", "created_utc", "procedure", "instrument_serial", "status", "n_points", "n_measurements", "station")
+_ROW_SQL = (
+    "SELECT uid, created_utc, procedure, instrument_serial, status, n_points, n_measurements, station FROM sessions"
+)
 
 
 @dataclass(frozen=True)

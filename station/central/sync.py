@@ -181,8 +181,8 @@ def _push(engine: sa.Engine, s: SessionContent, root: ArrayRoot, report: SyncRep
         paths[a.sha256], written = root.put(a)
         report.files_written += written
         report.bytes_written += len(a.data) if written else 0
-    state = {"status": s.status, "n_points": s.n_points, "catalog_sha256": s.catalog_sha256,
-             "content_sha256": s.content_sha256}  # fmt: skip
+    state = {"status": s.status, "n_points": s.n_points, "n_measurements": s.n_measurements,
+             "catalog_sha256": s.catalog_sha256, "content_sha256": s.content_sha256}  # fmt: skip
     with engine.begin() as conn:
         central = conn.execute(sa.text(_CENTRAL_ROW + " FOR UPDATE"), {"uid": s.uid}).one_or_none()
         if central is None:
@@ -196,12 +196,9 @@ def _push(engine: sa.Engine, s: SessionContent, root: ArrayRoot, report: SyncRep
             return "unchanged"
         start = extension_start(conn, central, s)
         _insert_logs(conn, central.id, s, start, paths)
+        columns = ", ".join(f"{c} = :{c}" for c in state)
         conn.execute(
-            sa.text(
-                "UPDATE sessions SET status = :status, n_points = :n_points, catalog_sha256 = :catalog_sha256,"
-                " content_sha256 = :content_sha256, synced_utc = now() WHERE id = :id"
-            ),
-            state | {"id": central.id},
+            sa.text(f"UPDATE sessions SET {columns}, synced_utc = now() WHERE id = :id"), state | {"id": central.id}
         )
         return "extended"
 

