@@ -6,9 +6,13 @@ Methods report coefficients in one of two shapes:
     {name: {"value", "sigma", "unit"}, ...}
 
 `coefficient_rows` reads both (any depth), so a new method is shown with its units
-as soon as it states them. `sigma` is always the standard uncertainty u (k = 1)
-of the least-squares fit: the covariance (X^T X)^-1 scaled by the residual
-sigma^2 (seed 000 eqs. 21-22); the expanded uncertainty is U = k u.
+as soon as it states them. `sigma` is the standard uncertainty of the least-squares
+fit alone (Type A, k = 1): the covariance (X^T X)^-1 scaled by the residual sigma^2
+(seed 000 eqs. 21-22). Where the method adds a GUM budget (methods.common.uncertainty)
+a coefficient also has `standard_uncertainty` (Type A and B combined),
+`coverage_factor` k (Student t at the effective degrees of freedom),
+`coverage_probability` and `expanded_uncertainty` U = k u: then u and U are those.
+Without a budget U = COVERAGE_K u is shown with k = COVERAGE_K stated.
 `mu` is max|e| / sigma and `mu_c = 1.25 + ln sqrt(N / 3)` its critical value
 (seed 000 eq. 28): mu < mu_c says that no residual is an outlier.
 """
@@ -22,8 +26,9 @@ from typing import Any
 
 COVERAGE_K = 2.0  # expanded uncertainty U = k u, about 95 % for a normal error
 UNCERTAINTY_NOTE = (
-    f"u is the standard uncertainty (k = 1, about 68 %) from the fit's covariance scaled by the residual "
-    f"sigma (seed 000 eq. 22); U = {COVERAGE_K:g} u is the expanded uncertainty (k = {COVERAGE_K:g}, about 95 %)"
+    "u is the standard uncertainty (k = 1, about 68 %): the GUM budget's combined Type A and B where the method "
+    "has one, else the fit's covariance scaled by the residual sigma (seed 000 eq. 22); U = k u is the expanded "
+    f"uncertainty with the coverage factor k shown (Student t from the budget, else k = {COVERAGE_K:g}, about 95 %)"
 )
 MU_NOTE = "mu = max|residual| / sigma; mu_c = 1.25 + ln sqrt(N/3) (seed 000 eq. 28); mu < mu_c: no outlier"
 
@@ -35,14 +40,25 @@ class CoefficientRow:
     result: str  # the results key it came from ("integral", "baseline", "20C", ...)
     name: str
     value: float | None
-    u: float | None
+    u: float | None  # standard uncertainty, k = 1 (the budget's where there is one, else the fit's)
     unit: str
     note: str = ""
+    k: float = COVERAGE_K  # coverage factor of `expanded`
+    stated_expanded: float | None = None  # U as the method states it (GUM budget), if it does
+    u_fit: float | None = None  # the least-squares fit's own standard uncertainty (Type A only)
+    probability: float | None = None  # coverage probability of U, when the method states it
 
     @property
     def expanded(self) -> float | None:
-        """U = k u with k = COVERAGE_K."""
-        return None if self.u is None else COVERAGE_K * self.u
+        """U = k u: the method's own where it states one, else COVERAGE_K u."""
+        if self.stated_expanded is not None:
+            return self.stated_expanded
+        return None if self.u is None else self.k * self.u
+
+    @property
+    def budgeted(self) -> bool:
+        """Whether u and U come from a GUM budget (Type A and B) rather than the fit alone."""
+        return self.stated_expanded is not None
 
     @property
     def relative(self) -> float | None:
@@ -72,11 +88,21 @@ def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any]) -> Itera
         if key == "coefficients" and isinstance(item, Mapping):
             yield from _walk(item, where, units)
         elif _is_quantity(item):
-            unit = str(item.get("unit", units.get(key, "")))
-            yield CoefficientRow(where or key, key, _number(item["value"]), _number(item.get("sigma")), unit,
-                                 str(item.get("note", "")))  # fmt: skip
+            yield _row(where or key, key, item, str(item.get("unit", units.get(key, ""))))
         elif isinstance(item, Mapping) and key != "units":
             yield from _walk(item, f"{where}.{key}" if where else key, units)
+
+
+def _row(result: str, name: str, item: Mapping[str, Any], unit: str) -> CoefficientRow:
+    sigma = _number(item.get("sigma"))
+    u = _number(item.get("standard_uncertainty"))
+    big_u, k = _number(item.get("expanded_uncertainty")), _number(item.get("coverage_factor"))
+    if u is None or big_u is None or k is None:
+        return CoefficientRow(result, name, _number(item["value"]), sigma, unit, str(item.get("note", "")),
+                              u_fit=sigma)  # fmt: skip
+    probability = _number(item.get("coverage_probability"))
+    return CoefficientRow(result, name, _number(item["value"]), u, unit, str(item.get("note", "")), k=k,
+                          stated_expanded=big_u, u_fit=sigma, probability=probability)  # fmt: skip
 
 
 def acceptance(results: Mapping[str, Any]) -> list[tuple[str, bool, str]]:
@@ -135,6 +161,9 @@ def format_rows(rows: list[CoefficientRow]) -> list[str]:
         text = f"  {r.name:{width}s} = {format_value(r.value)}{unit}"
         if r.u is not None:
             rel = f", u/|value| = {r.relative:.1e}" if r.relative is not None else ""
-            text += f"   u = {r.u:.2e}{unit}, U = {r.expanded:.2e}{unit} (k = {COVERAGE_K:g}){rel}"
+            p = f", {100 * r.probability:.0f} %" if r.probability is not None else ""
+            text += f"   u = {r.u:.2e}{unit}, U = {r.expanded:.2e}{unit} (k = {r.k:.2f}{p}){rel}"
+            if r.budgeted and r.u_fit is not None:
+                text += f"; fit alone {r.u_fit:.2e}"
         lines.append(text)
     return lines
