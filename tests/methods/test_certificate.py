@@ -1,0 +1,149 @@
+"""The calibration certificate (issue 15): conformity rule, instrument file, ISO/IEC 17025 7.8 content, PDF pages.
+
+The seed-000 analysis of a simulated session must give the result JSON of issue 15 (per coefficient
+value, unit, u, nu_eff, k, p, U; covariance; budget rows; provenance) and write an HTML and a PDF
+certificate whose every page says SIMULATED and carries its page number.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from methods.common.certificate import (
+    CertificateError,
+    Limit,
+    conformity,
+    load_instrument_spec,
+)
+from methods.seed000.procedure import analyse_integral, analyse_multi_frequency
+from models.config import default_twin
+from models.plan import multiposition_plan, seed000_plan
+from models.session_sim import simulate_session
+from station.jsonsafe import json_safe
+
+PROVENANCE = {"simulated": True, "station_id": "sim-test", "instrument_serial": "SIM-PIGA-0001", "seed": 3,
+              "created_utc": "2026-12-01T20:00:00+00:00", "software_version": "0.1.0+gtest", "operator": "tester",
+              "host": "ci"}  # fmt: skip
+
+
+def test_guarded_acceptance_rule() -> None:
+    lim = Limit("kzz", -2e-5, 2e-5, "rad/s/g^2")
+    assert conformity(1e-5, 5e-6, lim) == "conforms"
+    assert conformity(1.8e-5, 5e-6, lim) == "not decided"  # inside, but within U of the limit
+    assert conformity(2.2e-5, 5e-6, lim) == "not decided"  # outside, but within U
+    assert conformity(3e-5, 5e-6, lim) == "does not conform"
+    assert conformity(-3e-5, 5e-6, lim) == "does not conform"
+    assert conformity(0.0, 1.0, None) == "no limit"
+
+
+def test_instrument_file_is_checked(tmp_path: Path) -> None:
+    spec = load_instrument_spec()
+    assert set(spec.limits) == {"kz", "kzz", "ky", "k3"} and "U" in spec.decision_rule
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[decision_rule]\ntext = "x"\n[limits.kzz]\nmin = 1.0\nmax = -1.0\n')
+    with pytest.raises(CertificateError, match=r"\[limits\.kzz\] min = 1\.0, max = -1\.0: expected finite numbers"):
+        load_instrument_spec(bad)
+    bad.write_text("[limits.kzz]\nmin = 1.0\nmax = 2.0\n")
+    with pytest.raises(CertificateError, match=r"decision_rule.*must be stated"):
+        load_instrument_spec(bad)
+
+
+@pytest.fixture(scope="module")
+def analysis():
+    s = simulate_session(seed000_plan(), default_twin(), seed=3)
+    s.meta.update({"store_uid": "t15-int", "params": {}, "procedure": "seed000.integral_precession",
+                   "provenance": PROVENANCE})  # fmt: skip
+    return s, analyse_integral(s)
+
+
+def test_result_json_has_gum_fields_covariance_budget_and_provenance(analysis) -> None:
+    _, a = analysis
+    doc = json.loads(json.dumps(json_safe(a.results)))  # what the store keeps
+    r = doc["integral"]
+    for name in ("kz", "kzz", "ky", "k3"):
+        c = r["coefficients"][name]
+        assert c["unit"].startswith("rad/s/g")
+        assert c["coverage_probability"] == 0.95
+        # k is Student's t at the coefficient's effective dof, U = k u
+        assert c["coverage_factor"] == pytest.approx(scipy.stats.t.ppf(0.975, c["effective_dof"]), rel=1e-9)
+        assert c["expanded_uncertainty"] == pytest.approx(c["coverage_factor"] * c["standard_uncertainty"])
+        assert c["standard_uncertainty"] >= c["sigma"] > 0  # Type B only adds
+    cov = np.array(r["covariance"]["matrix"])
+    assert r["covariance"]["names"] == ["kz", "kzz", "ky", "k3"]
+    np.testing.assert_allclose(cov, cov.T, rtol=0, atol=1e-30)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), [r["coefficients"][n]["standard_uncertainty"]
+                                                       for n in ("kz", "kzz", "ky", "k3")], rtol=1e-9)  # fmt: skip
+    sources = {b["source"]: b for b in r["budget"]}
+    assert [b["type"] for b in r["budget"]].count("A") == 1
+    for needle in ("Zs1: z0", "Zs1: z1", "axs1", "eps_f", "A0", "local gravity", "latitude", "timer resolution",
+                   "latency", "second harmonic Zs2", "second harmonic Zc2"):  # fmt: skip
+        assert any(needle in k for k in sources), needle
+    for b in r["budget"]:
+        assert set(b) >= {"source", "type", "value", "standard_uncertainty", "sensitivity", "contribution"}
+        assert set(b["contribution"]) == {"kz", "kzz", "ky", "k3"}
+    prov = r["provenance"]
+    assert prov["session_uid"] == "t15-int" and prov["instrument_serial"] == "SIM-PIGA-0001"
+    assert prov["station_id"] == "sim-test" and prov["software_version"] == "0.1.0+gtest"
+    assert prov["operator"] == "tester" and prov["created_utc"].startswith("2026-12-01")
+    assert "eq. 21" in r["sigma_Y_eq21_is"] and "one measured rate" in r["sigma_residual_is"]
+
+
+def _no_nan(text: str) -> None:
+    assert "nan" not in text.lower().replace("nanos", ""), "a nan reached the report"
+
+
+def test_certificate_html_has_clause_7_8_content(analysis) -> None:
+    _, a = analysis
+    names = sorted(a.files)
+    assert names == ["certificate-t15-int.html", "certificate-t15-int.pdf"]
+    html = a.files["certificate-t15-int.html"].decode()
+    for needle in ("Calibration certificate", "CERT-t15-int", "sim-test", "SIM-PIGA-0001", "integral_precession",
+                   "0.1.0+gtest", "tester", "Environmental conditions", "not measured", "Decision rule",
+                   "ILAC-G8", "Traceability", "gravity survey", "counter time base", "Uncertainty budget",
+                   "Signatures", "counter(page)", "SIMULATED", "Welch-Satterthwaite", "Residuals", "<svg"):  # fmt: skip
+        assert needle in html, needle
+    for verdict in ("conforms",):
+        assert verdict in html
+    _no_nan(html)
+    _no_nan(a.report_html)
+
+
+def test_certificate_pdf_says_simulated_on_every_page(analysis, tmp_path: Path) -> None:
+    _, a = analysis
+    pdf = a.files["certificate-t15-int.pdf"]
+    assert pdf.startswith(b"%PDF")
+    if shutil.which("pdftotext") is None:
+        pytest.skip("pdftotext (poppler-utils) is not installed")
+    path = tmp_path / "c.pdf"
+    path.write_bytes(pdf)
+    text = subprocess.run(["pdftotext", "-layout", str(path), "-"], capture_output=True, text=True, check=True).stdout
+    pages = [p for p in text.split("\f") if p.strip()]
+    assert len(pages) >= 2
+    for i, page in enumerate(pages, 1):
+        assert "SIMULATED" in page, f"page {i} does not say SIMULATED"
+        assert f"page {i} of {len(pages)}" in page
+    _no_nan(text)
+
+
+def test_multi_frequency_flags_too_few_dof_and_quotes_t_based_u() -> None:
+    s = simulate_session(multiposition_plan([0.0, 45.0, 180.0], [8.0, 9.0, 10.0], 560.0), default_twin(), seed=8)
+    s.meta.update({"store_uid": "t15-mf", "params": {}, "provenance": PROVENANCE})
+    a = analyse_multi_frequency(s)
+    r = a.results["integral"]
+    assert r["dof"] == 5 and r["few_dof"] == ["kz", "kzz", "ky", "k3"]
+    for c in r["coefficients"].values():
+        # 5 <= nu_eff < 10 (Type B inputs add dof-free variance): k between t_95(10) = 2.228 and t_95(5) = 2.571
+        assert 2.228 < c["coverage_factor"] <= 2.571 + 1e-3
+        assert math.isclose(c["expanded_uncertainty"], c["coverage_factor"] * c["standard_uncertainty"])
+    assert "few dof" in a.summary
+    assert "fewer than 10 effective degrees of freedom" in a.report_html
+    assert "Few degrees of freedom" in a.files["certificate-t15-mf.html"].decode()
