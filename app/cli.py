@@ -32,7 +32,7 @@ from devices.errors import DriverError
 from engine.context import ValidationError
 from engine.params import ParameterError
 from engine.planning import plan_procedure
-from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
+from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file, procedure_file_serial
 from methods.common.least_squares import FitError
 from methods.seed000.identify import METHODS, identify
 from models.config import TwinConfig, TwinConfigError, default_twin
@@ -40,7 +40,7 @@ from models.plan import seed000_plan
 from models.session_sim import simulate_session
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.errors import StationError
-from station.interchange import SessionFormatError, read_session, write_session
+from station.interchange import SessionFormatError, content_hash, read_session, write_session
 from station.store import SessionStore, StoreError
 from web.cli import add_commands as add_panel_commands
 
@@ -70,7 +70,9 @@ def _load_twin(path: str | None) -> TwinConfig:
     return TwinConfig.from_toml(path) if path else default_twin()
 
 
-def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid: str | None = None) -> int:
+def _run(
+    args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid: str | None = None, serial: str = ""
+) -> int:
     """Plan (dry run) before anything moves, run on the station of --station (simulated or real), then
     analyse, report and export."""
     config = load_station(args.station)
@@ -89,7 +91,7 @@ def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid
             controller_for(config, hw, store, out, args.telemetry) as controller,
         ):
             outcome = run_with_progress(
-                controller, spec.name, params, instrument_serial=args.serial, resume_uid=resume_uid
+                controller, spec.name, params, instrument_serial=args.serial or serial, resume_uid=resume_uid
             )
         write_outputs(store, outcome, out, sys.stdout)
     return exit_code(outcome)
@@ -97,11 +99,11 @@ def _run(args: argparse.Namespace, spec: ProcedureSpec, params: dict, resume_uid
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """The main job: seed 000's session through engine, drivers and emulators; stored, identified, reported."""
-    return _run(args, *load_procedure_file(args.procedure))
+    return _run(args, *load_procedure_file(args.procedure), serial=procedure_file_serial(args.procedure))
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    return _run(args, *load_procedure_file(args.procedure_file))
+    return _run(args, *load_procedure_file(args.procedure_file), serial=procedure_file_serial(args.procedure_file))
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
@@ -171,7 +173,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_sessions(args: argparse.Namespace) -> int:
     with SessionStore(existing_store(args.db)) as store:
         for s in store.sessions():
-            print(f"{s['uid']}  {s['created_utc']}  {s['procedure']:32s} {s['status']:9s} {s['n_points']:4d} points")
+            print(f"{s['uid']}  {s['created_utc']}  {s['procedure']:32s} {s['status']:9s} {s['n_points']:4d} points"
+                  f" {s['n_measurements']:4d} measurements")  # fmt: skip
     return 0
 
 
@@ -183,12 +186,14 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    session = read_session(args.session_dir)  # validated whole before anything is written
+    """Validate the whole directory, then store it in one transaction; the same content twice is one session."""
+    session = read_session(args.session_dir)
     with SessionStore(args.db) as store:
-        uid = store.create_session(session.station, "imported", notes=session.notes, status="imported")
-        for p in session.points:
-            store.add_point(uid, p, session.raw.get(p.point_id))
-    print(f"imported {len(session.points)} points as session {uid}")
+        uid, created = store.import_session(session, content_hash(session))
+    if not created:
+        print(f"already imported: the same content is session {uid} (nothing stored)")
+        return 0
+    print(f"imported {len(session.points)} points and {len(session.measurements)} measurements as session {uid}")
     return 0
 
 
@@ -229,7 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
             help=f"simulated station seconds per wall second, > 0 (default {DEFAULT_SPEED:g}; ignored by a real "
             "station)",
         )
-        p.add_argument("--serial", default="SIM-PIGA-0001", help="instrument serial number")
+        p.add_argument("--serial", help="instrument serial number (default: the procedure file's instrument_serial; "
+                       "required on a real station, SIM-PIGA-0001 on a simulated one)")
         p.add_argument("--telemetry", metavar="ENDPOINT", help="publish telemetry on this zmq endpoint")
         p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
 

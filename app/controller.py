@@ -92,6 +92,8 @@ class StationController:
     ) -> tuple[str, Plan]:
         """Plan, then start the run in a worker thread; (session uid, plan) once the session exists."""
         spec, plan = self.plan(procedure, params)
+        if resume_uid is None:
+            self.engine.provenance(instrument_serial)  # a real station refuses to start without a serial number
         with self._lock:
             if self.busy:
                 raise ControlError(f"a procedure is already running (session {self.engine.progress.session_uid})")

@@ -120,6 +120,7 @@ class StationConfig:
     indexing_head: IndexingHeadSection
     payload: PayloadSection
     extras: dict[str, Any] = field(default_factory=dict)  # sections of further devices (devices.registry)
+    station_id: str = ""  # top-level `station_id`: which station made a session (provenance); default: the file's stem
 
     def with_serial_ports(self, **ports: str) -> StationConfig:
         """A copy with serial ports filled in (e.g. emulator pty paths), by section name."""
@@ -250,6 +251,9 @@ def load_station_config(path: str | Path) -> StationConfig:
     simulated = doc.pop("simulated", False)
     if not isinstance(simulated, bool):
         raise ConfigError(path, "simulated", simulated, "true or false")
+    station_id = doc.pop("station_id", path.stem)
+    if not isinstance(station_id, str) or not station_id.strip():
+        raise ConfigError(path, "station_id", station_id, "a non-empty name of the station, e.g. \"lab2-table1\"")
     required = _required_sections()
     kinds = {name: kind for name, kind in device_kinds().items() if name not in required}
     for key in doc:
@@ -261,6 +265,6 @@ def load_station_config(path: str | Path) -> StationConfig:
             raise ConfigError(path, f"[{name}]", None, "a required section")
     sections = {name: _section(path, name, doc[name], simulated, cls) for name, cls in required.items()}
     extras = {name: _section(path, name, doc[name], simulated, kinds[name].section) for name in doc if name in kinds}
-    cfg = StationConfig(path=path, simulated=simulated, **sections, extras=extras)
+    cfg = StationConfig(path=path, simulated=simulated, **sections, extras=extras, station_id=station_id.strip())
     _cross_check(cfg)
     return cfg

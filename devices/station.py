@@ -74,6 +74,7 @@ class StationDevices:
     head: IndexingHead
     extra: dict[str, Any] = field(default_factory=dict)  # further devices (devices.registry), by name
     operator: Any = None  # who performs OperatorAction steps; None: a person, through the panel or console
+    seed: int | None = None  # a simulated station's random seed (recorded in every session's provenance)
     _closers: list[Callable[[], None]] = field(default_factory=list, repr=False)
     _freq_hz: float = 0.0
 
@@ -414,6 +415,7 @@ def simulated_station(
         ports = {name: emu.port for name, emu in emulators.items() if getattr(emu, "port", None)}
         devices = StationDevices.open(config.with_serial_ports(**ports), clock)
         devices.operator = world.operator
+        devices.seed = seed
     except BaseException:
         _stop_emulators(emulators)
         raise

@@ -15,6 +15,8 @@ from typing import Any
 from engine.context import NominalState, PlanContext, StationModel, ValidationError
 from engine.registry import ProcedureSpec
 from engine.steps import Step
+from station.records import RecordError
+from station.session import Measurement
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,11 @@ def plan_procedure(spec: ProcedureSpec, params: dict[str, Any], model: StationMo
             if step.key:
                 ctx.claim(step.key)
             dt, nominal = step.plan(ctx)
+            if isinstance(nominal, Measurement):  # the dry run's record must fit its declaration, as the run's will
+                try:
+                    nominal = nominal.checked()
+                except RecordError as exc:
+                    raise ValidationError(f"step {ctx.index} ({step.key}): {exc}") from None
             steps.append(PlannedStep(ctx.index, step, dt, ctx.state.t_s, nominal))
             ctx.state.t_s += dt
             ctx.index += 1

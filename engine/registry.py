@@ -118,5 +118,5 @@ def procedure_file_serial(path: str | Path) -> str:
     path = Path(path)
     serial = read_toml(path, "procedure file", ProcedureError).get("instrument_serial", "")
     if not isinstance(serial, str):
-        raise ProcedureError(f"procedure file {path}: 'instrument_serial' = {serial!r}: expected text, e.g. \"PIGA-0042\"")
+        raise ProcedureError(f"procedure file {path}: 'instrument_serial' = {serial!r}: expected text (PIGA-0042)")
     return serial.strip()

@@ -32,6 +32,7 @@ from engine.registry import ProcedureSpec
 from engine.steps import Recorded, Step
 from engine.timing import TimingFault
 from station.errors import DeviceError
+from station.provenance import make_provenance
 from station.session import Measurement, PointRecord
 from station.store import SessionStore
 
@@ -99,6 +100,7 @@ class Engine:
         self.hw = hardware
         self.clock = hardware.clock
         self.store = store
+        self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user
         self.publish: Publisher = publish or (lambda topic, msg: None)
         self.progress = Progress()
         self._lock = threading.Lock()
@@ -310,11 +312,21 @@ class Engine:
         self._publish_progress()
         return result
 
+    def provenance(self, instrument_serial: str) -> dict[str, Any]:
+        """Where a new session comes from (station.provenance): the station file's id, simulated or real, the
+        seed, the operator; ProvenanceError on a real station without an instrument serial number."""
+        cfg = getattr(self.hw, "config", None)
+        return make_provenance(
+            station_id=getattr(cfg, "station_id", "") or "unknown", simulated=bool(getattr(cfg, "simulated", True)),
+            instrument_serial=instrument_serial, seed=getattr(self.hw, "seed", None), operator=self.operator,
+        )  # fmt: skip
+
     def _open_session(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None, config: dict) -> dict:
         if resume_uid is None:
             cfg = {"procedure": spec.name, "params": plan.params, "plan": plan.to_json()} | config
-            self._session_uid = self.store.create_session(self.hw.station, spec.name, instrument_serial=serial,
-                                                          config=cfg)  # fmt: skip
+            self._session_uid = self.store.create_session(
+                self.hw.station, spec.name, instrument_serial=serial, config=cfg, provenance=self.provenance(serial)
+            )
             self.sequence = 0
             return {}
         self._session_uid = resume_uid

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from engine.timing import capture_timing, cross_check
+from station.records import Field, declare
 from station.session import Measurement, PointRecord, RawStreams
 
 if TYPE_CHECKING:
@@ -154,6 +155,25 @@ class SetVibration(Step):
 
     def run(self, ctx: RunContext) -> float:
         return ctx.set_table(self.freq_hz, self.settle_s)
+
+
+MOTION = declare(
+    "motion",
+    [Field("freq_hz", "float64", "Hz", lo=0.0, hi=100.0, doc="commanded table frequency"),
+     Field("position_deg", "float64", "deg", nullable=True, doc="indexing head angle (null before any move)")],
+    arrays=[Field("t_s", "float64", "s", doc="grating sample times, station time"),
+            Field("z_m", "float64", "m", doc="table displacement (absolute grating)"),
+            Field("reference_t_s", "float64", "s", doc="reference-mark crossings, station time")],
+    doc="a stretch of the 5 kHz grating record and the reference crossings in it (seed 000 eq. 30, Table 5)",
+)  # fmt: skip
+FREQUENCY = declare(
+    "frequency",
+    [Field("commanded_hz", "float64", "Hz", lo=0.0, hi=100.0), Field("freq_hz", "float64", "Hz", lo=0.0),
+     Field("stability", "float64", "", lo=0.0, doc="relative standard deviation of the periods"),
+     Field("periods", "int64", "", lo=2, doc="consecutive periods timed")],
+    arrays=[Field("periods_s", "float64", "s", lo=0.0, doc="the timed periods")],
+    doc="frequency and stability from consecutive reference-mark periods (seed 000 Table 6)",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -1,43 +1,70 @@
-"""Import and export of the `piga-session/1` interchange format (physics.md).
+"""Import and export of the `piga-session/1` interchange format (physics.md; docs/interchange.md).
 
-A session directory holds session.json, points.csv and optionally
-raw/<point_id>.npz. Import reads and validates everything before returning,
-so a malformed session is refused whole: nothing is half-imported. Every
-error names the file, the row, the column, the value and what is allowed.
-Export writes to a temporary directory and renames it into place.
+A session directory holds session.json, points.csv, optionally raw/<point_id>.npz (physics.md) and, for the
+sessions whose readings are not precession windows, one measurements/<kind>.csv per record type with the
+arrays of its records in measurements/arrays/<sequence>.npz; session.json declares each table's typed,
+unit-bearing columns (station/records.py) and carries the session's `provenance`. A directory with only
+physics.md's fields still imports.
+
+`read_session` reads and validates everything before returning, so a malformed session is refused whole:
+every error names the file, the row, the column, the value and what is allowed. `content_hash` identifies
+a session's measured content (independent of BOMs, line ends and column order), so that a store recognises
+a re-import. Export writes to a temporary directory and renames it into place.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Iterator
+from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from station import constants
 from station.errors import InputError
-from station.session import PointRecord, RawStreams, Session, StationInfo
+from station.provenance import ProvenanceError, check_provenance
+from station.records import Field, RecordError, RecordType, declared
+from station.session import STATION_FIELDS, Measurement, PointRecord, RawStreams, Session, StationInfo
 
 FORMAT = "piga-session/1"
 COLUMNS = ("point_id", "sequence", "start_s", "position_deg", "freq_hz", "kind", "pulses", "Tm_s", "t1_s", "t2_s", "Np")
 OPTIONAL_COLUMNS = ("dut", "pose", "temperature_c")
-STATION_KEYS = ("A0_m", "latitude_deg", "g_mps2", "earth_rate_radps", "pulses_per_rev")
+STATION_KEYS = tuple(f.name for f in STATION_FIELDS)
 RAW_ARRAYS = ("grating_t", "grating_z", "pulse_t")
+# The ranges of points.csv's numeric columns (t1_s, t2_s and Np are checked against the period T = 1/freq_hz):
+# session time up to a year, the indexing head's travel (engine.planning: +-720 deg), the table's frequency
+# (the station file allows freq_max_hz up to 100 Hz), signed counts and windows that fit the counter.
+POINT_FIELDS: dict[str, Field] = {
+    f.name: f
+    for f in (
+        Field("sequence", "int64", "", lo=0, hi=2**31 - 1),
+        Field("start_s", "float64", "s", lo=0.0, hi=3.2e7),
+        Field("position_deg", "float64", "deg", lo=-720.0, hi=720.0),
+        Field("freq_hz", "float64", "Hz", lo=0.0, hi=100.0),
+        Field("pulses", "int64", "", lo=-(2**53), hi=2**53),
+        Field("Tm_s", "float64", "s", lo=0.0, hi=1e6, lo_open=True),
+        Field("Np", "int64", "", lo=1, hi=2**31 - 1),
+    )
+}
 # t1 + Np T - Tm = t2 holds for a perfect frequency; a frequency error eps_f breaks it by
 # eps_f Np T. The real table's frequency stability is < 5e-4 (seed 000 Table 4): allow twice that.
-from station import constants
 MAX_PERIOD_MISMATCH = 2 * constants.FREQ_STABILITY_MAX
 MAX_JSON_BYTES = 64 << 20  # session.json: declarations, provenance, notes; never arrays
 MAX_ARRAY_BYTES = 4 << 30  # one decompressed array of an .npz (raw streams of a long window reach ~100 MB)
 MEASUREMENTS_DIR = "measurements"
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,127}$")
-_RESERVED = ("sequence", "key", "arrays_file")
-OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results")  # the rest of session.json: meta  # the columns of a measurements table before its fields
+_RESERVED = ("sequence", "key", "arrays_file")  # the columns of a measurements table before its fields
+OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results")  # the rest of session.json: meta
 
 
 class SessionFormatError(InputError):
@@ -69,17 +96,34 @@ def _integer(text: str, file: str, row: int, column: str) -> int:
     value = _number(text, file, row, column)
     if value != int(value) or not text.strip().lstrip("+-").isdigit():
         raise SessionFormatError(file, "expected a whole number", row, column, text)
-    return int(value)
+    return int(text)
 
 
-def _read_station(path: Path) -> tuple[StationInfo, str, dict]:
-    name = "session.json"
+def _ranged(text: str, file: str, row: int, column: str) -> float | int:
+    """A points.csv cell in its declared type and range (POINT_FIELDS)."""
+    f = POINT_FIELDS[column]
+    value = (_integer if f.dtype == "int64" else _number)(text, file, row, column)
+    if not f.in_range(value):
+        raise SessionFormatError(file, f"must be {f.allowed()}", row, column, text)
+    return value
+
+
+def _read_json(path: Path, name: str) -> Any:
     if not path.is_file():
         raise SessionFormatError(name, f"missing: a {FORMAT} directory needs {path}")
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise SessionFormatError(name, f"{path.stat().st_size} bytes; at most {MAX_JSON_BYTES >> 20} MiB")
     try:
-        data = json.loads(path.read_text())
+        return json.loads(path.read_text(encoding="utf-8-sig"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SessionFormatError(name, f"not valid JSON ({exc})") from None
+    except RecursionError:
+        raise SessionFormatError(name, "not valid JSON (nested too deeply)") from None
+
+
+def _read_station(path: Path) -> tuple[StationInfo, str, dict, dict, list[dict]]:
+    name = "session.json"
+    data = _read_json(path, name)
     if not isinstance(data, dict):
         raise SessionFormatError(name, "expected a JSON object at the top level")
     if data.get("format") != FORMAT:
@@ -88,21 +132,35 @@ def _read_station(path: Path) -> tuple[StationInfo, str, dict]:
     if not isinstance(st, dict):
         raise SessionFormatError(name, "'station' must be an object with " + ", ".join(STATION_KEYS), column="station")
     values = {}
-    for key in STATION_KEYS:
-        if key not in st:
-            raise SessionFormatError(name, "missing station key", column=f"station.{key}")
-        v = st[key]
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
-            raise SessionFormatError(name, "expected a positive finite number", column=f"station.{key}", value=v)
-        values[key] = v
-    if values["pulses_per_rev"] != int(values["pulses_per_rev"]):
-        raise SessionFormatError(
-            name, "expected a whole number", column="station.pulses_per_rev", value=values["pulses_per_rev"]
-        )
-    values["pulses_per_rev"] = int(values["pulses_per_rev"])
+    for f in STATION_FIELDS:
+        column = f"station.{f.name}"
+        if f.name not in st:
+            raise SessionFormatError(name, f"missing station key (allowed: {f.allowed()})", column=column)
+        try:
+            values[f.name] = f.coerce(st[f.name], name)
+        except RecordError:
+            raise SessionFormatError(name, f"must be {f.allowed()}", column=column, value=st[f.name]) from None
     notes = data.get("notes", "")
-    meta = {k: v for k, v in data.items() if k not in ("format", "station", "notes")}
-    return StationInfo(**values), notes if isinstance(notes, str) else json.dumps(notes), meta
+    try:
+        provenance = check_provenance(data["provenance"], name) if "provenance" in data else {}
+    except ProvenanceError as exc:
+        raise SessionFormatError(name, str(exc).removeprefix(f"{name}: "), column="provenance") from None
+    tables = data.get("measurements", [])
+    if not isinstance(tables, list):
+        raise SessionFormatError(
+            name, "'measurements' must be a list of record type declarations", column="measurements"
+        )
+    meta = {k: v for k, v in data.items() if k not in OWN_KEYS}
+    results = data.get("results", [])
+    if not isinstance(results, list) or not all(
+        isinstance(r, dict) and isinstance(r.get("method"), str) and isinstance(r.get("created_utc"), str)
+        and isinstance(r.get("result"), dict) for r in results
+    ):  # fmt: skip
+        raise SessionFormatError(name, "'results' must be a list of {method, created_utc, result} objects",
+                                 column="results")  # fmt: skip
+    meta["results"] = results
+    meta["declares_measurements"] = "measurements" in data
+    return StationInfo(**values), notes if isinstance(notes, str) else json.dumps(notes), meta, provenance, tables
 
 
 def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
@@ -112,21 +170,15 @@ def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
     kind = row["kind"].strip()
     if kind not in ("static", "vibration"):
         raise SessionFormatError(file, "kind must be 'static' or 'vibration'", n, "kind", row["kind"])
-    sequence = _integer(row["sequence"], file, n, "sequence")
-    if sequence < 0:
-        raise SessionFormatError(file, "sequence must be >= 0", n, "sequence", row["sequence"])
-    start = _number(row["start_s"], file, n, "start_s")
-    if start < 0:
-        raise SessionFormatError(file, "start_s must be >= 0 (session time)", n, "start_s", row["start_s"])
-    position = _number(row["position_deg"], file, n, "position_deg")
-    freq = _number(row["freq_hz"], file, n, "freq_hz")
-    pulses = _integer(row["pulses"], file, n, "pulses")
+    sequence = _ranged(row["sequence"], file, n, "sequence")
+    start = _ranged(row["start_s"], file, n, "start_s")
+    position = _ranged(row["position_deg"], file, n, "position_deg")
+    freq = _ranged(row["freq_hz"], file, n, "freq_hz")
+    pulses = _ranged(row["pulses"], file, n, "pulses")
     if pulses == 0:
         raise SessionFormatError(file, "pulses must be a non-zero signed count", n, "pulses", row["pulses"])
-    tm = _number(row["Tm_s"], file, n, "Tm_s")
-    if tm <= 0:
-        raise SessionFormatError(file, "Tm_s must be > 0", n, "Tm_s", row["Tm_s"])
-    extra = {k: row[k] for k in row if k not in COLUMNS and row[k] is not None}
+    tm = _ranged(row["Tm_s"], file, n, "Tm_s")
+    extra = {k: row[k] for k in row if k not in COLUMNS and row[k]}  # an empty cell: the point has no such value
     if kind == "static":
         if freq != 0:
             raise SessionFormatError(file, "a static point must have freq_hz = 0", n, "freq_hz", row["freq_hz"])
@@ -139,14 +191,12 @@ def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
     period = 1.0 / freq
     t1 = _number(row["t1_s"], file, n, "t1_s")
     t2 = _number(row["t2_s"], file, n, "t2_s")
-    n_periods = _integer(row["Np"], file, n, "Np")
+    n_periods = _ranged(row["Np"], file, n, "Np")
     slack = period * MAX_PERIOD_MISMATCH
     if not 0 < t1 <= period + slack:
         raise SessionFormatError(file, f"t1_s must lie in (0, T], T = {period:.6g} s", n, "t1_s", row["t1_s"])
     if not 0 <= t2 < period + slack:
         raise SessionFormatError(file, f"t2_s must lie in [0, T), T = {period:.6g} s", n, "t2_s", row["t2_s"])
-    if n_periods < 1:
-        raise SessionFormatError(file, "Np must be >= 1", n, "Np", row["Np"])
     if t1 >= tm:
         raise SessionFormatError(file, f"t1_s must be before Tm_s = {tm}", n, "t1_s", row["t1_s"])
     spanned = tm - t1 + t2
@@ -162,37 +212,70 @@ def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
     return PointRecord(point_id, sequence, start, position, freq, "vibration", pulses, tm, t1, t2, n_periods, extra)
 
 
-def _read_points(path: Path) -> list[PointRecord]:
-    name = "points.csv"
+def _csv_rows(path: Path, name: str, required: tuple[str, ...]) -> Iterator[tuple[int, dict[str, str]]]:
+    """The rows of a CSV file (UTF-8, with or without a BOM, LF or CRLF) as (row number, cells by column);
+    a header with a column twice, or without a required one, is refused."""
     if not path.is_file():
-        raise SessionFormatError(name, f"missing: a {FORMAT} directory needs {path}")
+        raise SessionFormatError(name, f"missing: {path}")
     try:
-        with path.open(newline="") as fh:
-            reader = csv.DictReader(fh)
-            header = reader.fieldnames or []
-            missing = [c for c in COLUMNS if c not in header]
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, [])
+            header = [h.strip() for h in header]
+            for i, h in enumerate(header):
+                if header.index(h) != i:
+                    raise SessionFormatError(name, f"column named twice (columns {header.index(h) + 1} and {i + 1})",
+                                             1, h)  # fmt: skip
+            missing = [c for c in required if c not in header]
             if missing:
                 raise SessionFormatError(
-                    name, f"missing column(s) {', '.join(missing)}; header must include {','.join(COLUMNS)}", 1
+                    name, f"missing column(s) {', '.join(missing)}; header must include {','.join(required)}", 1
                 )
-            points, seen = [], {}
-            for n, row in enumerate(reader, start=2):
-                if None in row or any(v is None for v in row.values()):
-                    raise SessionFormatError(name, f"expected {len(header)} fields", n)
-                p = _parse_row(row, name, n)
-                if p.point_id in seen:
-                    raise SessionFormatError(
-                        name, f"duplicate point_id (first on row {seen[p.point_id]})", n, "point_id", p.point_id
-                    )
-                seen[p.point_id] = n
-                points.append(p)
+            for n, cells in enumerate(reader, start=2):
+                if not cells:
+                    continue
+                if len(cells) != len(header):
+                    raise SessionFormatError(name, f"expected {len(header)} fields, found {len(cells)}", n)
+                yield n, dict(zip(header, cells, strict=True))
     except UnicodeDecodeError as exc:
         raise SessionFormatError(name, f"not UTF-8 text ({exc})") from None
     except csv.Error as exc:
         raise SessionFormatError(name, f"malformed CSV ({exc})") from None
-    if not points:
-        raise SessionFormatError(name, "no points")
+
+
+def _read_points(path: Path) -> list[PointRecord]:
+    name = "points.csv"
+    if not path.is_file():
+        raise SessionFormatError(name, f"missing: a {FORMAT} directory needs {path}")
+    points: list[PointRecord] = []
+    ids: dict[str, int] = {}
+    sequences: dict[int, int] = {}
+    for n, row in _csv_rows(path, name, COLUMNS):
+        p = _parse_row(row, name, n)
+        if p.point_id in ids:
+            raise SessionFormatError(name, f"duplicate point_id (first on row {ids[p.point_id]})", n, "point_id",
+                                     p.point_id)  # fmt: skip
+        if p.sequence in sequences:
+            raise SessionFormatError(name, f"duplicate sequence (first on row {sequences[p.sequence]})", n,
+                                     "sequence", row["sequence"])  # fmt: skip
+        ids[p.point_id], sequences[p.sequence] = n, n
+        points.append(p)
     return points
+
+
+def _load_npz(path: Path, name: str) -> dict[str, np.ndarray]:
+    """The arrays of an .npz, each member's size bounded before it is decompressed."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if info.file_size > MAX_ARRAY_BYTES:
+                    raise SessionFormatError(
+                        name, f"array larger than {MAX_ARRAY_BYTES >> 20} MiB", column=info.filename
+                    )
+        with np.load(path, allow_pickle=False) as npz:
+            return {k: np.array(npz[k]) for k in npz.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise SessionFormatError(name, f"not a readable .npz archive ({exc})") from None
 
 
 def _read_raw(raw_dir: Path, ids: set[str]) -> dict[str, RawStreams]:
@@ -204,15 +287,11 @@ def _read_raw(raw_dir: Path, ids: set[str]) -> dict[str, RawStreams]:
         pid = path.stem
         if pid not in ids:
             raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                arrays = {k: np.array(npz[k]) for k in npz.files}
-        except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            raise SessionFormatError(name, f"not a readable .npz archive ({exc})") from None
+        arrays = _load_npz(path, name)
         for key in RAW_ARRAYS:
             if key not in arrays:
                 raise SessionFormatError(name, f"missing array (needs {', '.join(RAW_ARRAYS)})", column=key)
-            a = arrays[key]
+        for key, a in arrays.items():
             if a.ndim != 1 or not np.issubdtype(a.dtype, np.number):
                 raise SessionFormatError(
                     name, f"expected a 1-D numeric array, got shape {a.shape} dtype {a.dtype}", column=key
@@ -238,21 +317,184 @@ def _read_raw(raw_dir: Path, ids: set[str]) -> dict[str, RawStreams]:
     return raws
 
 
+def _cell(f: Field, text: str, file: str, n: int) -> Any:
+    """One cell of a measurements table in its declared type: lists as JSON, an empty cell as null."""
+    if text == "" and (f.nullable or f.dtype != "str" or f.ndim):
+        value: Any = None
+    elif f.ndim:
+        try:
+            value = json.loads(text)
+        except (json.JSONDecodeError, RecursionError):
+            raise SessionFormatError(file, f"expected a JSON list ({f.allowed()})", n, f.name, text[:80]) from None
+    elif f.dtype == "float64":
+        value = _number(text, file, n, f.name)
+    elif f.dtype == "int64":
+        value = _integer(text, file, n, f.name)
+    elif f.dtype == "bool":
+        if text not in ("true", "false"):
+            raise SessionFormatError(file, "expected true or false", n, f.name, text)
+        value = text == "true"
+    else:
+        value = text
+    try:
+        return f.coerce(value, file)
+    except RecordError:
+        raise SessionFormatError(file, f"must be {f.allowed()}", n, f.name, text[:80]) from None
+
+
+def _read_measurements(d: Path, tables: list[Any]) -> tuple[list[Measurement], list[RecordType]]:
+    name = "session.json"
+    types: list[RecordType] = []
+    found: list[tuple[int, Measurement]] = []
+    keys: dict[str, str] = {}
+    sequences: dict[int, str] = {}
+    for i, doc in enumerate(tables):
+        try:
+            rt = RecordType.from_json(doc, f"measurements[{i}]")
+        except (RecordError, TypeError) as exc:
+            raise SessionFormatError(
+                name, f"bad record type declaration ({exc})", column=f"measurements[{i}]"
+            ) from None
+        if not _SAFE_NAME.match(rt.kind) or rt.kind in {t.kind for t in types}:
+            raise SessionFormatError(name, "kind must be a unique name of letters, digits, . _ + -",
+                                     column=f"measurements[{i}].kind", value=rt.kind)  # fmt: skip
+        clash = [f.name for f in rt.fields if f.name in _RESERVED]
+        if clash:
+            raise SessionFormatError(name, f"field names {', '.join(_RESERVED)} are the table's own",
+                                     column=f"measurements[{i}].fields", value=clash)  # fmt: skip
+        types.append(rt)
+        file = f"{MEASUREMENTS_DIR}/{rt.kind}.csv"
+        required = ("sequence", "key", *(f.name for f in rt.fields if not f.nullable))
+        for n, row in _csv_rows(d / file, file, required):
+            unknown = sorted(set(row) - {*_RESERVED, *(f.name for f in rt.fields)})
+            if unknown:
+                raise SessionFormatError(file, f"column not declared in session.json for kind {rt.kind!r}", 1,
+                                         unknown[0])  # fmt: skip
+            seq = _integer(row["sequence"], file, n, "sequence")
+            key = row["key"]
+            if not key:
+                raise SessionFormatError(file, "key must not be empty", n, "key", key)
+            if key in keys:
+                raise SessionFormatError(file, f"duplicate key (first in {keys[key]})", n, "key", key)
+            if seq in sequences:
+                raise SessionFormatError(file, f"duplicate sequence (first in {sequences[seq]})", n, "sequence", seq)
+            keys[key] = sequences[seq] = f"{file} row {n}"
+            values = {f.name: _cell(f, row[f.name], file, n) for f in rt.fields if f.name in row}
+            values = {k: v for k, v in values.items() if v is not None or rt.field(k).nullable}
+            arrays = _measurement_arrays(d, rt, row.get("arrays_file", ""), file, n)
+            found.append((seq, Measurement(key, rt.kind, values, arrays)))
+    return [m for _, m in sorted(found, key=lambda sm: sm[0])], types
+
+
+def _measurement_arrays(d: Path, rt: RecordType, ref: str, file: str, n: int) -> dict[str, np.ndarray]:
+    if not ref:
+        return {}
+    rel = Path(ref)
+    if rel.is_absolute() or ".." in rel.parts or rel.parts[:2] != (MEASUREMENTS_DIR, "arrays"):
+        raise SessionFormatError(file, f"must name a file in {MEASUREMENTS_DIR}/arrays/", n, "arrays_file", ref)
+    arrays = _load_npz(d / rel, ref)
+    try:
+        return rt.check_arrays(arrays, ref)
+    except RecordError as exc:
+        raise SessionFormatError(ref, f"must be {exc.allowed}", column=exc.name, value=exc.value) from None
+
+
 def read_session(directory: str | os.PathLike) -> Session:
     """Read and validate a piga-session/1 directory; raise SessionFormatError on any defect."""
     d = Path(directory)
     if not d.is_dir():
         raise SessionFormatError(str(d), "not a directory")
-    station, notes, meta = _read_station(d / "session.json")
+    station, notes, meta, provenance, tables = _read_station(d / "session.json")
     points = _read_points(d / "points.csv")
     raw = _read_raw(d / "raw", {p.point_id for p in points})
-    return Session(station, points, notes=notes, raw=raw, meta=meta)
+    measurements, types = _read_measurements(d, tables)
+    results = meta.pop("results")
+    if not points and not measurements and not meta.pop("declares_measurements"):
+        raise SessionFormatError("points.csv", "no points (and no 'measurements' in session.json)")
+    meta.pop("declares_measurements", None)
+    return Session(station, points, notes=notes, raw=raw, meta=meta, measurements=measurements,
+                   provenance=provenance, record_types=types, results=results)  # fmt: skip
+
+
+def _digest_array(h: Any, name: str, a: np.ndarray | None) -> None:
+    if a is None:
+        return
+    a = np.ascontiguousarray(a)
+    h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+    h.update(memoryview(a).cast("B"))
+
+
+def content_hash(session: Session) -> str:
+    """SHA-256 of what the session measured: station, points, measurements and every array (not notes, not
+    the provenance, not how the files were laid out)."""
+    h = hashlib.sha256()
+    doc = {
+        "station": asdict(session.station),
+        "points": [asdict(p) for p in session.points],
+        "measurements": [[m.key, m.kind, m.values] for m in session.measurements],
+    }
+    h.update(json.dumps(doc, sort_keys=True, allow_nan=False).encode())
+    for m in session.measurements:
+        for name in sorted(m.arrays):
+            _digest_array(h, f"{m.key}/{name}", np.asarray(m.arrays[name]))
+    for pid in sorted(session.raw):
+        r = session.raw[pid]
+        for name in ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t"):
+            _digest_array(h, f"{pid}/{name}", getattr(r, name))
+    return h.hexdigest()
 
 
 def _fmt(value) -> str:
     if value is None:
         return ""
     return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def _fmt_cell(f: Field, value: Any) -> str:
+    if value is None:
+        return ""
+    if f.ndim:
+        return json.dumps(value, allow_nan=False)
+    if f.dtype == "bool":
+        return "true" if value else "false"
+    return _fmt(value)
+
+
+def _session_types(session: Session) -> list[RecordType]:
+    """The declaration of every kind the session's measurements have (the session's own, else this process's)."""
+    own = {rt.kind: rt for rt in session.record_types}
+    out = []
+    for kind in dict.fromkeys(m.kind for m in session.measurements):
+        rt = own.get(kind) or declared(kind)
+        if rt is None:
+            raise SessionFormatError(f"{MEASUREMENTS_DIR}/{kind}.csv", "no record type declared for this kind",
+                                     value=kind)  # fmt: skip
+        out.append(rt)
+    return out
+
+
+def _write_measurements(session: Session, tmp: Path) -> list[dict]:
+    types = _session_types(session)
+    if not types:
+        return []
+    (tmp / MEASUREMENTS_DIR / "arrays").mkdir(parents=True)
+    for rt in types:
+        with (tmp / MEASUREMENTS_DIR / f"{rt.kind}.csv").open("w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(["sequence", "key", *(f.name for f in rt.fields), *(["arrays_file"] if rt.arrays else [])])
+            for seq, m in enumerate(session.measurements):
+                if m.kind != rt.kind:
+                    continue
+                values = rt.check_values(m.values, f"measurement {m.key!r}")
+                row = [str(seq), m.key, *(_fmt_cell(f, values.get(f.name)) for f in rt.fields)]
+                if rt.arrays:
+                    ref = ""
+                    if m.arrays:
+                        ref = f"{MEASUREMENTS_DIR}/arrays/{seq}.npz"
+                        np.savez_compressed(tmp / ref, **rt.check_arrays(m.arrays, f"measurement {m.key!r}"))
+                    row.append(ref)
+                w.writerow(row)
+    return [rt.to_json() | {"file": f"{MEASUREMENTS_DIR}/{rt.kind}.csv"} for rt in types]
 
 
 def write_session(session: Session, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
@@ -264,12 +506,18 @@ def write_session(session: Session, directory: str | os.PathLike, *, overwrite: 
     tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
     try:
         st = session.station
-        doc = {"format": FORMAT, "station": {k: getattr(st, k) for k in STATION_KEYS}, "notes": session.notes}
-        doc.update({k: v for k, v in session.meta.items() if k not in doc})
+        doc: dict[str, Any] = {"format": FORMAT, "station": {k: getattr(st, k) for k in STATION_KEYS},
+                               "notes": session.notes}  # fmt: skip
+        if session.provenance:
+            doc["provenance"] = session.provenance
+        doc.update({k: v for k, v in session.meta.items() if k not in OWN_KEYS})
         doc.setdefault("raw_time_origin", "the window's opening edge (t = 0)")
-        (tmp / "session.json").write_text(json.dumps(doc, indent=2))
+        doc["measurements"] = _write_measurements(session, tmp)
+        if session.results:
+            doc["results"] = session.results
+        (tmp / "session.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
         extras = sorted({k for p in session.points for k in p.extra})
-        with (tmp / "points.csv").open("w", newline="") as fh:
+        with (tmp / "points.csv").open("w", newline="", encoding="utf-8") as fh:
             w = csv.writer(fh)
             w.writerow([*COLUMNS, *extras])
             for p in session.points:

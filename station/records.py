@@ -158,7 +158,8 @@ class RecordType:
         return self._by_name[name]
 
     def check_values(self, values: Mapping[str, Any], where: str) -> dict[str, Any]:
-        """Every declared field present (a nullable one may be missing), no undeclared one; typed copies."""
+        """Every declared field present (a nullable one may be missing: it becomes null), no undeclared one; typed
+        copies, every declared field in declaration order (a record is a row of its kind's table)."""
         where = f"{where} ({self.kind})"
         unknown = sorted(set(values) - set(self._by_name))
         if unknown:
@@ -167,8 +168,7 @@ class RecordType:
         for f in self.fields:
             if f.name not in values and not f.nullable:
                 raise RecordError(where, f.name, "<missing>", f.allowed())
-            if f.name in values:
-                out[f.name] = f.coerce(values[f.name], where)
+            out[f.name] = f.coerce(values.get(f.name), where)
         return out
 
     def check_arrays(self, arrays: Mapping[str, np.ndarray], where: str) -> dict[str, np.ndarray]:

@@ -113,7 +113,9 @@ class Measurement:
         where = f"measurement {self.key!r}"
         if rt is None:
             raise RecordError(where, "kind", self.kind, "a kind some method declares (station.records.declare)")
-        return Measurement(self.key, self.kind, rt.check_values(self.values, where), rt.check_arrays(self.arrays, where))
+        return Measurement(
+            self.key, self.kind, rt.check_values(self.values, where), rt.check_arrays(self.arrays, where)
+        )
 
 
 @dataclass
@@ -124,6 +126,9 @@ class Session:
     raw: dict[str, RawStreams] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
     measurements: list[Measurement] = field(default_factory=list)
+    provenance: dict[str, Any] = field(default_factory=dict)  # station.provenance.PROVENANCE_KEYS
+    record_types: list[RecordType] = field(default_factory=list)  # the declarations of the measurements' kinds
+    results: list[dict[str, Any]] = field(default_factory=list)  # the analyses' results: {method, created_utc, result}
 
     def rates_radps(self) -> np.ndarray:
         return np.array([p.measured_rate_radps(self.station.pulses_per_rev) for p in self.points])

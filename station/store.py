@@ -1,9 +1,13 @@
 """Crash-safe session store: SQLite in WAL mode with one transaction per finished point.
 
-Tables: sessions, points, raw (arrays as .npy blobs), events, results, and
-schema_version for explicit migrations. Each point and its raw arrays are
-committed together with synchronous=FULL, so a point is durable before the
-next one starts and a crash (even kill -9) leaves every finished point readable.
+Tables: sessions (with provenance and, for an import, its content hash), points, raw (arrays as .npy
+blobs), measurements with their arrays and the declared record types of each session (station/records.py),
+events, results. The schema version is SQLite's `PRAGMA user_version`, raised by ordered migrations
+(`MIGRATIONS`), each in its own transaction; a store newer than the software is refused. The release before
+user_version kept its version in a table `schema_version` (2), which is read once and kept in step so that
+older software refuses a newer store too. Each point and its raw arrays are committed together with
+synchronous=FULL, so a point is durable before the next one starts and a crash (even kill -9) leaves every
+finished point readable. An import is one transaction: all of it or none of it.
 """
 
 from __future__ import annotations
@@ -13,19 +17,20 @@ import json
 import sqlite3
 import threading
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
 from station.errors import StationFault
+from station.provenance import local_provenance, software_version, unknown_provenance
+from station.records import RecordError, RecordType, declared, infer_record_type
 from station.session import Measurement, PointRecord, RawStreams, Session, StationInfo
 
-SCHEMA_VERSION = 2  # 2: measurements, measurement_arrays
-_SCHEMA = """
+_V1 = """
 CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS sessions (
     id INTEGER PRIMARY KEY,
@@ -79,6 +84,8 @@ CREATE TABLE IF NOT EXISTS results (
     result_json TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS points_by_session ON points(session_id, sequence);
+"""
+_V2 = """
 CREATE TABLE IF NOT EXISTS measurements (
     id INTEGER PRIMARY KEY,
     session_id INTEGER NOT NULL REFERENCES sessions(id),
@@ -95,11 +102,23 @@ CREATE TABLE IF NOT EXISTS measurement_arrays (
     PRIMARY KEY (measurement_row, name)
 );
 """
+_V3 = """
+ALTER TABLE sessions ADD COLUMN provenance_json TEXT NOT NULL DEFAULT '{}';
+ALTER TABLE sessions ADD COLUMN content_hash TEXT;
+CREATE UNIQUE INDEX sessions_by_content ON sessions(content_hash) WHERE content_hash IS NOT NULL;
+CREATE TABLE record_types (
+    session_id INTEGER NOT NULL REFERENCES sessions(id),
+    kind TEXT NOT NULL,
+    declaration_json TEXT NOT NULL,
+    PRIMARY KEY (session_id, kind)
+);
+"""
 _RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 
 
 class StoreError(StationFault):
-    """A store operation that names an unknown session or would duplicate a point."""
+    """A store operation that names an unknown session, would duplicate a point, or a store this software
+    cannot read."""
 
 
 def _now() -> str:
@@ -116,6 +135,94 @@ def _from_blob(b: bytes) -> np.ndarray:
     return np.load(io.BytesIO(b), allow_pickle=False)
 
 
+def _script(sql: str) -> Callable[[sqlite3.Connection], None]:
+    def run(db: sqlite3.Connection) -> None:
+        for stmt in sql.strip().split(";"):
+            if stmt.strip():
+                db.execute(stmt)
+
+    return run
+
+
+def _merged_type(kind: str, records: list[tuple[dict, dict]]) -> RecordType:
+    """One declaration for a kind's records stored before records were declared: per field, the widest dtype
+    seen (int64 + float64 = float64) and nullable where a record lacks it or holds null."""
+    types = [infer_record_type(kind, v, a) for v, a in records]
+    fields: dict[str, dict] = {}
+    for rt in types:
+        for f in rt.fields:
+            seen = fields.setdefault(f.name, f.to_json() | {"count": 0})
+            seen["count"] += 1
+            if f.nullable:
+                seen["nullable"] = True
+            elif seen["dtype"] == "str" and seen.get("nullable"):
+                seen["dtype"], seen["ndim"] = f.dtype, f.ndim
+            elif {seen["dtype"], f.dtype} == {"int64", "float64"}:
+                seen["dtype"] = "float64"
+    doc = {
+        "kind": kind,
+        "fields": [
+            {k: v for k, v in f.items() if k != "count"} | ({"nullable": True} if f["count"] < len(types) else {})
+            for f in fields.values()
+        ],
+        "arrays": [a.to_json() for a in {a.name: a for rt in types for a in rt.arrays}.values()],
+        "doc": "inferred from records stored before records were declared: units unknown",
+    }
+    return RecordType.from_json(doc, f"record type {kind}")
+
+
+def _migrate_v3(db: sqlite3.Connection) -> None:
+    """Provenance (unknown but for what the store held: serial, time) and the record types of stored records."""
+    _script(_V3)(db)
+    for sid, serial, created in db.execute("SELECT id, instrument_serial, created_utc FROM sessions").fetchall():
+        prov = unknown_provenance(instrument_serial=serial or None, created_utc=created)
+        db.execute("UPDATE sessions SET provenance_json = ? WHERE id = ?", (json.dumps(prov), sid))
+    rows = db.execute("SELECT id, session_id, kind, values_json FROM measurements ORDER BY id").fetchall()
+    by_kind: dict[tuple[int, str], list[tuple[dict, dict]]] = {}
+    for row_id, sid, kind, values_json in rows:
+        arrays = {
+            n: _from_blob(b)
+            for n, b in db.execute("SELECT name, data FROM measurement_arrays WHERE measurement_row = ?", (row_id,))
+        }
+        by_kind.setdefault((sid, kind), []).append((json.loads(values_json), arrays))
+    for (sid, kind), records in by_kind.items():
+        db.execute(
+            "INSERT INTO record_types VALUES (?, ?, ?)", (sid, kind, json.dumps(_merged_type(kind, records).to_json()))
+        )
+
+
+def _migrate_v4(db: sqlite3.Connection) -> None:
+    """Widen the sessions' status CHECK by 'interrupted': a constraint that admits more changes no stored row, so
+    the table definition is edited in place (SQLite's documented writable_schema route, schema cookie bumped)."""
+    (sql,) = db.execute("SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'sessions'").fetchone()
+    if "'interrupted'" in sql:
+        return
+    (cookie,) = db.execute("PRAGMA schema_version").fetchone()
+    db.execute("PRAGMA writable_schema = ON")
+    db.execute(
+        "UPDATE sqlite_master SET sql = replace(sql, '''imported'')', '''imported'', ''interrupted'')')"
+        " WHERE type = 'table' AND name = 'sessions'"
+    )
+    db.execute(f"PRAGMA schema_version = {int(cookie) + 1:d}")
+    db.execute("PRAGMA writable_schema = OFF")
+
+
+@dataclass(frozen=True)
+class Migration:
+    version: int
+    name: str
+    apply: Callable[[sqlite3.Connection], None]
+
+
+MIGRATIONS: tuple[Migration, ...] = (
+    Migration(1, "sessions, points, raw arrays, events, results", _script(_V1)),
+    Migration(2, "measurements and their arrays", _script(_V2)),
+    Migration(3, "provenance, content hash of imports, declared record types", _migrate_v3),
+    Migration(4, "status 'interrupted' (found running with no live process)", _migrate_v4),
+)
+SCHEMA_VERSION = MIGRATIONS[-1].version
+
+
 class SessionStore:
     """One SQLite file; safe to open from several processes (WAL)."""
 
@@ -125,21 +232,49 @@ class SessionStore:
         # One connection shared by the engine and control threads: every use holds the lock.
         self._lock = threading.RLock()
         self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=FULL")
-        self._db.execute("PRAGMA foreign_keys=ON")
+        try:
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._migrate()
+        except BaseException:
+            self._db.close()
+            raise
+
+    def _version(self) -> int:
+        (version,) = self._db.execute("PRAGMA user_version").fetchone()
+        if version:
+            return int(version)
+        legacy = self._db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'schema_version'")
+        if legacy.fetchone() is None:
+            return 0
+        row = self._db.execute("SELECT version FROM schema_version").fetchone()
+        return int(row[0]) if row else 0
+
+    def _migrate(self) -> None:
+        """Apply the migrations this store lacks, in order, each in its own transaction."""
         with self._tx():
-            for stmt in _SCHEMA.strip().split(";"):
-                if stmt.strip():
-                    self._db.execute(stmt)
-            row = self._db.execute("SELECT version FROM schema_version").fetchone()
-            if row is None:
-                self._db.execute("INSERT INTO schema_version VALUES (?)", (SCHEMA_VERSION,))
-            elif row[0] > SCHEMA_VERSION:
-                raise StoreError(f"{self.path} has schema version {row[0]}; this software reads up to {SCHEMA_VERSION}")
-            elif row[0] < SCHEMA_VERSION:
-                # Migrations so far only add tables, which the schema script has just created.
-                self._db.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
+            version = self._version()
+        if version > SCHEMA_VERSION:
+            raise StoreError(
+                f"{self.path} has schema version {version}, newer than this software reads ({SCHEMA_VERSION}): "
+                f"open it with the station software that wrote it, or upgrade (this is {software_version()})"
+            )
+        for m in MIGRATIONS:
+            if m.version <= version:
+                continue
+            with self._tx() as db:
+                if self._version() >= m.version:  # another process migrated meanwhile
+                    continue
+                m.apply(db)
+                db.execute(f"PRAGMA user_version = {m.version:d}")
+                db.execute("DELETE FROM schema_version")
+                db.execute("INSERT INTO schema_version VALUES (?)", (m.version,))
+
+    @property
+    def schema_version(self) -> int:
+        with self._lock:
+            return self._version()
 
     def close(self) -> None:
         self._db.close()
@@ -168,6 +303,38 @@ class SessionStore:
             raise StoreError(f"no session {uid!r} in {self.path}")
         return int(row[0])
 
+    @staticmethod
+    def _insert_session(
+        db: sqlite3.Connection,
+        station: StationInfo,
+        procedure: str,
+        instrument_serial: str,
+        config: dict,
+        notes: str,
+        status: str,
+        provenance: dict,
+        content_hash: str | None = None,
+    ) -> tuple[str, int]:
+        uid = datetime.now(UTC).strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:8]
+        cur = db.execute(
+            "INSERT INTO sessions (uid, created_utc, procedure, instrument_serial, status, station_json,"
+            " config_json, notes, provenance_json, content_hash)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                uid,
+                _now(),
+                procedure,
+                instrument_serial,
+                status,
+                json.dumps(asdict(station)),
+                json.dumps(config),
+                notes,
+                json.dumps(provenance),
+                content_hash,
+            ),
+        )
+        return uid, int(cur.lastrowid)
+
     def create_session(
         self,
         station: StationInfo,
@@ -177,79 +344,131 @@ class SessionStore:
         config: dict | None = None,
         notes: str = "",
         status: str = "running",
+        provenance: dict | None = None,
     ) -> str:
-        uid = datetime.now(UTC).strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:8]
+        """A new session; `provenance` from station.provenance.make_provenance (what the store alone knows
+        - software, host, operator, time, serial - when not given)."""
+        if provenance is None:
+            provenance = local_provenance(instrument_serial=instrument_serial or None)
+        serial = instrument_serial or provenance.get("instrument_serial") or ""
         with self._tx() as db:
-            db.execute(
-                "INSERT INTO sessions (uid, created_utc, procedure, instrument_serial, status, station_json,"
-                " config_json, notes)"
-                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                (
-                    uid,
-                    _now(),
-                    procedure,
-                    instrument_serial,
-                    status,
-                    json.dumps(asdict(station)),
-                    json.dumps(config or {}),
-                    notes,
-                ),
-            )
+            uid, _ = self._insert_session(
+                db, station, procedure, serial, config or {}, notes, status, provenance
+            )  # fmt: skip
         return uid
+
+    @staticmethod
+    def _insert_point(db: sqlite3.Connection, sid: int, point: PointRecord, raw: RawStreams | None) -> None:
+        cur = db.execute(
+            "INSERT INTO points (session_id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses,"
+            " Tm_s, t1_s, t2_s, Np, extra_json, recorded_utc)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                sid,
+                point.point_id,
+                point.sequence,
+                point.start_s,
+                point.position_deg,
+                point.freq_hz,
+                point.kind,
+                point.pulses,
+                point.Tm_s,
+                point.t1_s,
+                point.t2_s,
+                point.Np,
+                json.dumps(point.extra),
+                _now(),
+            ),
+        )
+        if raw is not None:
+            for name in _RAW_FIELDS:
+                arr = getattr(raw, name)
+                if arr is not None:
+                    db.execute("INSERT INTO raw VALUES (?, ?, ?)", (cur.lastrowid, name, _to_blob(arr)))
 
     def add_point(self, uid: str, point: PointRecord, raw: RawStreams | None = None) -> None:
         """Store one finished point and its raw arrays in a single durable transaction."""
         sid = self._session_row(uid)
         try:
             with self._tx() as db:
-                cur = db.execute(
-                    "INSERT INTO points (session_id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses,"
-                    " Tm_s, t1_s, t2_s, Np, extra_json, recorded_utc)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                    (
-                        sid,
-                        point.point_id,
-                        point.sequence,
-                        point.start_s,
-                        point.position_deg,
-                        point.freq_hz,
-                        point.kind,
-                        point.pulses,
-                        point.Tm_s,
-                        point.t1_s,
-                        point.t2_s,
-                        point.Np,
-                        json.dumps(point.extra),
-                        _now(),
-                    ),
-                )
-                if raw is not None:
-                    for name in _RAW_FIELDS:
-                        arr = getattr(raw, name)
-                        if arr is not None:
-                            db.execute("INSERT INTO raw VALUES (?, ?, ?)", (cur.lastrowid, name, _to_blob(arr)))
+                self._insert_point(db, sid, point, raw)
         except sqlite3.IntegrityError as exc:
             raise StoreError(
                 f"session {uid}: point {point.point_id!r} (sequence {point.sequence}) is already stored"
             ) from exc
 
-    def add_measurement(self, uid: str, m: Measurement) -> None:
-        """Store one finished measurement and its arrays in a single durable transaction."""
+    def _record_type(self, db: sqlite3.Connection, sid: int, kind: str, given: RecordType | None) -> RecordType:
+        """The session's declaration of `kind`: stored with its first record, then the one every record uses."""
+        row = db.execute("SELECT declaration_json FROM record_types WHERE session_id = ? AND kind = ?", (sid, kind))
+        stored = row.fetchone()
+        if stored is not None:
+            rt = RecordType.from_json(json.loads(stored[0]), f"{self.path} record type")
+            if given is not None and given.to_json() != rt.to_json():
+                raise StoreError(
+                    f"record type {kind!r}: this software declares it otherwise than the session holds it "
+                    f"(stored {rt.to_json()}, declared {given.to_json()})"
+                )
+            return rt
+        if given is None:
+            raise StoreError(
+                f"measurement kind {kind!r} is not declared: a method declares its record types "
+                "(station.records.declare) before it records them"
+            )
+        db.execute("INSERT INTO record_types VALUES (?, ?, ?)", (sid, kind, json.dumps(given.to_json())))
+        return given
+
+    def _insert_measurement(self, db: sqlite3.Connection, sid: int, m: Measurement, rt: RecordType | None) -> None:
+        rt = self._record_type(db, sid, m.kind, rt or declared(m.kind))
+        try:
+            m = m.checked(rt)
+        except RecordError as exc:
+            raise StoreError(str(exc)) from exc
+        cur = db.execute(
+            "INSERT INTO measurements (session_id, key, kind, values_json, recorded_utc) VALUES (?, ?, ?, ?, ?)",
+            (sid, m.key, m.kind, json.dumps(m.values), _now()),
+        )
+        for name, arr in m.arrays.items():
+            db.execute("INSERT INTO measurement_arrays VALUES (?, ?, ?)", (cur.lastrowid, name, _to_blob(arr)))
+
+    def add_measurement(self, uid: str, m: Measurement, record_type: RecordType | None = None) -> None:
+        """Store one finished measurement and its arrays in a single durable transaction, checked against its
+        declared record type (station.records)."""
         sid = self._session_row(uid)
         try:
             with self._tx() as db:
-                cur = db.execute(
-                    "INSERT INTO measurements (session_id, key, kind, values_json, recorded_utc)"
-                    " VALUES (?, ?, ?, ?, ?)",
-                    (sid, m.key, m.kind, json.dumps(m.values), _now()),
-                )
-                for name, arr in m.arrays.items():
-                    db.execute(
-                        "INSERT INTO measurement_arrays VALUES (?, ?, ?)",
-                        (cur.lastrowid, name, _to_blob(np.asarray(arr))),
-                    )
+                self._insert_measurement(db, sid, m, record_type)
         except sqlite3.IntegrityError as exc:
             raise StoreError(f"session {uid}: measurement {m.key!r} is already stored") from exc
+
+    def import_session(self, session: Session, content_hash: str) -> tuple[str, bool]:
+        """Store a whole validated session in one transaction: (uid, True), or (uid of the session already
+        imported with the same content hash, False). Nothing is written when any record is refused."""
+        with self._lock:
+            row = self._db.execute("SELECT uid FROM sessions WHERE content_hash = ?", (content_hash,)).fetchone()
+        if row is not None:
+            return str(row[0]), False
+        meta = session.meta
+        procedure = str(meta.get("procedure") or "imported")
+        config = {"imported_procedure": meta.get("procedure"), "params": meta.get("params", {})}
+        provenance = session.provenance or unknown_provenance()
+        serial = str(meta.get("instrument_serial") or provenance.get("instrument_serial") or "")
+        types = {rt.kind: rt for rt in session.record_types}
+        try:
+            with self._tx() as db:
+                uid, sid = self._insert_session(db, session.station, procedure, serial, config, session.notes,
+                                                "imported", provenance, content_hash)  # fmt: skip
+                for p in session.points:
+                    self._insert_point(db, sid, p, session.raw.get(p.point_id))
+                for m in session.measurements:
+                    self._insert_measurement(db, sid, m, types.get(m.kind))
+                for r in session.results:
+                    db.execute(
+                        "INSERT INTO results (session_id, method, created_utc, result_json) VALUES (?, ?, ?, ?)",
+                        (sid, r["method"], r["created_utc"], json.dumps(r["result"])),
+                    )
+        except sqlite3.IntegrityError as exc:
+            raise StoreError(f"import refused, nothing stored: {exc}") from exc
+        return uid, True
 
     def measurements(self, uid: str, *, with_arrays: bool = True) -> list[Measurement]:
         rows = self._query(
@@ -264,6 +483,17 @@ class SessionStore:
                 arrays = {n: _from_blob(b) for n, b in self._query(q, (row_id,))}
             out.append(Measurement(key, kind, json.loads(values_json), arrays))
         return out
+
+    def record_types(self, uid: str) -> list[RecordType]:
+        """The declared record types of the session's measurements (one per kind)."""
+        rows = self._query(
+            "SELECT declaration_json FROM record_types WHERE session_id = ? ORDER BY kind", (self._session_row(uid),)
+        )
+        return [RecordType.from_json(json.loads(d), f"{self.path} record type") for (d,) in rows]
+
+    def provenance(self, uid: str) -> dict:
+        ((prov,),) = self._query("SELECT provenance_json FROM sessions WHERE id = ?", (self._session_row(uid),))
+        return json.loads(prov)
 
     def add_event(self, uid: str, kind: str, message: str, level: str = "info") -> None:
         sid = self._session_row(uid)
@@ -292,10 +522,12 @@ class SessionStore:
 
     def sessions(self) -> list[dict]:
         rows = self._query(
-            "SELECT s.uid, s.created_utc, s.procedure, s.instrument_serial, s.status, COUNT(p.id)"
-            " FROM sessions s LEFT JOIN points p ON p.session_id = s.id GROUP BY s.id ORDER BY s.id"
+            "SELECT s.uid, s.created_utc, s.procedure, s.instrument_serial, s.status,"
+            " (SELECT COUNT(*) FROM points p WHERE p.session_id = s.id),"
+            " (SELECT COUNT(*) FROM measurements m WHERE m.session_id = s.id)"
+            " FROM sessions s ORDER BY s.id"
         )
-        keys = ("uid", "created_utc", "procedure", "instrument_serial", "status", "n_points")
+        keys = ("uid", "created_utc", "procedure", "instrument_serial", "status", "n_points", "n_measurements")
         return [dict(zip(keys, r, strict=True)) for r in rows]
 
     def session_config(self, uid: str) -> dict:
@@ -319,8 +551,10 @@ class SessionStore:
 
     def load_session(self, uid: str, *, with_raw: bool = True) -> Session:
         sid = self._session_row(uid)
-        ((station_json, notes, config_json, serial, procedure),) = self._query(
-            "SELECT station_json, notes, config_json, instrument_serial, procedure FROM sessions WHERE id = ?", (sid,)
+        ((station_json, notes, config_json, serial, procedure, prov_json),) = self._query(
+            "SELECT station_json, notes, config_json, instrument_serial, procedure, provenance_json"
+            " FROM sessions WHERE id = ?",
+            (sid,),
         )
         config = json.loads(config_json)
         rows = self._query(
@@ -346,9 +580,12 @@ class SessionStore:
             raw=raws,
             meta={
                 "store_uid": uid,
-                "procedure": procedure,
+                "procedure": config.get("procedure", config.get("imported_procedure")) or procedure,
                 "params": config.get("params", {}),
                 "instrument_serial": serial,
             },
             measurements=self.measurements(uid),  # a measurement's arrays are its data, not raw streams
+            provenance=json.loads(prov_json),
+            record_types=self.record_types(uid),
+            results=self.results(uid),
         )

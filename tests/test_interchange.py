@@ -50,8 +50,12 @@ def _rewrite(session_dir, row: int, column: str, value: str):
 BAD_CELLS = [
     (2, "kind", "vibrating", "kind must be 'static' or 'vibration'"),
     (2, "Tm_s", "nan", "finite number"),
-    (2, "Tm_s", "-560.1", "Tm_s must be > 0"),
-    (2, "start_s", "-5", "start_s must be >= 0"),
+    (2, "Tm_s", "-560.1", r"must be a finite number in \(0, 1e\+06\] \(s\)"),
+    (2, "start_s", "-5", r"must be a finite number in \[0, "),
+    (2, "freq_hz", "1000", r"in \[0, 100\] \(Hz\)"),  # above any table's frequency (station file: <= 100 Hz)
+    (2, "position_deg", "7200", r"in \[-720, 720\] \(deg\)"),  # beyond the indexing head's travel
+    (2, "sequence", "-1", r"a whole number in \[0, "),
+    (3, "sequence", "0", r"duplicate sequence \(first on row 2\)"),
     (2, "t2_s", "0.2", r"t2_s must lie in \[0, T\)"),
     (2, "t1_s", "abc", "expected a number"),
     (2, "Np", "12.5", "whole number"),
@@ -101,7 +105,7 @@ def test_missing_files_and_columns(session_dir):
                     "pulses_per_rev": 16384,
                 },
             },
-            "positive finite number",
+            r"must be a finite number in \(0, 0\.1\] \(m\)",
         ),
     ],
 )

@@ -34,6 +34,7 @@ from methods.seed000.table_motion import crank_phase, fit_zs1, sampling_delay_er
 from models.table_tilt import ARCSEC_RAD
 from station import constants
 from station.clock import speed_at_most
+from station.records import Field, declare
 from station.session import Measurement, Session
 
 if TYPE_CHECKING:
@@ -194,6 +195,19 @@ CROSSING_CAPTURE_TURNS = 1.05
 # A reading is polled at its crank phase; its reply takes about 1 ms of wall time, so
 # station time runs at most this fast meanwhile (5 ms of station time, 0.2 deg at 0.1 Hz).
 TILT_MAX_SPEED = 5.0
+
+
+TILT = declare(
+    "tilt",
+    [Field("freq_hz", "float64", "Hz", lo=0.0, hi=100.0, doc="commanded crank frequency"),
+     Field("turns", "int64", "", lo=1), Field("readings_per_turn", "int64", "", lo=1),
+     Field("position_deg", "float64", "deg", nullable=True, doc="indexing head angle (null before any move)")],
+    arrays=[Field("t_s", "float64", "s", doc="reading times, station time"),
+            Field("phi_x_arcsec", "float64", "arcsec"), Field("phi_y_arcsec", "float64", "arcsec"),
+            Field("phi_z_arcsec", "float64", "arcsec"),
+            Field("reference_t_s", "float64", "s", doc="reference-mark crossings around the readings")],
+    doc="tilts of the table top through whole crank turns (seed 000 Table 7, eq. 34)",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)

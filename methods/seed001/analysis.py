@@ -35,10 +35,31 @@ import scipy.linalg
 
 from methods.common.least_squares import FitError, reliability
 from models.pendulous_accelerometer import CF_NAMES, branch_after_move
+from station.records import Field, declare
 from station.session import Session
 
 READING = "tumble"  # Measurement kind of one voltmeter reading at a tumble position
 SOAK = "soak"  # Measurement kind of a chamber soak (its temperature record)
+declare(
+    READING,
+    [Field("block", "int64", "", lo=0, doc="the temperature's place in the session"),
+     Field("J", "int64", "", lo=1, hi=9),
+     Field("stroke", "int64", ""), Field("cycle", "int64", "", lo=0), Field("setpoint_c", "float64", "degC"),
+     Field("position_deg", "float64", "deg"), Field("from_deg", "float64", "deg", doc="where the head came from"),
+     Field("t_s", "float64", "s", doc="mid-reading, station time"), Field("volts", "float64", "V", doc="mean output"),
+     Field("volts_sd", "float64", "V", lo=0.0, nullable=True), Field("samples", "int64", "", lo=1, nullable=True),
+     Field("nplc", "float64", "PLC", lo=0.0, nullable=True), Field("range_v", "float64", "V", lo=0.0, nullable=True),
+     Field("temperature_c", "float64", "degC", doc="chamber temperature at the reading")],
+    arrays=[Field("volts", "float64", "V", doc="every sample of the reading")],
+    doc="one voltmeter reading at a tumble position (seed 001 eqs. 4, 6)",
+)  # fmt: skip
+declare(
+    SOAK,
+    [Field("setpoint_c", "float64", "degC"), Field("ramp_c_per_min", "float64", "degC/min", lo=0.0),
+     Field("soak_s", "float64", "s", lo=0.0), Field("settled_s", "float64", "s", doc="time to settle in the band")],
+    arrays=[Field("t_s", "float64", "s"), Field("temperature_c", "float64", "degC")],
+    doc="a chamber soak and its temperature record",
+)  # fmt: skip
 POSITIONS = 9
 STEP_DEG = 45.0
 R2 = math.sqrt(2.0)

@@ -34,6 +34,7 @@ from methods.seed002.report import analyse_session
 from models.fixture_poses import CALIBRATION_POSES, POSES
 from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site
 from station.clock import speed_at_most
+from station.records import Field, declare
 from station.session import Measurement
 
 SETTLE_S = 1.0  # after the ramp down: the dampers ring down in about 0.1 s (1 / zeta w_r)
@@ -47,6 +48,33 @@ VELOCITY_BLOCK_S = 2.0
 def _site(ctx: Any) -> Site:
     st = ctx.hw.station
     return Site(st.g_mps2, st.earth_rate_radps, math.radians(st.latitude_deg))
+
+
+# One run's record (seed 002 eqs. 17-22). The dry run knows the settings and the shapes, not the observation:
+# what only a run gives is nullable. A (2 x 12) rad per unit of tau, B (2) rad; verification runs add the navigation.
+RUN = declare(
+    "seed002_run",
+    [Field("role", "str", doc="calibration or verification"), Field("pose", "int64", "", lo=1),
+     Field("panel", "str"), Field("mode", "str", doc="sine or random"), Field("level_g", "float64", "g", lo=0.0),
+     Field("freq_hz", "float64", "Hz", nullable=True), Field("band_hz", "float64", "Hz", ndim=1),
+     Field("align_s", "float64", "s", lo=0.0), Field("vibrate_s", "float64", "s", lo=0.0),
+     Field("ramp_s", "float64", "s", lo=0.0), Field("rate_hz", "int64", "Hz", lo=1),
+     Field("duration_s", "float64", "s", lo=0.0), Field("tau_hat", "float64", "", ndim=1),
+     Field("A", "float64", "rad", ndim=2), Field("B", "float64", "rad", ndim=1),
+     Field("c_bn_t0", "float64", "", ndim=2, nullable=True), Field("c_bn_tk", "float64", "", ndim=2, nullable=True),
+     Field("mean_products", "float64", "rad/s m/s^2", ndim=2, nullable=True),
+     Field("vibration_s", "float64", "s", nullable=True),
+     Field("snippet_rate_radps", "float64", "rad/s", ndim=2, nullable=True),
+     Field("snippet_force_mps2", "float64", "m/s^2", ndim=2, nullable=True),
+     Field("t_s", "float64", "s", ndim=1, nullable=True),
+     Field("v_uncompensated_mps", "float64", "m/s", ndim=2, nullable=True),
+     Field("v_compensated_mps", "float64", "m/s", ndim=2, nullable=True),
+     Field("sensitivity_end", "float64", "", ndim=2, nullable=True),
+     Field("decrease_pct", "float64", "%", nullable=True)],
+    arrays=[Field("t_s", "float64", "s"), Field("dtheta_rad", "float64", "rad", ndim=2),
+            Field("dv_mps", "float64", "m/s", ndim=2)],
+    doc="one vibration run of the IMU in one fixture pose (seed 002)",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)

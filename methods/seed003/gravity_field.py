@@ -30,9 +30,18 @@ from methods.seed003.static_model import (
     with_angle_uncertainty,
 )
 from models.fixture import pose_rad
+from station.records import Field, declare
 from station.session import Session
 
 ALIGNMENT = "self_alignment"
+declare(
+    ALIGNMENT,
+    [Field("setup", "int64", "", lo=1), Field("round", "int64", "", lo=1),
+     Field("misalignment_rad", "float64", "rad", doc="the input axis from the horizontal (seed 003 self-alignment)"),
+     Field("sigma_rad", "float64", "rad", lo=0.0), Field("k0+ky_radps", "float64", "rad/s"),
+     Field("zero_before_deg", "float64", "deg"), Field("zero_deg", "float64", "deg", doc="the head zero applied")],
+    doc="one self-alignment round: the head zero found from the rates at 90 and 270 deg",
+)  # fmt: skip
 CALIBRATION = "calibration "  # block prefix, followed by the scheme
 IDENTIFIABILITY = (
     "From static positions alone 1, c² and 1 − c² are linearly dependent: only k0 + ky and kzz − ky are "

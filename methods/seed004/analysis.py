@@ -32,9 +32,17 @@ from methods.seed000.identify import identify
 from models import nonlinear_error as ne
 from models.regressors import COEFFICIENTS, baseline_regressors
 from station.htmlkit import document, esc, mapping_table, svg, table
+from station.records import Field, declare
 from station.session import Measurement, PointRecord, Session, StationInfo
 
 SERVO_OFFSET_KIND = "servo_offset"
+declare(
+    SERVO_OFFSET_KIND,
+    [Field("prefix", "str", doc="the calibration group"), Field("stage", "str"),
+     Field("offset_arcsec", "float64", "arcsec"), Field("servo", "str", doc="servo state"),
+     Field("beta_error_arcsec", "float64", "arcsec")],
+    doc="the angle servo's digital offset, read back before a calibration group (seed 004 section 5.1)",
+)  # fmt: skip
 SWEEP, AT_BEST, AFTER_REMOVAL = "sweep", "best offset", "after mass removal"
 GRID_STEP_ARCSEC = 0.001  # seed 004 section 5.1, step 1
 MC_DRAWS = 400

@@ -29,6 +29,7 @@ from engine.steps import Checkpoint, MeasurePoint, Note, OperatorAction, Step
 from methods.seed004 import analysis
 from models.nonlinear_error import ANGULAR_MOMENTUM_KGM2PS, END_RADIUS_M, MASS_REMOVAL
 from models.plan import multiposition_plan, point_id
+from station.records import Field, declare
 from station.session import Measurement, PointRecord, Session
 
 if TYPE_CHECKING:
@@ -38,6 +39,29 @@ if TYPE_CHECKING:
 ELECTRONICS = "piga_electronics"  # devices.piga_electronics.driver.DEVICE_KIND.name
 SWEEP_FIT_KIND = "offset_sweep_fit"
 CORRECTION_KIND = "inertia_product_correction"
+declare(
+    "mass_removal",
+    [Field("mass_mg", "float64", "mg", lo=0.0), Field("radius_mm", "float64", "mm", lo=0.0),
+     Field("angle_deg", "float64", "deg")],
+    doc="the operator's mass removal from the float (seed 004 section 5.2)",
+)  # fmt: skip
+declare(
+    SWEEP_FIT_KIND,
+    [Field(n, "float64", u) for n, u in (("best_offset_arcsec", "arcsec"), ("sigma_best_offset_arcsec", "arcsec"),
+                                         ("k2_min_per_g", "1/g"), ("sigma_k2_min_per_g", "1/g"),
+                                         ("sample_best_offset_arcsec", "arcsec"), ("sample_k2_min_per_g", "1/g"))],
+    arrays=[Field("offsets_arcsec", "float64", "arcsec"), Field("k2_per_g", "float64", "1/g"),
+            Field("sigma_k2_per_g", "float64", "1/g")],
+    doc="K2 at every offset of the sweep, its spline and minimum (seed 004 section 5.1)",
+)  # fmt: skip
+declare(
+    CORRECTION_KIND,
+    [Field(n, "float64", u) for n, u in (("k2_per_g", "1/g"), ("inertia_product_kgm2", "kg m^2"),
+                                         ("sigma_inertia_product_kgm2", "kg m^2"), ("mass_mg", "mg"),
+                                         ("sigma_mass_mg", "mg"), ("angular_momentum_kgm2ps", "kg m^2/s"),
+                                         ("radius_mm", "mm"), ("angle_deg", "deg"))],
+    doc="J_X2Z2 and the mass that takes it away (seed 004 eqs. 21-22)",
+)  # fmt: skip
 REMOUNT_S = 4 * 3600.0  # dismount, laser fine-weight adjustment, reassembly and remounting
 SEED004_OFFSETS_ARCSEC = [round(-5.0 + 0.5 * i, 1) for i in range(21)]  # section 5.1: -5" to 5" by 0.5"
 
@@ -207,7 +231,9 @@ class InertiaProductCorrection(Step):
         return self.name
 
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
-        return 0.0, Measurement(self.key, CORRECTION_KIND, {"mass_mg": 0.0, "inertia_product_kgm2": 0.0})
+        nominal = analysis.Correction(0.0, 0.0, 0.0, 0.0, 0.0, self.angular_momentum_kgm2ps, self.radius_mm,
+                                      self.angle_deg)  # fmt: skip
+        return 0.0, Measurement(self.key, CORRECTION_KIND, vars(nominal).copy())
 
     def run(self, ctx: RunContext) -> Measurement:
         cal = analysis.calibrate(ctx.hw.station, self.points, "B", analysis.AT_BEST, self.offset_arcsec)
