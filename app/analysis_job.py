@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 
 from engine.registry import get_procedure
+from station.htmlkit import with_provenance
 from station.jsonsafe import json_safe
 from station.store import SessionStore
 
@@ -39,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         print(str(exc), file=sys.stderr)
         return CANNOT_ANALYSE
     with open(report_path, "w") as f:
-        f.write(analysis.report_html)
+        f.write(with_provenance(analysis.report_html, session.provenance))  # every report says where it came from
     for name, content in analysis.files.items():  # beside the report, e.g. certificate-<uid>.pdf
         (Path(report_path).parent / Path(name).name).write_bytes(content)
     json.dump(json_safe({"results": analysis.results, "summary": analysis.summary}), sys.stdout)

@@ -41,6 +41,7 @@ from models.session_sim import simulate_session
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.errors import StationError
 from station.interchange import SessionFormatError, content_hash, read_session, write_session
+from station.provenance import make_provenance
 from station.store import SessionStore, StoreError
 from web.cli import add_commands as add_panel_commands
 
@@ -83,6 +84,9 @@ def _run(
     if args.dry_run:
         describe_plan(plan, sys.stdout)
         return 0
+    if resume_uid is None:  # before anything opens: a real station does not start without the instrument's serial
+        given = args.serial or serial
+        make_provenance(station_id=config.station_id, simulated=config.simulated, instrument_serial=given)
     with SessionStore(args.db or out / "station.sqlite") as store:
         kind = f"simulated, seed {args.seed}, {args.speed:g}x real time" if config.simulated else "real"
         print(f"station: {config.path} ({kind}); store: {store.path}")

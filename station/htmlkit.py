@@ -53,3 +53,19 @@ def document(title: str, parts: Iterable[str]) -> str:
     """The whole page: a title and the given HTML parts."""
     head = f"<!doctype html><html><head><meta charset=utf-8><title>{esc(title)}</title><style>{CSS}</style></head>"
     return "\n".join([head, "<body>", f"<h1>{esc(title)}</h1>", *parts, "</body></html>"])
+
+
+def provenance_section(provenance: Mapping[str, object]) -> str:
+    """Where the session came from (station.provenance): software, station, operator, host, time, instrument."""
+    if not provenance:
+        return '<h2>Provenance</h2><p class="note">not recorded</p>'
+    shown = {k: ("not recorded" if v is None else v) for k, v in provenance.items()}
+    return "<h2>Provenance</h2>" + mapping_table(shown)
+
+
+def with_provenance(html: str, provenance: Mapping[str, object]) -> str:
+    """A report with its session's provenance right after the title (or at the end of a page without one)."""
+    section = provenance_section(provenance)
+    if "</h1>" in html:
+        return html.replace("</h1>", "</h1>\n" + section, 1)
+    return html.replace("</body>", section + "\n</body>", 1) if "</body>" in html else html + section

@@ -1,0 +1,68 @@
+"""Provenance: every session says which software, station, operator and host made it, when, simulated or not, with
+which seed and instrument; a real station refuses to start without the instrument's serial number."""
+
+import getpass
+import json
+import re
+import socket
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from station.htmlkit import with_provenance
+from station.interchange import read_session, write_session
+from station.provenance import PROVENANCE_KEYS, ProvenanceError, make_provenance, software_version
+from station.session import Session, StationInfo
+from station.store import SessionStore
+
+CONFIG = Path(__file__).resolve().parents[1] / "config"
+
+
+def test_software_version_names_the_package_and_the_commit():
+    # this source tree is a git checkout: the version carries its commit
+    assert re.fullmatch(r"\d+\.\d+\.\d+(\+g[0-9a-f]{12}(\.dirty)?)?", software_version())
+    assert "+g" in software_version()
+
+
+def test_a_simulated_session_records_where_it_came_from(tmp_path):
+    prov = make_provenance(station_id="station-sim", simulated=True, seed=7)
+    assert tuple(prov) == PROVENANCE_KEYS
+    assert prov["operator"] == getpass.getuser() and prov["host"] == socket.gethostname()
+    assert prov["simulated"] is True and prov["seed"] == 7 and prov["instrument_serial"] == "SIM-PIGA-0001"
+    with SessionStore(tmp_path / "db.sqlite") as store:
+        uid = store.create_session(StationInfo(), "test", instrument_serial="X", provenance=prov)
+        assert store.provenance(uid) == prov
+        d = write_session(store.load_session(uid), tmp_path / "out")
+    assert json.loads((d / "session.json").read_text())["provenance"] == prov
+    assert read_session(d).provenance == prov
+
+
+def test_a_real_station_needs_the_instrument_serial():
+    with pytest.raises(ProvenanceError, match=r"'lab-1' is a real station: the instrument serial number is required"):
+        make_provenance(station_id="lab-1", simulated=False, instrument_serial="  ")
+    prov = make_provenance(station_id="lab-1", simulated=False, instrument_serial="PIGA-0042", seed=3, operator="ann")
+    assert (prov["instrument_serial"], prov["seed"], prov["operator"]) == ("PIGA-0042", None, "ann")
+
+
+def test_the_console_refuses_a_real_station_without_a_serial_before_opening_anything(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["run", str(CONFIG / "procedures" / "seed000_integral.toml"), "--station", str(CONFIG / "station.toml"),
+                 "--out", str(out)])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "lab-vibration-table-1" in err and "instrument serial number is required" in err and "--serial" in err
+    assert not (out / "station.sqlite").exists()  # refused before the store or any device was opened
+
+
+def test_every_report_carries_the_provenance():
+    prov = make_provenance(station_id="station-sim", simulated=True, seed=1)
+    html = with_provenance("<html><body><h1>Report</h1><p>fit</p></body></html>", prov)
+    assert html.index("Provenance") > html.index("</h1>") and "station-sim" in html and "SIM-PIGA-0001" in html
+    assert "not recorded" in with_provenance("<h1>R</h1>", {"station_id": None})
+
+
+def test_a_session_without_provenance_exports_without_inventing_one(tmp_path):
+    s = Session(StationInfo(), [], meta={}, measurements=[])
+    d = write_session(s, tmp_path / "bare")
+    assert "provenance" not in json.loads((d / "session.json").read_text())
