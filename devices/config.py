@@ -1,7 +1,7 @@
 """Typed loader for the station configuration (config/station.toml, config/station-sim.toml).
 
-Every section is a frozen dataclass; every key is required, typed and
-range-checked. Bad input raises ConfigError naming the file, the key, the value
+Every section is declared once, as a settings dataclass (station.validation, pydantic); every key
+is required, typed and range-checked. Bad input raises ConfigError naming the file, the key, the value
 and what is allowed. Paths (the servo EDS) are relative to the config file's
 directory. A simulated station (`simulated = true` at the top level) may leave
 serial ports out: the emulators create them at run time (`with_serial_ports`).
@@ -10,17 +10,20 @@ serial ports out: the emulators create them at run time (`with_serial_ports`).
 from __future__ import annotations
 
 import dataclasses
-import math
 import tomllib
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_type_hints
+from typing import Any, get_args
+
+from pydantic import Field, ValidationError
+from pydantic.fields import FieldInfo
 
 from devices.registry import device_kinds
 from engine.context import StationModel
+from station import constants
 from station.errors import InputError
 from station.session import StationInfo
+from station.validation import defects, field_allowed, field_optional, in_range, settings, spec
 
 SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
 
@@ -36,37 +39,14 @@ class ConfigError(InputError):
         super().__init__(f"{path}: {key} = {value!r}: not allowed (allowed: {allowed})")
 
 
-Check = tuple[Callable[[Any], bool], str]
+@settings
+class StationSection(StationInfo):
+    """[station]: the station's geometry and constants (station.session.StationInfo) and its counter's time base."""
+
+    timer_tick_s: float = spec(in_range(0.0, 1e-3, lo_open=True), default=constants.TIMER_TICK_S)
 
 
-def in_range(lo: float, hi: float, *, lo_open: bool = False) -> Check:
-    op = "<" if lo_open else "<="
-    return (
-        lambda v: (lo < v if lo_open else lo <= v) and v <= hi,
-        f"{lo:g} {op} value <= {hi:g}",
-    )
-
-
-def _meta(check: Check | None = None, *, optional: bool = False) -> dict[str, Any]:
-    return {"check": check, "optional": optional}
-
-
-def spec(check: Check | None = None, *, optional: bool = False) -> Any:
-    """A checked field of a config section: `check` is (predicate, "what is allowed")."""
-    return field(metadata=_meta(check, optional=optional))
-
-
-@dataclass(frozen=True)
-class StationSection:
-    A0_m: float = spec(in_range(0.0, 0.1, lo_open=True))
-    latitude_deg: float = spec(in_range(-90.0, 90.0))
-    g_mps2: float = spec(in_range(9.7, 9.9))
-    earth_rate_radps: float = spec(in_range(7.0e-5, 7.5e-5))
-    pulses_per_rev: int = spec(in_range(1, 2**31))
-    timer_tick_s: float = spec(in_range(0.0, 1e-3, lo_open=True))
-
-
-@dataclass(frozen=True)
+@settings
 class LimitsSection:
     freq_min_hz: float = spec(in_range(0.0, 100.0, lo_open=True))
     freq_max_hz: float = spec(in_range(0.0, 100.0, lo_open=True))
@@ -78,30 +58,30 @@ class LimitsSection:
     ramp_max_hz_per_s: float = spec(in_range(0.0, 100.0, lo_open=True))
 
 
-@dataclass(frozen=True)
+@settings
 class ServoSection:
     interface: str = spec((bool, "a python-can interface name, e.g. socketcan or virtual"))
     channel: str = spec((bool, "a non-empty channel name, e.g. can0"))
     node_id: int = spec(in_range(1, 127))
-    eds: Path = field(metadata=_meta())
+    eds: Path = Field(strict=False, json_schema_extra={"allowed": "a file, relative to the station file"})
     heartbeat_ms: int = spec(in_range(10, 10_000))
     timeout_s: float = spec(in_range(0.0, 10.0, lo_open=True))
 
 
-@dataclass(frozen=True)
+@settings
 class SerialSection:
     port: str | None = spec((bool, "a device path such as /dev/ttyUSB0"), optional=True)
     baud: int = spec(in_range(300, 4_000_000))
 
 
-@dataclass(frozen=True)
+@settings
 class IndexingHeadSection(SerialSection):
     speed_deg_s: float = spec(in_range(0.0, 360.0, lo_open=True))
     settle_tol_deg: float = spec(in_range(0.0, 1.0, lo_open=True))
     settle_time_s: float = spec(in_range(0.0, 60.0))
 
 
-@dataclass(frozen=True)
+@settings
 class PayloadSection:
     mass_kg: float = spec(in_range(0.0, 1000.0))
     size_mm: tuple[float, float, float] = spec(in_range(0.0, 2000.0, lo_open=True))
@@ -159,62 +139,44 @@ def _required_sections() -> dict[str, type]:
     return {"station": StationSection, "limits": LimitsSection, **core, "payload": PayloadSection}
 
 
-def _convert(path: Path, key: str, value: Any, hint: Any) -> Any:
-    """Check one value's TOML type against the field's type hint; ints are accepted as floats."""
-    if hint is bool:
-        ok = isinstance(value, bool)
-    elif hint is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif hint is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        ok = ok and math.isfinite(value)
-    elif hint in (str, Path, str | None):
-        ok = isinstance(value, str)
-    else:  # tuple[float, float, float]
-        ok = (
-            isinstance(value, list)
-            and len(value) == 3
-            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-        )
-        if not ok:
-            raise ConfigError(path, key, value, "a list of 3 numbers")
-        return tuple(float(v) for v in value)
-    if not ok:
-        name = "str" if hint in (Path, str | None) else hint.__name__
-        raise ConfigError(path, key, value, f"a value of type {name}")
-    return float(value) if hint is float else value
-
-
 def _section(path: Path, name: str, table: Any, simulated: bool, cls: type) -> Any:
+    """One section of a station file, every declared key required (ports optional when simulated), validated
+    by its declaration (pydantic; station.validation) and refused with the file, key, value and what is allowed."""
     if not isinstance(table, dict):
         raise ConfigError(path, f"[{name}]", table, "a table")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    hints = get_type_hints(cls)
+    fields = cls.__pydantic_fields__
     for key in table:
         if key not in fields:
             raise ConfigError(path, f"[{name}] {key}", table[key], f"keys {', '.join(fields)}")
     values: dict[str, Any] = {}
-    for fname, f in fields.items():
-        key = f"[{name}] {fname}"
+    for fname, info in fields.items():
         if fname not in table:
-            if f.metadata["optional"] and simulated:
+            if field_optional(info) and simulated:
                 values[fname] = None
                 continue
-            why = " (optional only when simulated = true)" if f.metadata["optional"] else ""
-            raise ConfigError(path, key, None, f"a required key{why}")
-        value = _convert(path, key, table[fname], hints[fname])
-        check: Check | None = f.metadata["check"]
-        items = value if isinstance(value, tuple) else (value,)
-        if check is not None and not all(check[0](v) for v in items):
-            raise ConfigError(path, key, table[fname], check[1])
-        values[fname] = value
-    if name == "servo":
+            why = " (optional only when simulated = true)" if field_optional(info) else ""
+            raise ConfigError(path, f"[{name}] {fname}", None, f"a required key{why}")
+        value = table[fname]
+        values[fname] = tuple(value) if isinstance(value, list) else value  # TOML has arrays, sections tuples
+    if name == "servo" and isinstance(values["eds"], str):
         eds = (path.parent / values["eds"]).resolve()
         if not eds.is_file():
             allowed = "an existing file, relative to the config file's directory"
             raise ConfigError(path, "[servo] eds", values["eds"], allowed)
         values["eds"] = eds
-    return cls(**values)
+    try:
+        return cls(**values)
+    except ValidationError as exc:
+        d = next(defects(exc, fields))
+        fname = d.field.split("[")[0]
+        allowed = d.allowed
+        if isinstance(values.get(fname), tuple):
+            allowed = f"a list of {len(_tuple_items(fields[fname]))} numbers, each {field_allowed(fields[fname])}"
+        raise ConfigError(path, f"[{name}] {fname}", table[fname], allowed) from None
+
+
+def _tuple_items(info: FieldInfo) -> tuple[Any, ...]:
+    return get_args(info.annotation)
 
 
 def _cross_check(cfg: StationConfig) -> None:

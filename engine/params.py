@@ -87,7 +87,11 @@ def params_model(procedure: str, declared: Sequence[Param]) -> type[BaseModel]:
     """The pydantic model of a procedure's parameters: the one declaration that the run, the dry run and
     the panel's form (its JSON schema) use."""
     fields: dict[str, Any] = {
-        p.name: (p.annotation(), Field(... if p.required else p.default, description=p.help or None)) for p in declared
+        p.name: (
+            p.annotation() if p.required or p.default is not None else p.annotation() | None,  # None: not given
+            Field(... if p.required else p.default, description=p.help or None),
+        )
+        for p in declared
     }
     return create_model(f"Params[{procedure}]", __config__=SETTINGS, **fields)
 

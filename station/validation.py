@@ -32,17 +32,23 @@ def settings(cls: type[T]) -> type[T]:
 
 @dataclass(frozen=True)
 class Check:
-    """What a setting allows: a predicate with its text, or bounds pydantic enforces itself."""
+    """What a setting allows: a predicate with its text (and, for a range, its JSON-schema bounds)."""
 
-    predicate: Callable[[Any], bool] | None
+    predicate: Callable[[Any], bool]
     allowed: str
     bounds: tuple[tuple[str, float], ...] = ()
 
 
 def in_range(lo: float, hi: float, *, lo_open: bool = False) -> Check:
-    """lo <= value <= hi (lo < value with lo_open)."""
+    """lo <= value <= hi (lo < value with lo_open); each element of a tuple value."""
     op = "<" if lo_open else "<="
-    return Check(None, f"{lo:g} {op} value <= {hi:g}", (("gt" if lo_open else "ge", lo), ("le", hi)))
+
+    def inside(v: float) -> bool:
+        return (lo < v if lo_open else lo <= v) and v <= hi
+
+    return Check(
+        inside, f"{lo:g} {op} value <= {hi:g}", (("exclusiveMinimum" if lo_open else "minimum", lo), ("maximum", hi))
+    )
 
 
 def spec(
@@ -58,10 +64,10 @@ def spec(
     """
     if isinstance(check, tuple):
         check = Check(check[0], check[1])
-    kwargs: dict[str, Any] = dict(check.bounds) if check else {}
-    extra = {"allowed": check.allowed if check else "", "optional": optional}
-    info: FieldInfo = Field(default, json_schema_extra=extra, **kwargs)
-    if check is not None and check.predicate is not None:
+    extra: dict[str, Any] = {"allowed": check.allowed if check else "", "optional": optional}
+    extra.update(check.bounds if check else ())
+    info: FieldInfo = Field(default, json_schema_extra=extra)
+    if check is not None:
         predicate, allowed = check.predicate, check.allowed
 
         def satisfies(value: Any) -> Any:

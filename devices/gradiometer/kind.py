@@ -2,18 +2,18 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
-from devices.config import SerialSection, in_range, spec
+from devices.config import SerialSection
 from devices.errors import DeviceFault
 from devices.gradiometer.driver import Gradiometer
 from devices.gradiometer.protocol import DEVICE
 from devices.registry import DeviceKind
 from station.clock import Clock
+from station.validation import in_range, settings, spec
 
 
-@dataclass(frozen=True)
+@settings
 class GradiometerSection(SerialSection):
     """`[gradiometer]` of a station file."""
 

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
-from devices.config import in_range, spec
 from devices.errors import DriverError
 from devices.imu.driver import StrapdownImu
 from devices.imu.protocol import DEVICE, RATES_HZ
 from devices.registry import DeviceKind
 from station.clock import Clock
+from station.validation import in_range, settings, spec
 
 
-@dataclass(frozen=True)
+@settings
 class ImuSection:
     """[imu] of a station file."""
 

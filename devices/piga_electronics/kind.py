@@ -3,16 +3,16 @@ emulated."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
-from devices.config import SerialSection, in_range, spec
+from devices.config import SerialSection
 from devices.piga_electronics.driver import PigaElectronics
 from devices.registry import DeviceKind
 from station.clock import Clock
+from station.validation import in_range, settings, spec
 
 
-@dataclass(frozen=True)
+@settings
 class PigaElectronicsSection(SerialSection):
     offset_max_arcsec: float = spec(in_range(0.0, 60.0, lo_open=True))
     servo_settle_s: float = spec(in_range(0.0, 600.0))  # how long beta takes to follow an offset change

@@ -8,17 +8,16 @@ units of standard gravity, as vibration controllers count them (seed 002 section
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
-from devices.config import in_range, spec
 from devices.errors import LimitError
 from devices.shaker.protocol import DEVICE
+from station.validation import in_range, settings, spec
 
 G_STANDARD_MPS2 = 9.80665
 PEAK_SIGMAS = 3.0  # random drive clipped at 3 sigma
 
 
-@dataclass(frozen=True)
+@settings
 class ShakerSection:
     """[shaker] of a station file: the controller's port and the table's envelope."""
 

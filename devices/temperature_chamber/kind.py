@@ -3,16 +3,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
-from devices.config import SerialSection, in_range, spec
+from devices.config import SerialSection
 from devices.registry import DeviceKind
 from devices.temperature_chamber.driver import TemperatureChamber
 from station.clock import Clock
+from station.validation import in_range, settings, spec
 
 
-@dataclass(frozen=True)
+@settings
 class TemperatureChamberSection(SerialSection):
     """[temperature_chamber]: the controller's address and the station's limits for the instrument inside."""
 

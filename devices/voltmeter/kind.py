@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
-from devices.config import SerialSection, in_range, spec
+from devices.config import SerialSection
 from devices.registry import DeviceKind
 from devices.voltmeter.driver import Voltmeter
 from station.clock import Clock
+from station.validation import in_range, settings, spec
 
 
-@dataclass(frozen=True)
+@settings
 class VoltmeterSection(SerialSection):
     """[voltmeter]: the port and the mains frequency that sets the aperture of one power-line cycle."""
 
