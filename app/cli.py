@@ -25,7 +25,7 @@ from app.console import (
     run_with_progress,
     write_outputs,
 )
-from app.control import ControlServer
+from app.control import TOKEN_FILE, ControlServer, ensure_token
 from app.controller import ControlError
 from devices.config import ConfigError
 from devices.errors import DriverError
@@ -132,6 +132,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     telemetry = args.telemetry or DEFAULT_TELEMETRY
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    token_file = out / TOKEN_FILE
+    if token is None:  # authenticated by default: a token made on first start, readable by this user only
+        token = ensure_token(token_file)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -143,7 +146,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if args.sync_to:  # each session to the central history once it has ended and its analysis is stored
             controller.after_run.append(SyncAfterRun(store, args.sync_to, args.sync_arrays, args.name))
         server = ControlServer(controller, args.control, token=token).start()
-        print(f"station {args.name} ({config.path}): control {server.endpoint}, telemetry {telemetry}, "
+        auth = f"token from ${args.token_env}" if args.token_env else f"token in {token_file}"
+        print(f"station {args.name} ({config.path}): control {server.endpoint} ({auth}), telemetry {telemetry}, "
               f"store {store.path}", flush=True)  # fmt: skip
         try:
             stop.wait()

@@ -1,4 +1,11 @@
-"""The panel's FastAPI application: `create_app(config)`; `station panel` serves it with uvicorn."""
+"""The panel's FastAPI application: `create_app(config)`; `station panel` serves it with uvicorn.
+
+Around everything the application does (its error pages and 500s included), two
+plain ASGI layers: SecurityHeaders puts SECURITY_HEADERS on every HTTP response,
+and BodyLimit answers 413 to a request body over MAX_BODY_BYTES (by
+Content-Length, or by counting a chunked body) before any route reads it. The
+OpenAPI schema is served at /openapi.json to logged-in users only.
+"""
 
 from __future__ import annotations
 
@@ -6,12 +13,15 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from station.errors import StationFault
+from web.archive import MAX_UPLOAD_BYTES
+from web.auth import viewer
 from web.config import PanelConfig, describe_errors
 from web.routes import auth, control, gap, history, live, pages
 from web.state import Panel
@@ -25,6 +35,87 @@ SECURITY_HEADERS = {
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "same-origin",
 }
+
+
+MAX_BODY_BYTES = MAX_UPLOAD_BYTES + (1 << 20)  # an upload and its multipart envelope
+
+
+class SecurityHeaders:
+    """SECURITY_HEADERS on every HTTP response, whoever wrote it (a route, an error handler, a 500)."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+        self.headers = [(k.lower().encode(), v.encode()) for k, v in SECURITY_HEADERS.items()]
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        names = {k for k, _ in self.headers}
+
+        async def send_with_headers(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                kept = [(k, v) for k, v in message.get("headers", []) if k.lower() not in names]
+                message = message | {"headers": kept + self.headers}
+            await send(message)
+
+        await self.app(scope, receive, send_with_headers)
+
+
+class BodyTooLarge(Exception):  # noqa: N818 - a control-flow signal
+    """A request body went over MAX_BODY_BYTES while it was read."""
+
+
+class BodyLimit:
+    """413 for a request body over max_bytes, declared (Content-Length) or counted as it arrives."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int = MAX_BODY_BYTES) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def _refuse(self, send: Send) -> None:
+        body = f'{{"detail": "request body over {self.max_bytes >> 20} MiB: refused"}}'.encode()
+        headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
+        await send({"type": "http.response.start", "status": 413, "headers": headers})
+        await send({"type": "http.response.body", "body": body})
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        declared = dict(scope.get("headers", [])).get(b"content-length")
+        if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
+            await self._refuse(send)
+            return
+        seen = 0
+        started = False
+
+        async def counted() -> Message:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > self.max_bytes:
+                    raise BodyTooLarge
+            return message
+
+        async def tracked(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, counted, tracked)
+        except BodyTooLarge:
+            if not started:
+                await self._refuse(send)
+
+
+class PanelApp(FastAPI):
+    """FastAPI with the panel's outermost layers (outside even Starlette's 500 handler)."""
+
+    def build_middleware_stack(self) -> ASGIApp:
+        return SecurityHeaders(BodyLimit(super().build_middleware_stack()))
 
 
 class PanelSetupError(StationFault):
@@ -50,22 +141,21 @@ def create_app(config: PanelConfig) -> FastAPI:
             await panel.relay.stop()
             panel.close()
 
-    app = FastAPI(
+    app = PanelApp(
         title="Station panel",
         version="1",
         description="Live monitoring, history and authenticated control of PIGA calibration stations.",
         lifespan=lifespan,
         docs_url=None,  # the interactive docs load their scripts from the internet
         redoc_url=None,
+        openapi_url=None,  # served below, to logged-in users only
     )
     app.state.panel = panel
     app.add_exception_handler(RequestValidationError, _clear_422)
 
-    @app.middleware("http")
-    async def security_headers(request: Request, call_next):
-        response = await call_next(request)
-        response.headers.update(SECURITY_HEADERS)
-        return response
+    @app.get("/openapi.json", include_in_schema=False, dependencies=[Depends(viewer)])
+    def openapi() -> JSONResponse:
+        return JSONResponse(app.openapi())
 
     for module in (auth, live, control, history, gap, pages):
         app.include_router(module.router)

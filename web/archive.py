@@ -1,18 +1,35 @@
-"""piga-session/1 directories as zip archives, for download and upload through the browser."""
+"""piga-session/1 directories as zip archives, for download and upload through the browser.
+
+An upload is bounded before anything is decompressed, nested archives included:
+the upload itself (MAX_UPLOAD_BYTES, also enforced on the request body by
+web.app), the number of members, and the decompressed bytes of every member and
+of every member of a member that is itself a zip (an .npz of raw streams, or a
+zip in a zip), counted together against MAX_UNPACKED_BYTES. An array inside an
+.npz is bounded by its header (shape x itemsize) before numpy loads it, and
+object arrays are refused. Archives nested deeper than one level are refused.
+Members are copied out in chunks and never beyond their declared size (zipfile
+stops there and checks the CRC), so a lying header cannot overrun the bound.
+"""
 
 from __future__ import annotations
 
+import math
 import shutil
 import tempfile
 import zipfile
 from pathlib import Path, PurePosixPath
-from typing import BinaryIO
+from typing import IO, BinaryIO
+
+import numpy as np
 
 from station.interchange import SessionFormatError, read_session, write_session
 from station.session import Session
 
-MAX_UNPACKED_BYTES = 2 << 30  # an upload may hold raw streams, but not fill the disk
-MAX_MEMBERS = 10_000
+MAX_UPLOAD_BYTES = 256 << 20  # the zip as uploaded
+MAX_UNPACKED_BYTES = 1 << 30  # every member and nested member, decompressed, together
+MAX_MEMBERS = 10_000  # members, nested ones included
+ZIP_MAGIC = b"PK\x03\x04"
+CHUNK_BYTES = 1 << 20
 
 
 def pack(session: Session, name: str) -> Path:
@@ -22,27 +39,106 @@ def pack(session: Session, name: str) -> Path:
     return Path(shutil.make_archive(str(work / name), "zip", root_dir=work, base_dir=name))
 
 
+class _Budget:
+    """Decompressed bytes and members left for one upload."""
+
+    def __init__(self) -> None:
+        self.bytes_left = MAX_UNPACKED_BYTES
+        self.members_left = MAX_MEMBERS
+
+    def take(self, nbytes: int, where: str) -> None:
+        self.members_left -= 1
+        self.bytes_left -= nbytes
+        if self.members_left < 0:
+            raise SessionFormatError("upload", f"more than {MAX_MEMBERS} files in the archive (nested ones counted)")
+        if self.bytes_left < 0:
+            raise SessionFormatError(
+                "upload", f"unpacks to more than {MAX_UNPACKED_BYTES >> 20} MiB (at {where}, nested archives counted)"
+            )
+
+
+def _npy_bytes(member: IO[bytes], where: str) -> int:
+    """Bytes an .npy member decompresses to by its header (shape x itemsize); object arrays refused."""
+    try:
+        version = np.lib.format.read_magic(member)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(member)
+    except ValueError as exc:
+        raise SessionFormatError("upload", f"not a readable .npy array ({exc})", column=where) from None
+    if dtype.hasobject:
+        raise SessionFormatError("upload", "object arrays are not allowed", column=where, value=str(dtype))
+    return math.prod(shape) * dtype.itemsize
+
+
+def _check_nested(path: Path, where: str, budget: _Budget) -> None:
+    """A member that is a zip: each of its members bounded by its declared size and, for arrays, by its header."""
+    try:
+        nested = zipfile.ZipFile(path)
+    except zipfile.BadZipFile:
+        raise SessionFormatError("upload", "a damaged archive inside the archive", column=where) from None
+    with nested:
+        for info in nested.infolist():
+            inner = f"{where}/{info.filename}"
+            budget.take(info.file_size, inner)
+            with nested.open(info) as member:
+                head = member.read(len(ZIP_MAGIC))
+                if head == ZIP_MAGIC:
+                    raise SessionFormatError("upload", "archives nested more than one level deep", column=inner)
+            if info.filename.endswith(".npy"):
+                with nested.open(info) as member:
+                    declared = _npy_bytes(member, inner)
+                if declared > info.file_size:
+                    raise SessionFormatError("upload", f"array header claims {declared} bytes, the member holds "
+                                             f"{info.file_size}", column=inner)  # fmt: skip
+
+
+def _copy_out(archive: zipfile.ZipFile, info: zipfile.ZipInfo, dst: Path) -> None:
+    """One member to dst in chunks, never beyond its declared size."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    written = 0
+    with archive.open(info) as src, dst.open("wb") as out:
+        while chunk := src.read(CHUNK_BYTES):
+            written += len(chunk)
+            if written > info.file_size:
+                raise SessionFormatError("upload", "a member unpacks beyond its declared size", column=info.filename)
+            out.write(chunk)
+
+
+def _upload_size(upload: BinaryIO) -> int:
+    pos = upload.tell()
+    size = upload.seek(0, 2)
+    upload.seek(pos)
+    return size
+
+
 def unpack(upload: BinaryIO, into: Path) -> Session:
     """Read and validate an uploaded zip of a piga-session/1 directory (session.json at its root or in one folder).
 
-    SessionFormatError names the defect, as for `station import`; members that would land outside `into`,
-    too many members or too many bytes are refused before anything is written.
+    SessionFormatError names the defect, as for `station import`; an upload over any bound of the module
+    docstring, or with members that would land outside `into`, is refused before it is decompressed.
     """
+    size = _upload_size(upload)
+    if size > MAX_UPLOAD_BYTES:
+        raise SessionFormatError("upload", f"{size >> 20} MiB uploaded; at most {MAX_UPLOAD_BYTES >> 20} MiB")
     try:
         archive = zipfile.ZipFile(upload)
     except zipfile.BadZipFile:
         raise SessionFormatError("upload", "not a zip archive of a piga-session/1 directory") from None
+    budget = _Budget()
     with archive:
-        members = archive.infolist()
-        if len(members) > MAX_MEMBERS:
-            raise SessionFormatError("upload", f"{len(members)} files in the archive; at most {MAX_MEMBERS}")
-        if sum(m.file_size for m in members) > MAX_UNPACKED_BYTES:
-            raise SessionFormatError("upload", f"unpacks to more than {MAX_UNPACKED_BYTES >> 20} MiB")
+        members = [m for m in archive.infolist() if not m.is_dir()]
         for m in members:
             path = PurePosixPath(m.filename)
             if path.is_absolute() or ".." in path.parts:
                 raise SessionFormatError("upload", "member path outside the archive", value=m.filename)
-        archive.extractall(into)
+            budget.take(m.file_size, m.filename)
+        for m in members:
+            dst = into / m.filename
+            _copy_out(archive, m, dst)
+            with dst.open("rb") as f:
+                is_zip = f.read(len(ZIP_MAGIC)) == ZIP_MAGIC
+            if is_zip:
+                _check_nested(dst, m.filename, budget)
     found = sorted(into.glob("session.json")) or sorted(into.glob("*/session.json"))
     if len(found) != 1:
         raise SessionFormatError("upload", "expected one session.json, at the root or in one folder")

@@ -5,6 +5,16 @@ and a CSRF token that the page sends back in the X-CSRF-Token header with
 every request that changes something (synchronizer-token pattern). Both live
 only in the panel's memory, the session token as its SHA-256: a restart logs
 everybody out, and nothing secret is ever written down.
+
+Every request checks its login against the users file as it is now
+(web.users.LiveUsers): a user removed, or whose role changed, is logged out on
+their next request, and their open WebSockets are closed within
+REVOCATION_CHECK_S (web.routes.live). Logins are throttled (LoginThrottle):
+after MAX_FAILURES wrong passwords within FAILURE_WINDOW_S for one user name or
+from one address, that name or address is refused with 429 for the rest of the
+window before any password is checked; the audit records each failure up to
+the limit and the first refusal of each window, so a password-guessing flood
+cannot fill it.
 """
 
 from __future__ import annotations
@@ -14,17 +24,22 @@ import hmac
 import secrets
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, Security
 from fastapi.security import APIKeyCookie, APIKeyHeader
 
-from web.users import User
+from web.users import LiveUsers, User
 
 SESSION_COOKIE = "panel_session"
 CSRF_HEADER = "X-CSRF-Token"
 IDLE_LIMIT_S = 12 * 3600.0  # a 7-hour session watched from one login
+REVOCATION_CHECK_S = 0.5  # how often an open WebSocket's login is checked again
+MAX_FAILURES = 5  # wrong passwords per user name, and per address, within the window
+FAILURE_WINDOW_S = 15 * 60.0
+THROTTLE_KEYS = 10_000  # names and addresses remembered at most (the oldest forgotten first)
 
 
 @dataclass
@@ -41,8 +56,9 @@ def _digest(token: str) -> str:
 class LoginSessions:
     """Open logins by the hash of their cookie token; idle ones expire."""
 
-    def __init__(self, idle_limit_s: float = IDLE_LIMIT_S) -> None:
+    def __init__(self, idle_limit_s: float = IDLE_LIMIT_S, users: LiveUsers | None = None) -> None:
         self.idle_limit_s = idle_limit_s
+        self.users = users
         self._by_digest: dict[str, LoginSession] = {}
         self._lock = threading.Lock()
 
@@ -65,13 +81,89 @@ class LoginSessions:
             if now - session.last_seen > self.idle_limit_s:
                 del self._by_digest[_digest(token)]
                 return None
-            session.last_seen = now
-            return session
+        if self.users is not None and self.users.current(session.user.name) != session.user:  # removed, or re-roled
+            self.close_user(session.user.name)
+            return None
+        session.last_seen = now
+        return session
+
+    def close_user(self, name: str) -> int:
+        """Log a user out everywhere; how many logins were closed."""
+        with self._lock:
+            gone = [d for d, s in self._by_digest.items() if s.user.name == name]
+            for d in gone:
+                del self._by_digest[d]
+        return len(gone)
 
     def close(self, token: str | None) -> None:
         if token:
             with self._lock:
                 self._by_digest.pop(_digest(token), None)
+
+
+class LoginThrottle:
+    """Failed logins per user name and per address in a sliding window; bounded memory (THROTTLE_KEYS)."""
+
+    def __init__(
+        self, max_failures: int = MAX_FAILURES, window_s: float = FAILURE_WINDOW_S, max_keys: int = THROTTLE_KEYS
+    ) -> None:
+        self.max_failures = max_failures
+        self.window_s = window_s
+        self.max_keys = max_keys
+        self._failures: OrderedDict[str, list[float]] = OrderedDict()
+        self._refusals: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    @staticmethod
+    def keys(user: str, address: str | None) -> tuple[str, ...]:
+        return (f"user:{user}",) + ((f"addr:{address}",) if address else ())
+
+    def _recent(self, key: str, now: float) -> list[float]:
+        times = [t for t in self._failures.get(key, ()) if now - t < self.window_s]
+        if times:
+            self._failures[key] = times
+        else:
+            self._failures.pop(key, None)
+            self._refusals.pop(key, None)
+        return times
+
+    def retry_after_s(self, user: str, address: str | None) -> float:
+        """0 if a login may be tried; otherwise seconds until the oldest failure counted leaves the window."""
+        now = time.monotonic()
+        wait = 0.0
+        with self._lock:
+            for key in self.keys(user, address):
+                times = self._recent(key, now)
+                if len(times) >= self.max_failures:
+                    wait = max(wait, times[-self.max_failures] + self.window_s - now)
+        return wait
+
+    def refused(self, user: str, address: str | None) -> bool:
+        """Count a refusal; True for the first of a window (the one worth an audit entry)."""
+        with self._lock:
+            first = False
+            for key in self.keys(user, address):
+                n = self._refusals.get(key, 0)
+                self._refusals[key] = n + 1
+                first = first or n == 0
+            return first
+
+    def failed(self, user: str, address: str | None) -> None:
+        now = time.monotonic()
+        with self._lock:
+            for key in self.keys(user, address):
+                times = self._recent(key, now)
+                self._failures[key] = [*times, now][-self.max_failures :]
+                self._failures.move_to_end(key)
+            while len(self._failures) > self.max_keys:
+                old, _ = self._failures.popitem(last=False)
+                self._refusals.pop(old, None)
+
+    def succeeded(self, user: str) -> None:
+        """A right password clears the name's failures (not the address's: one address may try many names)."""
+        with self._lock:
+            self._failures.pop(f"user:{user}", None)
+            self._refusals.pop(f"user:{user}", None)
 
 
 _cookie = APIKeyCookie(name=SESSION_COOKIE, auto_error=False, description="login session (POST /api/login)")

@@ -34,7 +34,12 @@ class StationEntry(BaseModel):
     telemetry: str = Field(pattern=r"^(tcp|ipc|inproc)://", description="zmq PUB endpoint of its telemetry")
     store: Path = Field(description="its SQLite session store (the --db of `station serve`)")
     reports: Path = Field(description="its --out directory, where report-<uid>.html files are written")
-    token_env: str = Field("", description="environment variable holding its control token, if it has one")
+    token_env: str = Field("", description="environment variable holding its control token (instead of the file)")
+    token_file: Path | None = Field(None, description="its control token file (default: control.token beside its "
+                                    "store, where `station serve --out DIR` creates it)")  # fmt: skip
+
+    def control_token_file(self) -> Path:
+        return self.token_file or self.store.parent / "control.token"
 
 
 class CentralEntry(BaseModel):

@@ -8,12 +8,13 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Path, Request
 
 from web.audit import AuditLog
-from web.auth import LoginSessions
+from web.auth import LoginSessions, LoginThrottle
 from web.config import NAME_PATTERN, PanelConfig
 from web.gap import GapDiagnoses
 from web.history import History
 from web.relay import TelemetryRelay
 from web.stations import StationLink
+from web.users import LiveUsers
 
 
 @dataclass
@@ -25,17 +26,19 @@ class Panel:
     links: dict[str, StationLink]
     history: History
     gaps: GapDiagnoses
+    throttle: LoginThrottle
 
     @classmethod
     def open(cls, config: PanelConfig) -> Panel:
         return cls(
             config=config,
-            logins=LoginSessions(),
+            logins=LoginSessions(users=LiveUsers(config.users)),
             audit=AuditLog(config.audit_log),
             relay=TelemetryRelay(config.stations),
             links={s.name: StationLink(s) for s in config.stations},
             history=History(config.stations, config.central),
             gaps=GapDiagnoses(config.twin),
+            throttle=LoginThrottle(),
         )
 
     def close(self) -> None:

@@ -8,7 +8,8 @@ from typing import Any
 
 from fastapi import HTTPException
 
-from app.control import ControlClient
+from app.control import ControlClient, ensure_token
+from app.controller import ControlError
 from web.config import PanelConfigError, StationEntry
 
 # The station's error types (app/control.py) as HTTP statuses; any other refusal is a conflict (409).
@@ -34,11 +35,28 @@ class StationLink:
         token = os.environ.get(entry.token_env) if entry.token_env else None
         if entry.token_env and not token:
             raise PanelConfigError(f"station {entry.name}: token_env {entry.token_env}: that variable is not set")
-        self.client = ControlClient(entry.control, token=token, timeout_s=timeout_s)
+        self._timeout_s = timeout_s
+        self.client: ControlClient | None = None
+        if token is not None:
+            self.client = ControlClient(entry.control, token=token, timeout_s=timeout_s)
+
+    def _client(self) -> ControlClient:
+        """The client, with the token of the station's token file once the station has made it."""
+        if self.client is None:
+            path = self.entry.control_token_file()
+            try:
+                token = ensure_token(path) if path.exists() else None
+            except ControlError as exc:
+                raise HTTPException(502, f"station {self.entry.name}: {exc}") from None
+            if token is None:
+                raise HTTPException(502, f"station {self.entry.name}: no control token at {path} (start the station "
+                                    "with `station serve`, or set token_file / token_env)")  # fmt: skip
+            self.client = ControlClient(self.entry.control, token=token, timeout_s=self._timeout_s)
+        return self.client
 
     async def request(self, cmd: str, args: dict[str, Any] | None = None, user: str = "") -> Any:
         """The station's result; HTTPException with the station's own message if it refuses."""
-        reply = await asyncio.to_thread(self.client.request, cmd, args, user)
+        reply = await asyncio.to_thread(self._client().request, cmd, args, user)
         if reply.get("ok"):
             return reply.get("result")
         error = reply.get("error") or {}
@@ -46,4 +64,5 @@ class StationLink:
         raise HTTPException(HTTP_STATUS.get(kind, 409), f"station {self.entry.name}: {error.get('message', kind)}")
 
     def close(self) -> None:
-        self.client.close()
+        if self.client is not None:
+            self.client.close()

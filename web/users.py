@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -96,3 +97,31 @@ class UserBook:
         except (VerificationError, InvalidHashError):
             return None
         return User(name, entry["role"]) if entry else None
+
+
+class LiveUsers:
+    """The users file as it is now, for the panel's every request: re-read whenever it changes on disk (inode,
+    size or mtime), so that a removed user or a changed role takes effect on the next request."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._lock = threading.Lock()
+        self._stamp: tuple[int, int, int] | None = None
+        self._roles: dict[str, str] = {}
+
+    def current(self, name: str) -> User | None:
+        """The user as the file has them now; None once removed (or if the file is gone or unreadable)."""
+        try:
+            st = self.path.stat()
+            stamp = (st.st_ino, st.st_size, st.st_mtime_ns)
+        except OSError:
+            return None
+        with self._lock:
+            if stamp != self._stamp:
+                try:
+                    self._roles = {n: u["role"] for n, u in UserBook(self.path)._users.items()}
+                except UserError:
+                    self._roles = {}
+                self._stamp = stamp
+            role = self._roles.get(name)
+        return User(name, role) if role is not None else None  # type: ignore[arg-type]

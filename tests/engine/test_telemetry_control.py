@@ -81,8 +81,9 @@ def test_control_channel_validates_runs_and_logs_who_asked(make_rig) -> None:
         assert client.request("abort", user="carol")["ok"]
         rig.controller.wait(30)
         log = [e["message"] for e in rig.store.events(uid) if e["kind"] == "control"]
-        assert log[0].startswith("start by alice {'procedure': 'seed000.integral_precession'")
-        assert log[1:4] == ["pause by bob", "resume by bob", "abort by carol"]
+        # who acted: the user a delegate (the panel's identity, authenticated by the token) relays
+        assert log[0].startswith("start by alice via panel {'procedure': 'seed000.integral_precession'")
+        assert log[1:4] == ["pause by bob via panel", "resume by bob via panel", "abort by carol via panel"]
         assert client.request("status")["result"]["state"] == "aborted"
     finally:
         client.close()
@@ -91,7 +92,7 @@ def test_control_channel_validates_runs_and_logs_who_asked(make_rig) -> None:
 
 
 def test_a_station_that_does_not_answer_is_a_timeout_not_a_hang() -> None:
-    client = ControlClient("tcp://127.0.0.1:1", timeout_s=0.3)
+    client = ControlClient("tcp://127.0.0.1:1", token="t" * 32, timeout_s=0.3)
     t0 = time.monotonic()
     reply = client.request("status")
     assert reply["error"]["type"] == "Timeout" and time.monotonic() - t0 < 2

@@ -21,7 +21,7 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 
-from app.control import ControlClient
+from app.control import TOKEN_FILE, ControlClient, ensure_token
 from web.app import create_app
 from web.cli import panel_server
 from web.config import PanelConfig, StationEntry
@@ -56,7 +56,7 @@ class StationProcess:
 
     def wait_until_idle(self, timeout_s: float = 120.0) -> dict:
         """Poll the control channel until no run is under way; the last status."""
-        client = ControlClient(self.control, timeout_s=10.0)
+        client = ControlClient(self.control, token=ensure_token(self.out / TOKEN_FILE), timeout_s=10.0)
         try:
             deadline = time.monotonic() + timeout_s
             while time.monotonic() < deadline:

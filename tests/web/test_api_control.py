@@ -136,7 +136,8 @@ def test_start_pause_resume_abort_resume_session_with_audit_and_the_stations_eve
     assert all("t_utc" in a for a in audit)
     events = [e["message"] for e in olga.get(f"/api/sessions/{uid}").json()["events"] if e["kind"] == "control"]
     assert [e.split(" {")[0] for e in events] == [
-        "start by olga", "pause by olga", "resume by olga", "abort by olga", "resume_session by olga"
+        "start by olga via panel", "pause by olga via panel", "resume by olga via panel", "abort by olga via panel",
+        "resume_session by olga via panel",
     ]  # fmt: skip
 
 
@@ -150,7 +151,7 @@ def test_emergency_stop_ends_the_run(olga, quick):
     events = olga.get(f"/api/sessions/{uid}").json()["events"]
     assert status["state"] == "estopped", events
     assert status["freq_hz"] == 0.0 and status["busy"] is False and status["head_held"] is True
-    assert any(e["message"] == "estop by olga" for e in events)
+    assert any(e["message"] == "estop by olga via panel" for e in events)
     # The head stays held until an operator resets the station (once the cause is removed).
     assert olga.post("/api/stations/sim/reset").status_code == 200
     status = olga.get("/api/stations/sim/status").json()

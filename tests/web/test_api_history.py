@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from app.control import ControlClient
+from app.control import TOKEN_FILE, ControlClient, ensure_token
 from web.archive import unpack
 
 PROCEDURE = "seed000.integral_precession"
@@ -20,7 +20,7 @@ UNKNOWN = "20260101T000000-abcdef12"
 @pytest.fixture(scope="module")
 def recorded(station, quick) -> dict[str, str]:
     """A finished session (serial F-1) and an aborted one (serial A-2), recorded by the station."""
-    client = ControlClient(station.control, timeout_s=20.0)
+    client = ControlClient(station.control, token=ensure_token(station.out / TOKEN_FILE), timeout_s=20.0)
     uids = {}
     try:
         for outcome, serial in (("finished", "F-1"), ("aborted", "A-2")):

@@ -16,14 +16,23 @@ def _me(session: LoginSession) -> Me:
     return Me(user=session.user.name, role=session.user.role, csrf=session.csrf)
 
 
-@router.post("/login", responses=errors(400, 401, 422))
+@router.post("/login", responses=errors(400, 401, 422, 429))
 def login(body: Login, request: Request, response: Response) -> Me:
     """Check the password (Argon2id hash in the users file) and open a login session (HttpOnly cookie)."""
     p = panel(request)
+    client = request.client.host if request.client else None
+    wait_s = p.throttle.retry_after_s(body.username, client)
+    if wait_s > 0:  # refused before the password is checked: guessing costs the panel nothing
+        if p.throttle.refused(body.username, client):
+            p.audit.record(body.username, "login_throttled", ok=False, client=client, retry_after_s=round(wait_s))
+        raise HTTPException(429, f"too many failed logins for this user or address: try again in {wait_s:.0f} s",
+                            headers={"Retry-After": str(max(1, round(wait_s)))})  # fmt: skip
     user = UserBook(p.config.users).verify(body.username, body.password)
     if user is None:
-        p.audit.record(body.username, "login", ok=False, client=request.client.host if request.client else None)
+        p.throttle.failed(body.username, client)
+        p.audit.record(body.username, "login", ok=False, client=client)
         raise HTTPException(401, "wrong user name or password")
+    p.throttle.succeeded(user.name)
     token, session = p.logins.open(user)
     response.set_cookie(SESSION_COOKIE, token, max_age=int(IDLE_LIMIT_S), httponly=True, samesite="strict",
                         secure=p.config.secure_cookies, path="/")  # fmt: skip

@@ -48,12 +48,13 @@ async def start(request: Request, body: StartRequest, link: Link, who: Operator)
 
 @router.post("/api/stations/{name}/resume-session", responses=STATION_ERRORS)
 async def resume_session(request: Request, body: ResumeSessionRequest, link: Link, who: Operator) -> ActionReply:
-    """Continue an aborted or failed session: the measurements it holds are kept, the rest measured."""
+    """Continue an aborted, failed or interrupted session: the measurements it holds are kept, the rest measured."""
     row = await run_in_threadpool(panel(request).history.row, body.uid)  # 404 for a uid the stores do not hold
     if link.entry.name not in row["stations"]:
         raise HTTPException(404, f"session {body.uid} is not in station {link.entry.name}'s store")
-    if row["status"] not in ("aborted", "failed"):
-        raise HTTPException(409, f"session {body.uid} is {row['status']}: only an aborted or failed one can be resumed")
+    if row["status"] not in ("aborted", "failed", "interrupted"):
+        raise HTTPException(409, f"session {body.uid} is {row['status']}: only an aborted, failed or interrupted one "
+                            "can be resumed")  # fmt: skip
     return ActionReply(result=await _act(request, link, who, "resume_session", body.model_dump()))
 
 

@@ -11,7 +11,7 @@ from urllib.parse import urlsplit
 import anyio
 from fastapi import APIRouter, Depends, Query, Request, WebSocket, WebSocketDisconnect
 
-from web.auth import SESSION_COOKIE, viewer
+from web.auth import REVOCATION_CHECK_S, SESSION_COOKIE, LoginSessions, viewer
 from web.relay import BrowserQueue
 from web.schemas import RelayHealth, StationSummary, errors
 from web.state import Link, Panel, panel
@@ -84,7 +84,8 @@ async def _until_closed(ws: WebSocket) -> None:
 async def telemetry(ws: WebSocket, station: Annotated[list[str] | None, Query()] = None) -> None:
     """Every message of the stations (all, or those named by ?station=), as JSON arrays of telemetry documents."""
     p: Panel = ws.app.state.panel
-    if p.logins.get(ws.cookies.get(SESSION_COOKIE)) is None:
+    token = ws.cookies.get(SESSION_COOKIE)
+    if p.logins.get(token) is None:
         await ws.close(NOT_LOGGED_IN, "not logged in")
         return
     if not _same_origin(ws):
@@ -92,6 +93,13 @@ async def telemetry(ws: WebSocket, station: Annotated[list[str] | None, Query()]
         return
     await ws.accept()
     queue = p.relay.subscribe(station)
+async def _until_revoked(ws: WebSocket, logins: LoginSessions, token: str | None) -> None:
+    """Close the socket once its login ends (logout, expiry, the user removed or re-roled)."""
+    while logins.get(token) is not None:
+        await asyncio.sleep(REVOCATION_CHECK_S)
+    await ws.close(NOT_LOGGED_IN, "logged out")
+
+
     try:
         async with anyio.create_task_group() as tasks:
 
@@ -100,7 +108,7 @@ async def telemetry(ws: WebSocket, station: Annotated[list[str] | None, Query()]
                     await work
                 tasks.cancel_scope.cancel()
 
-            for work in (_pump(ws, queue), _report(p, queue), _until_closed(ws)):
+            for work in (_pump(ws, queue), _report(p, queue), _until_closed(ws), _until_revoked(ws, p.logins, token)):
                 tasks.start_soon(until_first_ends, work)
     finally:
         p.relay.unsubscribe(queue)
