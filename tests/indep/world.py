@@ -464,6 +464,11 @@ def pulse_edges(win: Window, t_a: float, t_b: float) -> tuple[np.ndarray, np.nda
         tolerances={"xatol": _XTOL_S, "xrtol": 2e-16},
     )
     x = np.asarray(res.x, dtype=float)
+    bad = ~np.isfinite(x)
+    if np.any(bad):  # a level met at a cell end to rounding (no sign change left): the nearer end
+        lo, hi = grid[cell][bad], grid[cell + 1][bad]
+        near_lo = np.abs(win.phi(lo) - level[bad]) <= np.abs(win.phi(hi) - level[bad])
+        x[bad] = np.where(near_lo, lo, hi)
     return x, sgn.astype(np.int8)
 
 
