@@ -4,14 +4,18 @@ For N sessions of the embedded default twin (rate noise 1e-6 rad/s, jitter
 1e-7 s, 50 ns tick): the mean and spread of (k_hat - k)/sigma_k for the
 integral method (joint fit), for OLS on Y (the seed's eqs. 20-22 taken
 literally), and the RMS-error ratio baseline/integral on the same sessions.
+Session k has seed 10000 + k, whatever the executor: the figures are the same
+on one core, a local pool or a dask cluster (station/fanout.py); with
+--results each session's errors are logged as it finishes and a rerun resumes.
 
-    .venv/bin/python bench/bench_calibration_mc.py [N]
+    .venv/bin/python bench/bench_calibration_mc.py [N] [--executor local|dask] [--scheduler ADDRESS]
+        [--workers W] [--results CASES.jsonl]
 """
 
 from __future__ import annotations
 
+import argparse
 import math
-import sys
 import time
 
 import numpy as np
@@ -20,8 +24,10 @@ from methods.seed000.identify import design, identify
 from models.config import default_twin
 from models.plan import seed000_plan
 from models.session_sim import simulate_session
+from station.fanout import add_executor_options, run_cases, spec_from_args
 
 NAMES = ("kzz", "ky", "k3")
+SEED0 = 10_000
 
 
 def ols_on_y(session, truth):
@@ -35,21 +41,33 @@ def ols_on_y(session, truth):
     return [(K[i] - truth[n]) / sk[i] for i, n in ((1, "kzz"), (2, "ky"), (3, "k3"))]
 
 
-def main(n: int) -> None:
+def one_session(k: int) -> dict[str, list[float]]:
+    """Errors of session k (seed SEED0 + k): z of the integral method and of OLS on Y, errors of both methods."""
     cfg = default_twin()
-    k = cfg.instrument
-    truth = {"kz": k.kz, "kzz": k.kzz, "ky": k.ky, "k3": k.k3}
-    z_int, z_ols, e_int, e_base = [], [], [], []
+    ins = cfg.instrument
+    truth = {"kz": ins.kz, "kzz": ins.kzz, "ky": ins.ky, "k3": ins.k3}
+    s = simulate_session(seed000_plan(), cfg, seed=SEED0 + k)
+    ri, rb = identify(s, "integral"), identify(s, "baseline")
+    return {
+        "z_int": [(ri.coefficient(m)[0] - truth[m]) / ri.coefficient(m)[1] for m in NAMES],
+        "z_ols": ols_on_y(s, truth),
+        "e_int": [ri.coefficient(m)[0] - truth[m] for m in NAMES],
+        "e_base": [rb.coefficient(m)[0] - truth[m] for m in NAMES],
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("n", nargs="?", type=int, default=1000, help="sessions (default 1000)")
+    add_executor_options(p)
+    args = p.parse_args(argv)
+    spec = spec_from_args(args)
     t0 = time.perf_counter()
-    for seed in range(n):
-        s = simulate_session(seed000_plan(), cfg, seed=10_000 + seed)
-        ri, rb = identify(s, "integral"), identify(s, "baseline")
-        z_int.append([(ri.coefficient(m)[0] - truth[m]) / ri.coefficient(m)[1] for m in NAMES])
-        e_int.append([ri.coefficient(m)[0] - truth[m] for m in NAMES])
-        e_base.append([rb.coefficient(m)[0] - truth[m] for m in NAMES])
-        z_ols.append(ols_on_y(s, truth))
-    z_int, z_ols, e_int, e_base = map(np.array, (z_int, z_ols, e_int, e_base))
-    print(f"{n} sessions of 40 points in {time.perf_counter() - t0:.1f} s\n")
+    rows = run_cases(one_session, list(range(args.n)), spec, results=args.results,
+                     settings={"bench": "calibration_mc", "seed0": SEED0})  # fmt: skip
+    z_int, z_ols, e_int, e_base = (np.array([r[key] for r in rows]) for key in ("z_int", "z_ols", "e_int", "e_base"))
+    print(f"{args.n} sessions of 40 points in {time.perf_counter() - t0:.1f} s ({spec.kind}, "
+          f"{spec.scheduler or f'{spec.n_workers} workers'})\n")  # fmt: skip
     print(
         "| coefficient | integral: mean z | integral: spread z | OLS on Y: spread z | RMS error integral | "
         "RMS error baseline | baseline / integral | baseline mean error |"
@@ -65,4 +83,4 @@ def main(n: int) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1000)
+    main()
