@@ -109,7 +109,7 @@ def scripted_port(transcript: Sequence[tuple[bytes, bytes]]) -> Iterator[str]:
 def answers(emulator: Any, data: bytes, *, poll_at_s: float | None = None) -> bytes:
     """The bytes `emulator` sends for `data` (its on_bytes), then for one poll at poll_at_s if given."""
     sent: list[bytes] = []
-    emulator.send = sent.append  # the instance's send, not the pty's transmit queue
+    emulator.send = lambda data, *_: sent.append(data)  # the instance's send, not the pty's transmit queue
     if data:
         emulator.on_bytes(data)
     if poll_at_s is not None:
