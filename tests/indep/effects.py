@@ -52,6 +52,7 @@ class Effect:
     apply: Callable[[Truth, dict[str, float]], Truth]
     scaled: tuple[str, ...]
     bounds: dict[str, float] = field(default_factory=dict)  # plausible |value| per parameter
+    power: float = 1.0  # SNR grows about as (strength scale)^power
 
 
 @dataclass
@@ -103,7 +104,7 @@ def _draw_lateral(rng: np.random.Generator, ctx: Context) -> dict[str, float]:
     while True:
         p = {
             "L0": _lu(rng, 1e-3, 1e-2, False),
-            "fr_hz": float(rng.uniform(0.8, 3.0) * fmax),
+            "fr_hz": float(rng.uniform(0.7, 2.0) * fmax),
             "Q": float(rng.uniform(3.0, 20.0)),
             "phiL_rad": float(rng.uniform(0.0, 2 * math.pi)),
             "kx": _lu(rng, 5e-6, 5e-5),
@@ -197,6 +198,7 @@ EFFECTS: dict[str, Effect] = {
             _apply_lateral,
             ("L0", "kx"),
             {"L0": 0.05, "kx": 2e-4},
+            3.0,
         ),
         Effect(
             "odd_quadratic", True, lambda r, c: {"koq": _lu(r, 2e-6, 3e-5)}, _co(koq="koq"), ("koq",), {"koq": 1e-4}
@@ -457,7 +459,7 @@ def scale_to_snr(
     if unit[channel] == 0.0:
         raise ValueError(f"effect {effect.name}: no signature on any channel of this design")
     # power-law secant: SNR ~ lam^p near the solution (p = 1 for most effects, 3 for L0 and kx together)
-    lam_prev, s_prev, power = 1.0, unit[channel], 1.0
+    lam_prev, s_prev, power = 1.0, unit[channel], effect.power
     lam = (snr / s_prev) ** (1.0 / power)
     s = s_prev
     for _ in range(12):

@@ -343,6 +343,8 @@ def simulate(
         true_tm = win.first_passage(pulses + truth.miscount.get(i, 0))
         extra = None if truth.jitter_outliers_s is None else truth.jitter_outliers_s[i]
         tim = window_timing(win, true_tm, stamper, extra)
+        if not tim.Tm_s > 0.0:
+            raise ValueError(f"window {i} ({p.position_deg} deg, {p.freq_hz} Hz): Tm = {tim.Tm_s} s, too strong")
         rows.append(
             Row(
                 f"p{i:03d}",
