@@ -27,11 +27,12 @@ from engine.registry import get_procedure
 from engine.runner import FINAL_STATES, State
 from models.config import TwinConfig
 from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, format_rows, verdict
+from station.defaults import config_dir
 from station.interchange import write_session
 from station.store import SessionStore
 from station.telemetry import TelemetryPublisher
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
+CONFIG_DIR = config_dir()  # the shipped defaults (station.defaults): package data, or config/ in a source tree
 DEFAULT_SIM_STATION = CONFIG_DIR / "station-sim.toml"
 DEFAULT_PROCEDURE = CONFIG_DIR / "procedures" / "seed000_integral.toml"
 DEFAULT_SPEED = 1000.0  # simulated station time per wall second

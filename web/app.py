@@ -27,7 +27,9 @@ from web.routes import auth, control, gap, history, live, pages
 from web.state import Panel
 
 HERE = Path(__file__).resolve().parent
-UPLOT = HERE / "node_modules" / "uplot" / "dist"
+# uPlot: shipped in the package at build time (setup.py), or web/setup.sh's npm package in a source tree
+UPLOT = next((d for d in (HERE / "vendor" / "uplot", HERE / "node_modules" / "uplot" / "dist") if d.is_dir()),
+             HERE / "node_modules" / "uplot" / "dist")  # fmt: skip
 # Everything from the panel itself: no page may load anything from elsewhere (labs are often offline).
 SECURITY_HEADERS = {
     "Content-Security-Policy": "default-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "

@@ -28,10 +28,11 @@ from reportlab.lib.units import mm
 from reportlab.pdfgen import canvas as rl_canvas
 from reportlab.platypus import Image, KeepTogether, Paragraph, SimpleDocTemplate, Spacer, Table, TableStyle
 
+from station.defaults import config_file
 from station.htmlkit import esc, svg
 from station.tomlfile import read_toml
 
-INSTRUMENTS_DIR = Path(__file__).resolve().parents[2] / "config" / "instruments"
+INSTRUMENTS_DIR = config_file("instruments")  # shipped defaults (station.defaults)
 DEFAULT_INSTRUMENT_FILE = INSTRUMENTS_DIR / "piga-sim.toml"
 NOT_MEASURED = "not measured"
 NOT_RECORDED = "not recorded"

@@ -38,10 +38,11 @@ from methods.common.uncertainty import (
 from methods.seed000.identify import COEFFICIENT_UNITS, Compensation, Identification, design, point_weights
 from models.config import InstrumentCoefficients, TwinConfig
 from models.precession import PrecessionWindow, periodic_rate
+from station.defaults import config_file
 from station.session import PointRecord, Session
 from station.tomlfile import read_toml
 
-REFERENCES_FILE = Path(__file__).resolve().parents[2] / "config" / "instruments" / "references.toml"
+REFERENCES_FILE = config_file("instruments", "references.toml")  # shipped defaults (station.defaults)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,121 @@
+"""A plain install works: `pip install .` (not editable) into a fresh venv, then `station calibrate` from an empty
+folder runs the main job with the defaults shipped as package data and the panel's uPlot inside the package.
+
+The fresh venv takes the third-party dependencies from the development venv (a .pth line; nothing is
+downloaded, so the test runs offline), and the package itself is built from a copy of the source tree and installed
+without them (`--no-deps --no-index`). That the dependencies are declared is checked separately, from the
+imports of the code (test_every_imported_package_is_declared)."""
+
+import ast
+import importlib.metadata
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("station", "engine", "models", "devices", "methods", "gap", "app", "web")
+
+
+def _imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text())
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def _requirement_names(reqs: list[str]) -> set[str]:
+    return {re.split(r"[\s\[<>=!~;]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
+
+
+def test_every_imported_package_is_declared():
+    """Every third-party module the code imports belongs to a declared distribution: the main dependencies for
+    everything, plus the web extra for web/ and the notebook extra for station/notebook.py."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    main_deps = _requirement_names(project["dependencies"])
+    extras = {k: _requirement_names(v) for k, v in project["optional-dependencies"].items()}
+    dists = importlib.metadata.packages_distributions()
+    stdlib = set(sys.stdlib_module_names) | {"__future__"}
+    missing = []
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            if "node_modules" in path.parts:
+                continue
+            allowed = main_deps | (extras["web"] if pkg == "web" else set())
+            if path == ROOT / "station" / "notebook.py":
+                allowed |= extras["notebook"]
+            for name in sorted(_imports(path) - stdlib - set(PACKAGES)):
+                owners = {d.lower().replace("_", "-") for d in dists.get(name, [])}
+                if not owners & allowed:
+                    missing.append(f"{path.relative_to(ROOT)}: {name} (from {sorted(owners) or 'nothing installed'})")
+    assert not missing, "imported but not declared in pyproject.toml:\n" + "\n".join(missing)
+
+
+def _source_copy(dest: Path) -> Path:
+    """The working tree's files (tracked and new, not ignored) and the npm package of uPlot, as a build would see."""
+    files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=ROOT,
+                           capture_output=True, check=True).stdout.decode().split("\0")  # fmt: skip
+    for rel in filter(None, files):
+        src = ROOT / rel
+        if src.is_file():
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+    uplot = ROOT / "web" / "node_modules" / "uplot"
+    if uplot.is_dir():  # else setup.py runs `npm ci` (web/setup.sh installs it for the tests)
+        shutil.copytree(uplot, dest / "web" / "node_modules" / "uplot")
+    return dest
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_a_plain_install_runs_the_main_job_from_an_empty_folder(tmp_path):
+    src = _source_copy(tmp_path / "src")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    py = venv / "bin" / "python"
+    site = Path(subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+                               capture_output=True, text=True, check=True).stdout.strip())  # fmt: skip
+    (site / "_dependencies.pth").write_text(sysconfig.get_path("purelib") + "\n")  # the dev venv's third parties
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", "--no-build-isolation",
+                    str(src)], check=True, env=env, cwd=tmp_path)  # fmt: skip
+    shutil.rmtree(src)  # nothing may come from the source tree from here on
+
+    where = subprocess.run(
+        [str(py), "-c", "import station.defaults as d, web.app as w, app, json; "
+         "print(json.dumps([str(d.config_dir()), str(w.UPLOT), app.__file__]))"],
+        capture_output=True, text=True, check=True, env=env, cwd=tmp_path,
+    ).stdout  # fmt: skip
+    config_dir, uplot, app_file = (Path(p) for p in json.loads(where))
+    assert (
+        config_dir == site / "piga_station_config" and (config_dir / "procedures" / "seed000_integral.toml").is_file()
+    )
+    assert (config_dir / "eds" / "vibration_table_servo.eds").is_file()
+    assert uplot == site / "web" / "vendor" / "uplot" and (uplot / "uPlot.iife.min.js").stat().st_size > 10_000
+    assert app_file.is_relative_to(site)
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    run = subprocess.run([str(venv / "bin" / "station"), "calibrate", "--out", "out"], cwd=empty, env=env,
+                         capture_output=True, text=True, timeout=800)  # fmt: skip
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    out = empty / "out"
+    (report,) = out.glob("report-*.html")
+    html = report.read_text()
+    assert "Provenance" in html and "station-sim" in html
+    (export,) = out.glob("session-*")
+    doc = json.loads((export / "session.json").read_text())
+    assert doc["provenance"]["station_id"] == "station-sim" and doc["provenance"]["simulated"] is True
+    assert doc["provenance"]["software_version"] == importlib.metadata.version("piga-station")  # no git checkout
+    assert len((export / "points.csv").read_text().splitlines()) == 41  # seed 000's 40 points and the header
