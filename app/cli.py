@@ -27,6 +27,7 @@ from app.console import (
 )
 from app.control import TOKEN_FILE, ControlServer, ensure_token
 from app.controller import ControlError
+from app.panel import add_commands as add_panel_commands
 from devices.config import ConfigError
 from devices.errors import DriverError
 from engine.context import ValidationError
@@ -43,7 +44,6 @@ from station.errors import StationError
 from station.interchange import SessionFormatError, content_hash, read_session, write_session
 from station.provenance import make_provenance
 from station.store import SessionStore, StoreError
-from web.cli import add_commands as add_panel_commands
 
 
 def positive_float(text: str) -> float:

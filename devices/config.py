@@ -23,7 +23,7 @@ from engine.context import StationModel
 from station import constants
 from station.errors import InputError
 from station.session import StationInfo
-from station.validation import defects, field_allowed, field_optional, in_range, settings, spec
+from station.validation import defects, field_allowed, field_optional, in_range, settings, settings_fields, spec
 
 SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
 
@@ -144,7 +144,7 @@ def _section(path: Path, name: str, table: Any, simulated: bool, cls: type) -> A
     by its declaration (pydantic; station.validation) and refused with the file, key, value and what is allowed."""
     if not isinstance(table, dict):
         raise ConfigError(path, f"[{name}]", table, "a table")
-    fields = cls.__pydantic_fields__
+    fields = settings_fields(cls)
     for key in table:
         if key not in fields:
             raise ConfigError(path, f"[{name}] {key}", table[key], f"keys {', '.join(fields)}")

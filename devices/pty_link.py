@@ -52,30 +52,30 @@ class Fault(enum.Enum):
 class FaultBox:
     """Armed faults: `count` occurrences each, or persistent until cleared (count=None)."""
 
-    def __init__(self, supported: frozenset[Fault]) -> None:
+    def __init__(self, supported: frozenset[enum.Enum]) -> None:
         self.supported = supported
         self._lock = threading.Lock()
-        self._armed: dict[Fault, int | None] = {}
+        self._armed: dict[enum.Enum, int | None] = {}
 
-    def inject(self, fault: Fault, count: int | None = 1) -> None:
+    def inject(self, fault: enum.Enum, count: int | None = 1) -> None:
         if fault not in self.supported:
             raise ValueError(f"fault {fault.value!r} not supported here")
         with self._lock:
             self._armed[fault] = count
 
-    def clear(self, fault: Fault | None = None) -> None:
+    def clear(self, fault: enum.Enum | None = None) -> None:
         with self._lock:
             if fault is None:
                 self._armed.clear()
             else:
                 self._armed.pop(fault, None)
 
-    def active(self, fault: Fault) -> bool:
+    def active(self, fault: enum.Enum) -> bool:
         """True while armed, without consuming it."""
         with self._lock:
             return fault in self._armed
 
-    def take(self, fault: Fault) -> bool:
+    def take(self, fault: enum.Enum) -> bool:
         """True if armed; consumes one occurrence."""
         with self._lock:
             if fault not in self._armed:
@@ -112,7 +112,7 @@ class PtyEmulator:
     """
 
     name = "emulator"
-    supported_faults: frozenset[Fault] = frozenset({Fault.NO_ANSWER, Fault.DISCONNECT})
+    supported_faults: frozenset[enum.Enum] = frozenset({Fault.NO_ANSWER, Fault.DISCONNECT})
 
     def __init__(
         self,
@@ -184,14 +184,14 @@ class PtyEmulator:
         """Pull the cable: close the master side now (the driver sees EIO)."""
         self._disconnect_now.set()
 
-    def inject(self, fault: Fault, count: int | None = 1) -> None:
+    def inject(self, fault: enum.Enum, count: int | None = 1) -> None:
         """Arm a fault for `count` occurrences (None: until `clear_fault`)."""
         if fault is Fault.DISCONNECT:
             self.faults.inject(fault, 1)
             return
         self.faults.inject(fault, count)
 
-    def clear_fault(self, fault: Fault | None = None) -> None:
+    def clear_fault(self, fault: enum.Enum | None = None) -> None:
         self.faults.clear(fault)
 
     def _close_fds(self) -> None:

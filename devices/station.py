@@ -171,9 +171,9 @@ class StationDevices:
             return reading
         self.servo.enable()
         self._freq_hz = freq_hz
-        reading = self.servo.set_frequency(freq_hz)
-        assert reading is not None  # set_frequency waits
-        return reading
+        at_speed = self.servo.set_frequency(freq_hz)
+        assert at_speed is not None  # set_frequency waits
+        return at_speed
 
     def measure_window(
         self,
@@ -233,7 +233,7 @@ class StationDevices:
             self.reference.start()
             try:
                 t_s, z_m = self._grating_stretch(duration_s)
-                crossings = []
+                crossings: list[float] = []
                 while not crossings or crossings[-1] <= t_s[-1]:
                     crossings.append(self.reference.next_crossing().t_s)
             finally:

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from engine.timing import capture_timing, cross_check
+from engine.timing import TimingFault, capture_timing, cross_check
 from station.records import Field, declare
 from station.session import Measurement, PointRecord, RawStreams
 
@@ -121,6 +121,8 @@ class MeasurePoint(Step):
         )  # fmt: skip
         raw = None
         if self.raw:
+            if result.edges_t_s is None:
+                raise TimingFault(f"{self.key}: raw streams asked for, but the counter streamed no pulse edges")
             raw = RawStreams(
                 g_t - result.open_s, g_z, result.edges_t_s - result.open_s, result.edges_dir,
                 result.crossings_s - result.open_s,

@@ -22,7 +22,7 @@ from station import constants
 from station.errors import InputError
 from station.session import StationInfo
 from station.tomlfile import read_toml
-from station.validation import SETTINGS, defects, in_range, settings, spec
+from station.validation import SETTINGS, defects, in_range, settings, settings_fields, spec
 
 NON_NEGATIVE = in_range(0.0, math.inf)
 POSITIVE = in_range(0.0, math.inf, lo_open=True)
@@ -252,7 +252,7 @@ def _build(klass: type, data: Any, where: str) -> Any:
     try:
         return klass(**data)
     except ValidationError as exc:
-        d = next(defects(exc, klass.__pydantic_fields__))
+        d = next(defects(exc, settings_fields(klass)))
         if d.is_unknown:
             raise TwinConfigError(f"{where}: unknown key {d.field!r}; allowed: {', '.join(names)}") from None
         allowed = "a finite number" if d.is_type else d.allowed

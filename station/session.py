@@ -34,7 +34,7 @@ STATION_FIELDS: tuple[Field, ...] = (
 
 def _declared_range(name: str) -> Check:
     f = next(f for f in STATION_FIELDS if f.name == name)
-    return in_range(f.lo, f.hi, lo_open=f.lo_open)
+    return in_range(-math.inf if f.lo is None else f.lo, math.inf if f.hi is None else f.hi, lo_open=f.lo_open)
 
 
 @settings

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast, dataclass_transform
 
 from pydantic import AfterValidator, ConfigDict, Field, ValidationError
 from pydantic.dataclasses import dataclass as pydantic_dataclass
@@ -25,9 +25,10 @@ SETTINGS = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 T = TypeVar("T")
 
 
-def settings(cls: type[T]) -> type[T]:
-    """A frozen, validated section of settings (a pydantic dataclass; unknown keys refused)."""
-    return pydantic_dataclass(frozen=True, config=SETTINGS)(cls)
+def settings_fields(cls: type) -> dict[str, FieldInfo]:
+    """The declared fields of a @settings class, by name."""
+    fields: dict[str, FieldInfo] = cls.__pydantic_fields__  # type: ignore[attr-defined]
+    return fields
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,12 @@ def spec(
 
         info.metadata.append(AfterValidator(satisfies))
     return info
+
+
+@dataclass_transform(frozen_default=True, field_specifiers=(Field, spec))
+def settings(cls: type[T]) -> type[T]:
+    """A frozen, validated section of settings (a pydantic dataclass; unknown keys refused)."""
+    return cast("type[T]", pydantic_dataclass(frozen=True, config=SETTINGS)(cls))
 
 
 def field_allowed(info: FieldInfo) -> str:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from devices.errors import ChecksumError, FrameError
 
 DEVICE = "gradiometer"
@@ -47,7 +49,7 @@ def decode_line(line: bytes, lead: bytes = b"!") -> tuple[int, str, list[str]]:
         raise FrameError(DEVICE, f"malformed line {line!r}") from exc
 
 
-def format_reading(n: int, ticks: int, phi_arcsec: Sequence[float], status: int) -> tuple[str, ...]:
+def format_reading(n: int, ticks: int, phi_arcsec: Sequence[float] | np.ndarray, status: int) -> tuple[str, ...]:
     """The fields of an RD reply: n, ticks (8 hex digits), phi_x, phi_y, phi_z (arcsec, 3 decimals), status."""
     return (str(n), f"{ticks:08X}", *(f"{v:+.3f}" for v in phi_arcsec), str(status))
 

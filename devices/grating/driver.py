@@ -234,8 +234,8 @@ class GratingReadHead(FramedDevice):
         returned (on the next call); the stream stays usable afterwards.
         """
         if self._pending is not None:
-            err, self._pending = self._pending, None
-            raise err
+            pending, self._pending = self._pending, None
+            raise pending
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
         deadline = time.monotonic() + timeout_s
         period_ticks = TICKS_PER_CYCLE * self._divider

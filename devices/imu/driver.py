@@ -246,7 +246,7 @@ class StrapdownImu(FramedDevice):
         ticks = self._unwrap.unwrap_array(raw["ticks"], self._unwrap.clock.now_s())
         period = round(1.0 / (info.rate_hz * TICK_S))
         fresh = self._next_seq is None
-        dseq = np.diff(seq, prepend=seq[0] - 1 if fresh else self._next_seq - 1)
+        dseq = np.diff(seq, prepend=seq[0] - 1 if self._next_seq is None else self._next_seq - 1)
         dticks = np.diff(ticks, prepend=ticks[0] - period if fresh else self._last_ticks)
         wrong = np.flatnonzero((dseq < 1) | (dticks != dseq * period))
         if wrong.size:

@@ -21,7 +21,7 @@ class PigaElectronicsSection(SerialSection):
 
 def _open(section: PigaElectronicsSection, clock: Clock) -> PigaElectronics:
     return PigaElectronics(
-        section.port,
+        section.port or "",
         baud=section.baud,
         offset_max_arcsec=section.offset_max_arcsec,
         lock_timeout_s=section.lock_timeout_s,

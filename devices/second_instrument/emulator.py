@@ -99,11 +99,11 @@ class InstrumentOnHead(SimStation):
         self._edge_phase_rad = float(self.rng.uniform(0.0, 2 * math.pi / world.twin.station.pulses_per_rev))
 
     @property
-    def twin(self) -> TwinConfig:
+    def twin(self) -> TwinConfig:  # type: ignore[override]  # PIGA B's twin, read-only: the fixture owns it
         return self.fixture.twin_b()
 
     @property
-    def _version(self) -> int:
+    def _version(self) -> int:  # type: ignore[override]  # the world's, so PIGA B follows every twin change
         return self.world._version
 
     def index_position_deg(self, t_s: float) -> float:

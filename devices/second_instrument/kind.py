@@ -25,7 +25,7 @@ from station.clock import Clock
 
 
 def open_counter(section: SerialSection, clock: Clock) -> CounterTimer:
-    return CounterTimer(section.port, baud=section.baud, clock=clock).open()
+    return CounterTimer(section.port or "", baud=section.baud, clock=clock).open()
 
 
 def emulate(section: SerialSection, world: Any) -> Any:

@@ -82,7 +82,7 @@ class Voltmeter(SerialDevice):
         with self._io:
             self.lines.link.write(command.encode("ascii") + b"\n")
 
-    def query(self, command: str, parse: Callable[[bytes], T] = bytes, *, wait_s: float = 0.0) -> T:
+    def query(self, command: str, parse: Callable[[bytes], T] = bytes, *, wait_s: float = 0.0) -> T:  # type: ignore[assignment]
         """A query's reply line through `parse` (both retried); `wait_s`: station time the instrument needs first."""
         lines = self.lines
         timeout_s = self.timeout_s + wait_s / getattr(self.clock, "speed", 1.0)
@@ -103,9 +103,9 @@ class Voltmeter(SerialDevice):
 
     def errors(self) -> list[str]:
         """Empty the error queue; the errors it held, oldest first."""
-        found = []
+        found: list[str] = []
         for _ in range(32):
-            entry = self.query(":SYST:ERR?").decode("ascii", "replace")
+            entry = self.query(":SYST:ERR?", bytes).decode("ascii", "replace")
             if entry.split(",", 1)[0].strip() in ("0", "+0"):
                 return found
             found.append(entry)

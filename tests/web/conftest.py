@@ -22,8 +22,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.control import TOKEN_FILE, ControlClient, ensure_token
+from app.panel import panel_server
 from web.app import create_app
-from web.cli import panel_server
 from web.config import PanelConfig, StationEntry
 from web.users import UserBook
 
