@@ -6,11 +6,20 @@ once it finishes runs the procedure's analysis, stores the results and
 writes the report. The CLI (`station run`, `station calibrate`, `station
 resume`) and the control server behind the web panel (`station serve`) use it
 alike.
+
+The controller owns the station's one supervisor of motion (engine.supervisor):
+it ties the drive's master heartbeat to the supervisor's tick, watches the
+engine thread of every run, and if that thread is lost (or does not end within
+its grace after an abort) stops every moving device, marks the session failed
+and releases whoever waits (`wait()` always returns once the worker is gone).
+At start-up, sessions of the store found `running` with no live process are
+marked `interrupted` (station.session_lock).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 import threading
@@ -24,13 +33,17 @@ from engine.planning import Plan, plan_procedure
 from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from engine.runner import Engine, State
+from engine.supervisor import QUICK_STOP_BOUND_S, MotionSupervisor, SafeState
 from station.errors import StationFault
+from station.session_lock import INTERRUPTED, recover_interrupted
 from station.store import SessionStore
 
 Publisher = Callable[[str, dict], None]
 
 
 ANALYSIS_TIMEOUT_S = 600.0
+RESUMABLE = ("aborted", "failed", INTERRUPTED, "running")  # running: left by a crash and not yet found
+log = logging.getLogger(__name__)
 
 
 class ControlError(StationFault):
@@ -63,12 +76,22 @@ class StationController:
         self.model = model
         self.reports_dir = Path(reports_dir)
         self.publish: Publisher = publish or (lambda topic, msg: None)
-        self.engine = Engine(hardware, store, self.publish)
+        self.supervisor = MotionSupervisor(hardware).start()
+        self.engine = Engine(hardware, store, self.publish, self.supervisor)
         self._lock = threading.Lock()
         self._worker: threading.Thread | None = None
         self._outcome: RunOutcome | None = None
         self._started = threading.Event()
         self.after_run: list[Callable[[RunOutcome], None]] = []  # called in the worker once a run has ended
+        self._start_error: BaseException | None = None
+        self.interrupted = recover_interrupted(store)
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """End any run (abort, wait at most timeout_s), then stop supervising: what every exit path calls."""
+        if self.busy:
+            self.abort()
+            self.wait(timeout_s)
+        self.supervisor.close()
 
     # ---- library and planning ------------------------------------------------------------
 
@@ -98,12 +121,15 @@ class StationController:
             if self.busy:
                 raise ControlError(f"a procedure is already running (session {self.engine.progress.session_uid})")
             self._outcome = None
+            self._start_error = None
             self._started.clear()
             self._worker = threading.Thread(
                 target=self._run, args=(spec, plan, instrument_serial, resume_uid), name="engine", daemon=True
             )
             self._worker.start()
         self._started.wait()
+        if self._start_error is not None:  # the session could not be opened (locked, unknown): nothing moved
+            raise self._start_error
         return self.engine.progress.session_uid, plan
 
     def resume_session(self, uid: str) -> tuple[str, Plan]:
@@ -111,13 +137,20 @@ class StationController:
         cfg = self.store.session_config(uid)
         if "procedure" not in cfg:
             raise ControlError(f"session {uid} was not started by the engine: nothing to resume")
-        serial = next((s["instrument_serial"] for s in self.store.sessions() if s["uid"] == uid), "")
+        row = next(s for s in self.store.sessions() if s["uid"] == uid)
+        if row["status"] not in RESUMABLE:
+            raise ControlError(f"session {uid} is {row['status']}: only {', '.join(RESUMABLE[:3])} ones resume")
+        serial = row["instrument_serial"]
         return self.start(cfg["procedure"], cfg["params"], instrument_serial=serial, resume_uid=uid)
 
     def wait(self, timeout_s: float | None = None) -> RunOutcome | None:
+        """The outcome once the run has ended (None while it runs); never None once its worker is gone."""
         worker = self._worker
         if worker is not None:
             worker.join(timeout_s)
+            if not worker.is_alive() and self._outcome is None:  # lost: the supervisor's on_lost writes the outcome
+                bound_s = self.supervisor.bound_s + QUICK_STOP_BOUND_S + 1.0
+                self.supervisor.wait_lost(bound_s if timeout_s is None else min(timeout_s, bound_s))
         return self._outcome
 
     def run(self, procedure: str, params: dict[str, Any], **kw: Any) -> RunOutcome:
@@ -134,10 +167,13 @@ class StationController:
         self.engine.resume()
 
     def abort(self) -> None:
+        """Abort at the next event; if the engine does not end within the supervisor's grace, motion is stopped."""
         self.engine.abort()
+        self.supervisor.expect_end()
 
     def emergency_stop(self) -> None:
         self.engine.emergency_stop()
+        self.supervisor.expect_end()
 
     def reset(self) -> None:
         """Clear an emergency stop or a drive fault once its cause is removed (not while a run is under way)."""
@@ -163,25 +199,59 @@ class StationController:
 
     # ---- worker ---------------------------------------------------------------------------------
 
+    def _on_lost(self, reason: str, safe: SafeState) -> None:
+        """The supervisor found the run's engine thread lost: record the outcome, release whoever waits."""
+        uid = self.engine.progress.session_uid
+        fault = f"supervisor: {reason}; {safe.describe()}"
+        self.engine.progress.state = State.FAILED
+        self.engine.progress.faults.append(fault)
+        self.publish("fault", {"kind": "supervisor", "message": fault})
+        try:
+            if uid:
+                self.store.set_status(uid, "failed")
+                self.store.add_event(uid, "fault", fault, "critical")
+        except Exception as exc:  # the outcome stays in RunOutcome and the log
+            log.error("could not record the lost run of %s: %s", uid, exc)
+        if self._outcome is None:
+            self._outcome = RunOutcome(uid, State.FAILED, None, None, list(self.engine.progress.faults))
+
     def _run(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
         engine = self.engine
+        me = threading.current_thread()
+        opened = False
+
+        def on_open(_uid: str) -> None:
+            nonlocal opened
+            opened = True
+            self.supervisor.watch(me, self._on_lost)
+            self._started.set()
+
         try:
-            uid, _ = engine.run(
-                spec, plan, instrument_serial=serial, resume_uid=resume_uid, on_open=lambda _uid: self._started.set()
-            )
+            uid, _ = engine.run(spec, plan, instrument_serial=serial, resume_uid=resume_uid, on_open=on_open)
+        except BaseException as exc:
+            if not opened:  # refused before anything moved: start() raises it
+                self._start_error = exc
+                return
+            raise  # the supervisor sees the thread end unreleased, stops motion and records the outcome
         finally:
             self._started.set()
+        self.supervisor.release(me)
         state = engine.progress.state
         analysis = report = None
         faults = list(engine.progress.faults)
-        if state == State.FINISHED and spec.analyse is not None:
-            try:
-                analysis, report = self._analyse(spec, uid)
-            except (ValueError, subprocess.TimeoutExpired) as exc:  # the data cannot give what the analysis asks
-                faults.append(f"analysis: {exc}")
-                self.store.add_event(uid, "analysis", f"analysis failed: {exc}", "error")
-                self.publish("fault", {"kind": "analysis", "message": str(exc)})
-        self._outcome = RunOutcome(uid, state, analysis, report, faults)
+        try:
+            if state == State.FINISHED and spec.analyse is not None:
+                try:
+                    analysis, report = self._analyse(spec, uid)
+                except (ValueError, subprocess.TimeoutExpired) as exc:  # the data cannot give what the analysis asks
+                    faults.append(f"analysis: {exc}")
+                    self.store.add_event(uid, "analysis", f"analysis failed: {exc}", "error")
+                    self.publish("fault", {"kind": "analysis", "message": str(exc)})
+        except Exception as exc:  # nothing moves any more; whoever waits gets the outcome with this fault
+            log.exception("analysis of %s failed", uid)
+            faults.append(f"analysis: {type(exc).__name__}: {exc}")
+        finally:
+            self._outcome = RunOutcome(uid, state, analysis, report, faults)
         for hook in self.after_run:  # `station serve --sync-to`: the session to the central history
             hook(self._outcome)
 

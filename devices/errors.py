@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from station.errors import DeviceError
+from station.errors import DeviceError, TransientFault
 
 
 class DriverError(DeviceError):
@@ -42,12 +42,16 @@ class DeviceTimeout(DriverError):  # noqa: N818 (names fixed by the project)
     """The device did not answer within a bounded time."""
 
 
-class FrameError(DriverError):
-    """A reply was malformed (bad framing, length, or unexpected content)."""
+class FrameError(DriverError, TransientFault):
+    """A reply was malformed (bad framing, length, or unexpected content): transient, the point may be repeated."""
 
 
 class ChecksumError(FrameError):
     """A reply's checksum or CRC did not match."""
+
+
+class LostSamples(DriverError, TransientFault):  # noqa: N818
+    """A stream lost samples (a FIFO overflow, a host stall): transient, the stretch or point may be repeated."""
 
 
 class Disconnected(DriverError):  # noqa: N818

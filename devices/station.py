@@ -31,7 +31,7 @@ import numpy as np
 
 from devices.config import StationConfig
 from devices.counter_timer.driver import CounterTimer
-from devices.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError
+from devices.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError, LostSamples
 from devices.grating.driver import GratingReadHead
 from devices.indexing_head.driver import IndexingHead
 from devices.reference_marks.driver import ReferenceMarks
@@ -144,8 +144,10 @@ class StationDevices:
         return self.extra[name]
 
     def table_at_rest(self) -> bool:
-        """The crank is not powered, or the drive reads zero speed (the head's motion interlock)."""
-        if self.servo.state != "OPERATION ENABLED":
+        """The crank is not powered, or the drive reads zero speed (the head's motion interlock).
+
+        A drive whose state is unknown (no link) or in a quick stop is not at rest until it reads zero."""
+        if self.servo.state not in ("OPERATION ENABLED", "QUICK STOP ACTIVE", "UNKNOWN"):
             return True
         try:
             return self.servo.read().freq_hz == 0.0
@@ -255,7 +257,7 @@ class StationDevices:
             if not block.lost:
                 return block.t_s, block.z_m
             log.warning("grating: %d samples lost in a %g s stretch; recording it again", block.lost, duration_s)
-        raise DriverError(
+        raise LostSamples(
             "grating read head",
             f"{block.lost} samples lost in a {duration_s:g} s stretch, {GRATING_ATTEMPTS} times",
             field="lost_samples", value=block.lost, allowed="0",
@@ -316,6 +318,17 @@ class StationDevices:
         except DriverError as exc:
             fault = str(exc)
         return {"drive_state": self.servo.state, "drive_fault": fault, "head_held": self.head.held}
+
+    def tie_heartbeat(self, alive: Callable[[], bool]) -> None:
+        """The drive hears the master heartbeat only while alive() holds (engine.supervisor)."""
+        self.servo.master_alive = alive
+
+    def safe_stop_bound_s(self) -> float:
+        """Wall seconds a safe stop may take: the crank's ramp from the highest frequency (station time, at the
+        clock's speed) plus the drive's confirmations (3 SDO writes, 2 state transitions) and the counter abort."""
+        lim = self.config.limits
+        ramp_wall_s = lim.freq_max_hz / lim.ramp_max_hz_per_s / getattr(self.clock, "speed", 1.0)
+        return ramp_wall_s + 3 * self.config.servo.timeout_s + 2 * 1.0 + 1.0
 
     def _extra_actions(self, name: str) -> list[Callable[[], object]]:
         """The safe_stop / emergency_stop of every further device that moves something (engine.protocols.Stoppable)."""

@@ -11,11 +11,28 @@ the next step starts, so a fault or a kill loses no finished measurement;
 `run(..., resume_uid=...)` hands the procedure the measurements a session
 already holds instead of measuring them again.
 
+Whatever ends a run, its devices reach a safe state through the station's one
+supervisor of motion (engine.supervisor), within the bound it states, and the
+outcome is recorded: an unexpected exception (a locked store, a bug in a step)
+fails the run like a device fault, never skips the stop. A run holds its
+session's lock (station.session_lock) from before the session exists, or before a
+resume reads it, until its outcome is written: one process per session.
+
+Fault policy during a measurement (bluesky's suspenders, at point granularity):
+- a TransientFault (a garbled or CRC-failed counter or grating frame, a grating
+  stretch that kept losing samples) repeats the point, at most POINT_REPEATS times,
+  once the window is aborted (nothing of the failed attempt is stored);
+- every other fault (drive fault, bus-off, heartbeat or SDO loss, a port gone, a
+  read head's signal loss, a counter overflow, a locked store) ends the session
+  `failed`, devices safe, every finished point kept, resumable.
+
 The engine is also the `RunContext` that steps run in.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import threading
 import time
@@ -30,10 +47,12 @@ from engine.planning import Plan
 from engine.protocols import Event, StationHardware
 from engine.registry import ProcedureSpec
 from engine.steps import Recorded, Step
+from engine.supervisor import MotionSupervisor
 from engine.timing import TimingFault
-from station.errors import DeviceError
+from station.errors import DeviceError, TransientFault
 from station.provenance import make_provenance
 from station.session import Measurement, PointRecord
+from station.session_lock import SessionLock, creating
 from station.store import SessionStore
 
 
@@ -90,15 +109,24 @@ class Progress:
 
 Publisher = Callable[[str, dict], None]
 WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second
+POINT_REPEATS = 2  # a point that meets a transient fault is measured again at most this many times
+log = logging.getLogger(__name__)
 TRACE_POINTS = 250  # samples per trace message, at most
 
 
 class Engine:
     """Runs procedures on a station; control calls are thread-safe."""
 
-    def __init__(self, hardware: StationHardware, store: SessionStore, publish: Publisher | None = None) -> None:
+    def __init__(
+        self,
+        hardware: StationHardware,
+        store: SessionStore,
+        publish: Publisher | None = None,
+        supervisor: MotionSupervisor | None = None,
+    ) -> None:
         self.hw = hardware
         self.clock = hardware.clock
+        self.supervisor = supervisor or MotionSupervisor(hardware)
         self.store = store
         self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user
         self.publish: Publisher = publish or (lambda topic, msg: None)
@@ -118,6 +146,7 @@ class Engine:
         self._estimates: dict[str, float] = {}
         self._step_started_s = 0.0
 
+        self._session_lock: SessionLock | None = None
     # ---- control, from any thread ---------------------------------------------------------
 
     def pause(self) -> None:
@@ -272,7 +301,10 @@ class Engine:
         self.publish("state", {"state": str(state), "session_uid": self._session_uid,
                                "procedure": self.progress.procedure})  # fmt: skip
         if self._session_uid:
-            self.store.add_event(self._session_uid, "state", str(state))
+            try:  # a control call (abort, pause) must not fail on a store that cannot take its event
+                self.store.add_event(self._session_uid, "state", str(state))
+            except Exception as exc:
+                log.error("state %s not recorded: %s: %s", state, type(exc).__name__, exc)
 
     def _publish_progress(self) -> None:
         p = self.progress
@@ -304,7 +336,7 @@ class Engine:
         self.progress.key = key
         self._step_started_s = self.clock.now_s()
         self._publish_progress()
-        result = self._store(step.run(self))
+        result = self._store(self._measure(step))
         done[key] = result
         self.progress.done += 1
         self.progress.estimate_remaining_s -= self._estimates.get(key, 0.0)
@@ -313,6 +345,19 @@ class Engine:
         return result
 
     def provenance(self, instrument_serial: str) -> dict[str, Any]:
+    def _measure(self, step: Step) -> Any:
+        """One measuring step; a transient fault repeats it (the policy in the module docstring)."""
+        for attempt in range(POINT_REPEATS + 1):
+            try:
+                return step.run(self)
+            except TransientFault as exc:
+                if self._abort_requested or attempt == POINT_REPEATS:
+                    raise
+                msg = f"{step.key}: {type(exc).__name__}: {exc}; measuring it again ({attempt + 1} of {POINT_REPEATS})"
+                self.event("repeat", msg, "warning")
+                self.publish("fault", {"kind": "repeat", "message": msg})
+        raise AssertionError("unreachable")
+
         """Where a new session comes from (station.provenance): the station file's id, simulated or real, the
         seed, the operator; ProvenanceError on a real station without an instrument serial number."""
         cfg = getattr(self.hw, "config", None)
@@ -324,12 +369,15 @@ class Engine:
     def _open_session(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None, config: dict) -> dict:
         if resume_uid is None:
             cfg = {"procedure": spec.name, "params": plan.params, "plan": plan.to_json()} | config
-            self._session_uid = self.store.create_session(
-                self.hw.station, spec.name, instrument_serial=serial, config=cfg, provenance=self.provenance(serial)
-            )
+            with creating(self.store.path):  # created and locked at once: never taken for an interrupted one
+                self._session_uid = self.store.create_session(
+                    self.hw.station, spec.name, instrument_serial=serial, config=cfg, provenance=self.provenance(serial)
+                )
+                self._session_lock = SessionLock(self.store.path, self._session_uid)
             self.sequence = 0
             return {}
         self._session_uid = resume_uid
+        self._session_lock = SessionLock(self.store.path, resume_uid)  # SessionLocked for a second process
         session = self.store.load_session(resume_uid, with_raw=False)
         done: dict[str, Any] = {p.point_id: p for p in session.points}
         done |= {m.key: m for m in session.measurements}
@@ -353,7 +401,25 @@ class Engine:
         `on_open(uid)` is called once the session exists in the store, before anything moves.
         """
         self.progress = Progress(procedure=spec.name)
-        done = self._open_session(spec, plan, instrument_serial, resume_uid, config or {})
+        self._session_uid = ""
+        try:
+            done = self._open_session(spec, plan, instrument_serial, resume_uid, config or {})
+        except BaseException:
+            self._release_lock()
+            raise
+        try:
+            return self._run_open(spec, plan, done, on_open)
+        finally:
+            self._release_lock()
+
+    def _release_lock(self) -> None:
+        if self._session_lock is not None:
+            self._session_lock.release()
+            self._session_lock = None
+
+    def _run_open(
+        self, spec: ProcedureSpec, plan: Plan, done: dict[str, Any], on_open: Callable[[str], None] | None
+    ) -> tuple[str, Any]:
         if on_open is not None:
             on_open(self._session_uid)
         self._estimates = plan.key_estimates_s()
@@ -377,32 +443,44 @@ class Engine:
                 step = gen.send(self._execute(step, done))
         except StopIteration as stop:
             value = stop.value
-            self._stop_safely()
-        except (Aborted, DeviceError, TimingFault) as exc:
+            self._stop_safely("finished")
+        except Exception as exc:  # Aborted, a device or timing fault, or anything unexpected: never skip the stop
             if self._abort_requested:  # an abort or emergency stop; device errors it causes are its consequence
                 final = State.ESTOPPED if self._estop else State.ABORTED
-                self.event("abort", f"{'emergency stop' if self._estop else 'abort'}: {exc}",
-                           "critical" if self._estop else "warning")  # fmt: skip
+                self._record(self.event, "abort", f"{'emergency stop' if self._estop else 'abort'}: {exc}",
+                             "critical" if self._estop else "warning")  # fmt: skip
                 if not self._estop:
-                    self._stop_safely()
+                    self._stop_safely("abort")
             else:
                 final = State.FAILED
-                p.faults.append(f"{type(exc).__name__}: {exc}")
-                self.event("fault", p.faults[-1], "error")
+                expected = isinstance(exc, DeviceError | TimingFault)
+                p.faults.append(f"{type(exc).__name__}: {exc}" + ("" if expected else " (unexpected)"))
+                if not expected:
+                    log.error("run failed on an unexpected error", exc_info=exc)
                 self.publish("fault", {"kind": type(exc).__name__, "message": str(exc)})
-                self._stop_safely()
+                self._stop_safely(p.faults[-1])
+                self._record(self.event, "fault", p.faults[-1], "error")
         finally:
-            gen.close()
+            with contextlib.suppress(Exception):
+                gen.close()
         self.freq_hz = 0.0
-        self.store.set_status(self._session_uid, STORE_STATUS[final])
-        self.event("wall_time", f"{time.perf_counter() - wall0:.2f} s of wall time")
-        self._set_state(final)
+        self._record(self.store.set_status, self._session_uid, STORE_STATUS[final])
+        self._record(self.event, "wall_time", f"{time.perf_counter() - wall0:.2f} s of wall time")
+        self._record(self._set_state, final)
+        self.progress.state = final  # even if the store could not take it
         self._publish_progress()
         return self._session_uid, value
 
-    def _stop_safely(self) -> None:
+    def _record(self, write: Callable[..., Any], *args: Any) -> None:
+        """A write of the run's outcome; a store that refuses it (locked, gone) costs the record, not the stop."""
         try:
-            self.hw.safe_stop()
-        except DeviceError as exc:
-            self.event("fault", f"safe stop failed: {exc}; emergency stop", "critical")
-            self.hw.emergency_stop()
+            write(*args)
+        except Exception as exc:
+            msg = f"could not record {getattr(write, '__name__', 'it')}{args!r}: {type(exc).__name__}: {exc}"
+            log.error("%s", msg)
+            self.progress.faults.append(msg)
+
+    def _stop_safely(self, reason: str) -> None:
+        """Every moving device to a safe state through the supervisor (bounded: ramp, else quick stop)."""
+        state = self.supervisor.safe_state(reason)
+        self._record(self.event, "safe_state", state.describe(), "info" if state.how == "safe stop" else "critical")

@@ -30,7 +30,6 @@ drive's consumer then trips after 3 heartbeat periods (1.5 s on the simulated st
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 import time
@@ -230,6 +229,9 @@ class MotionSupervisor:
             held = self._emergency(reason, time.monotonic(), list(state.errors))
             state = SafeState(reason, f"{state.how}, then held", state.took_s + held.took_s, held.errors)
             self.last = state
-        w.lost.set()
-        with contextlib.suppress(Exception):
+        try:
             w.on_lost(reason, state)
+        except Exception:  # the devices are safe; the record is what failed
+            log.exception("motion supervisor: recording the lost run failed")
+        finally:
+            w.lost.set()
