@@ -6,14 +6,16 @@ A device package's kind module (`devices/<device>/kind.py`) that defines a modul
 
 is a device a station may have. Its configuration section `[name]` is
 optional in a station file; when present it is parsed with `section` (a
-frozen dataclass whose fields carry the checks of devices.config:
-`spec(range_check(lo, hi))`, `optional=True` for a serial port that a
+`@settings` dataclass of station.validation whose fields declare what they
+allow: `spec(in_range(lo, hi))`, `optional=True` for a serial port that a
 simulated station fills in), the device is opened with `open(section, clock)`
 and, on a simulated station, its emulator is started first with
 `emulate(section, world)` (an object with `.port` for a serial device, and
 `close()`); `open` then receives the section with the emulator's port.
 Procedures reach it as `ctx.hw.device(name)` and check its limits in planning
-through `ctx.model.section(name)`.
+through `ctx.model.section(name)`. What the station does with an opened device
+follows from the engine's protocols it implements (engine.protocols: a
+`Stoppable` device is stopped by the station's safe and emergency stops).
 
 The five devices of the vibration table (servo, grating, reference, counter,
 indexing_head) are found the same way, with `core=True`: their sections are
@@ -38,7 +40,7 @@ from station.clock import Clock
 @dataclass(frozen=True)
 class DeviceKind:
     name: str  # the config section and the device's name
-    section: type  # frozen dataclass of the section
+    section: type  # the section's @settings dataclass (station.validation)
     open: Callable[[Any, Clock], Any]  # (section, clock) -> opened driver with close()
     emulate: Callable[[Any, Any], Any]  # (section, SimStation) -> started emulator with .port and close()
     core: bool = False  # one of the five devices every station has: a required section, a StationConfig field
