@@ -54,6 +54,7 @@ from station.provenance import make_provenance
 from station.session import Measurement, PointRecord
 from station.session_lock import SessionLock, creating
 from station.store import SessionStore
+from station.telemetry import envelope
 
 
 class State(StrEnum):
@@ -274,7 +275,7 @@ class Engine:
         return on_event
 
     def trace_sink(self) -> Callable:
-        """The on_trace callback of a window: grating samples published as a thinned displacement trace."""
+        """The on_trace callback of a window: grating samples published as a decimated displacement trace."""
         t_parts: list = []
         z_parts: list = []
         last_wall = [0.0]
@@ -289,8 +290,8 @@ class Engine:
             t, z = np.concatenate(t_parts), np.concatenate(z_parts)
             t_parts.clear()
             z_parts.clear()
-            keep = slice(None, None, max(1, len(t) // TRACE_POINTS))
-            self.publish("trace", {"t_s": t[keep], "z_m": z[keep], "freq_hz": self.freq_hz})
+            t, z = envelope(t, z, TRACE_POINTS // 2)  # min and max per bucket: the motion's true envelope
+            self.publish("trace", {"t_s": t, "z_m": z, "freq_hz": self.freq_hz})
 
         return on_trace
 

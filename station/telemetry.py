@@ -12,7 +12,8 @@ gap (the slow-joiner loss at connect, or a high-water-mark drop). Topics:
     progress     Progress.to_json(): key, done, total, fraction, elapsed_s, estimate_*_s, faults
     window       {"key", "event", "elapsed_s", "expected_s", "preset_pulses", "pulses_est", ["rate_radps"]}
     motion       {"freq_hz", "commanded_hz", "index_deg"}
-    trace        {"t_s": [...], "z_m": [...]}  table displacement from the grating, decimated
+    trace        {"t_s": [...], "z_m": [...], "freq_hz"}  table displacement from the grating, decimated
+                 honestly (`envelope`: the min and the max of each time bucket, in time order)
     point        a PointRecord as JSON
     measurement  {"key", "kind", "values"}
     event        {"kind", "message", "level"}
@@ -29,10 +30,27 @@ import json
 import threading
 import time
 
+import numpy as np
 import zmq
 
 from station.clock import Clock
 from station.jsonsafe import json_safe
+
+
+def envelope(t_s: np.ndarray, z_m: np.ndarray, buckets: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most 2 * buckets samples that keep every excursion: the min and the max of each of `buckets` equal
+    stretches of samples, each at its own time and in time order (a plot of them shows the true envelope where
+    a stride would alias the motion into scattered dots)."""
+    n = len(t_s)
+    if n <= 2 * buckets:
+        return np.asarray(t_s), np.asarray(z_m)
+    edges = np.linspace(0, n, buckets + 1).astype(int)
+    starts = edges[:-1]
+    i_min = np.array([a + int(np.argmin(z_m[a:b])) for a, b in zip(starts, edges[1:], strict=True)])
+    i_max = np.array([a + int(np.argmax(z_m[a:b])) for a, b in zip(starts, edges[1:], strict=True)])
+    keep = np.unique(np.concatenate([i_min, i_max]))  # sorted: time order
+    return np.asarray(t_s)[keep], np.asarray(z_m)[keep]
+
 
 SNDHWM = 10_000  # messages queued per subscriber before zmq drops (the panel must not slow the station)
 

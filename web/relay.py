@@ -4,8 +4,11 @@ The SUB sockets live on the panel's event loop (zmq.asyncio). Every message
 is checked (station, seq) and its text handed unchanged to each browser's
 queue; a full queue drops its oldest message and counts the drop, so a slow
 browser loses its own backlog and never slows the others or the station.
-The latest message of each lasting topic is kept so that a browser that
-connects mid-session sees the state at once.
+The latest message of each lasting topic is kept, and the session so far
+(its points, window closes, events and faults, the open window's progress and
+the last display traces: `SessionHistory`), so that a browser that connects
+mid-session is sent the state and the session's history at once, as one
+`history` document followed by the latest lasting messages.
 """
 
 from __future__ import annotations
@@ -25,7 +28,52 @@ from web.config import StationEntry
 
 QUEUE_SIZE = 256  # messages per browser: about 5 s of a station's telemetry
 LASTING_TOPICS = ("state", "progress", "status", "window", "motion", "point", "analysis")
-KEPT_NOTICES = 20  # recent events and faults replayed to a browser that connects
+HISTORY_POINTS = 2000  # points and window closes of the session kept for a browser that joins late
+HISTORY_NOTICES = 500  # events and faults of the session
+HISTORY_WINDOW = 1000  # progress messages of the open window
+HISTORY_TRACES = 20  # display traces: about 2 s of wall time
+
+
+@dataclass
+class SessionHistory:
+    """What a late viewer needs of the session under way: its points, window closes, events and faults, the open
+    window's progress and the last display traces (telemetry documents as received, bounded)."""
+
+    session_uid: str = ""
+    points: deque[dict] = field(default_factory=lambda: deque(maxlen=HISTORY_POINTS))
+    closes: deque[dict] = field(default_factory=lambda: deque(maxlen=HISTORY_POINTS))
+    notices: deque[dict] = field(default_factory=lambda: deque(maxlen=HISTORY_NOTICES))
+    window: deque[dict] = field(default_factory=lambda: deque(maxlen=HISTORY_WINDOW))
+    traces: deque[dict] = field(default_factory=lambda: deque(maxlen=HISTORY_TRACES))
+
+    def add(self, doc: dict) -> None:
+        topic, data = doc["topic"], doc.get("data")
+        data = data if isinstance(data, dict) else {}
+        uid = data.get("session_uid")
+        if uid and uid != self.session_uid:  # a new session: the last one's history goes
+            for part in (self.points, self.closes, self.notices, self.window, self.traces):
+                part.clear()
+            self.session_uid = uid
+        if topic == "point":
+            self.points.append(doc)
+        elif topic in ("event", "fault"):
+            self.notices.append(doc)
+        elif topic == "trace":
+            self.traces.append(doc)
+        elif topic == "window":
+            if data.get("event") == "open":
+                self.window.clear()
+            self.window.append(doc)
+            if data.get("event") == "close":
+                self.closes.append(doc)
+        elif topic == "motion" and not data.get("freq_hz"):
+            self.traces.clear()  # at rest: the last motion is no longer the table's
+
+    def document(self, station: str) -> dict:
+        """The `history` message: {"station", "topic": "history", "seq": None, "wall_s", "data": {...}}."""
+        data = {"session_uid": self.session_uid, "points": list(self.points), "closes": list(self.closes),
+                "notices": list(self.notices), "window": list(self.window), "traces": list(self.traces)}  # fmt: skip
+        return {"station": station, "topic": "history", "seq": None, "wall_s": time.time(), "data": data}
 
 
 class BrowserQueue:
@@ -62,7 +110,7 @@ class StationFeed:
     last_seq: int | None = None
     last_heard: float | None = None  # time.time() of the last message
     latest: dict[str, str] = field(default_factory=dict)
-    notices: deque[str] = field(default_factory=lambda: deque(maxlen=KEPT_NOTICES))
+    history: SessionHistory = field(default_factory=SessionHistory)
 
     def accept(self, body: bytes) -> str | None:
         """The message text if it is a well-formed message of this station (seq accounted); None otherwise."""
@@ -86,13 +134,13 @@ class StationFeed:
         text = body.decode()
         if topic in LASTING_TOPICS:
             self.latest[topic] = text
-        elif topic in ("event", "fault"):
-            self.notices.append(text)
+        self.history.add(doc)
         return text
 
     def replay(self) -> list[str]:
-        """What a browser that connects now needs first: recent notices, then the latest lasting messages."""
-        return [*self.notices, *self.latest.values()]
+        """What a browser that connects now needs first: the session's history (one document), then the latest
+        lasting messages."""
+        return [json.dumps(self.history.document(self.station.name)), *self.latest.values()]
 
     def stats(self) -> dict:
         age = None if self.last_heard is None else max(time.time() - self.last_heard, 0.0)

@@ -62,6 +62,7 @@ class StationSummary(BaseModel):
     name: str
     title: str
     relay: dict[str, Any] = Field(description="messages received, lost (seq gaps), restarts, seconds since heard")
+    serve_command: str = Field("", description="the command that serves this station as the panel expects it")
 
 
 class RelayHealth(BaseModel):

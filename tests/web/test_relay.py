@@ -45,12 +45,15 @@ def test_a_feed_counts_lost_messages_restarts_and_malformed_ones():
     assert (s["received"], s["lost"], s["restarts"], s["malformed"], s["last_seq"]) == (6, 2, 1, 3, 0)
 
 
-def test_a_feed_replays_recent_notices_then_the_latest_of_each_lasting_topic():
+def test_a_feed_replays_the_session_history_then_the_latest_of_each_lasting_topic():
     feed = StationFeed(entry("a"))
     for seq, topic in enumerate(["state", "status", "trace", "event", "status", "fault", "progress"]):
         feed.accept(doc(seq, topic))
-    topics_seqs = [(json.loads(t)["topic"], json.loads(t)["seq"]) for t in feed.replay()]
-    assert topics_seqs == [("event", 3), ("fault", 5), ("state", 0), ("status", 4), ("progress", 6)]
+    replay = [json.loads(t) for t in feed.replay()]
+    topics_seqs = [(d["topic"], d["seq"]) for d in replay]
+    assert topics_seqs == [("history", None), ("state", 0), ("status", 4), ("progress", 6)]
+    history = replay[0]["data"]
+    assert [d["seq"] for d in history["notices"]] == [3, 5] and [d["seq"] for d in history["traces"]] == [2]
 
 
 async def drain(queue: BrowserQueue, traces: int) -> list[dict]:
@@ -93,3 +96,34 @@ def test_fan_out_from_two_stations_and_a_slow_browser_loses_only_its_own_backlog
     assert {d["station"] for d in got["only_a"]} == {"a"}
     assert slow.dropped >= 2 * N - 8
     assert all(f.lost == 0 and f.malformed == 0 for f in relay.feeds.values())
+
+
+def session_doc(seq: int, topic: str, data: dict) -> bytes:
+    return json.dumps({"station": "a", "topic": topic, "seq": seq, "t_s": float(seq), "wall_s": 1e9 + seq,
+                       "data": data}).encode()  # fmt: skip
+
+
+def test_a_late_viewer_gets_the_whole_session_so_far_and_nothing_of_the_last_one():
+    """Points, window closes, events with their times, the open window's progress; a new session starts afresh."""
+    feed = StationFeed(entry("a"))
+    seq = iter(range(10_000))
+    feed.accept(session_doc(next(seq), "state", {"state": "running", "session_uid": "S1"}))
+    feed.accept(session_doc(next(seq), "event", {"kind": "note", "message": "old session", "level": "info"}))
+    feed.accept(session_doc(next(seq), "state", {"state": "running", "session_uid": "S2"}))
+    for k in range(30):  # more points than a browser queue's worth of replays would have kept before
+        key = f"P{k:03d}"
+        feed.accept(session_doc(next(seq), "window", {"key": key, "event": "open", "elapsed_s": 0.0}))
+        feed.accept(session_doc(next(seq), "window", {"key": key, "event": "ref", "elapsed_s": 10.0}))
+        feed.accept(session_doc(next(seq), "window", {"key": key, "event": "close", "elapsed_s": 30.0,
+                                                      "rate_radps": 0.5 + k}))  # fmt: skip
+        feed.accept(session_doc(next(seq), "point", {"point_id": key, "pulses": 49152, "Tm_s": 30.0}))
+        feed.accept(session_doc(next(seq), "event", {"kind": "point", "message": key, "level": "info"}))
+    feed.accept(session_doc(next(seq), "window", {"key": "P030", "event": "open", "elapsed_s": 0.0}))
+    feed.accept(session_doc(next(seq), "window", {"key": "P030", "event": "ref", "elapsed_s": 4.0}))
+    history = json.loads(feed.replay()[0])["data"]
+    assert history["session_uid"] == "S2"
+    assert [d["data"]["point_id"] for d in history["points"]] == [f"P{k:03d}" for k in range(30)]
+    assert [d["data"]["rate_radps"] for d in history["closes"]] == [0.5 + k for k in range(30)]
+    assert [d["data"]["message"] for d in history["notices"]] == [f"P{k:03d}" for k in range(30)]
+    assert all(d["t_s"] > 0 and d["wall_s"] > 1e9 for d in history["notices"])  # station time and UTC of each
+    assert [d["data"]["event"] for d in history["window"]] == ["open", "ref"]  # only the open window's

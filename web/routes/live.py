@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import shlex
 from typing import Annotated
 from urllib.parse import urlsplit
 
@@ -12,6 +13,7 @@ import anyio
 from fastapi import APIRouter, Depends, Query, Request, WebSocket, WebSocketDisconnect
 
 from web.auth import REVOCATION_CHECK_S, SESSION_COOKIE, LoginSessions, viewer
+from web.config import StationEntry
 from web.relay import BrowserQueue
 from web.schemas import RelayHealth, StationSummary, errors
 from web.state import Link, Panel, panel
@@ -26,8 +28,18 @@ NOT_LOGGED_IN, CROSS_SITE = 4401, 4403  # WebSocket close codes
 def stations(request: Request) -> list[StationSummary]:
     """The configured stations and what the panel hears from each."""
     p = panel(request)
-    return [StationSummary(name=s.name, title=s.title or s.name, relay=p.relay.feeds[s.name].stats())
-            for s in p.config.stations]  # fmt: skip
+    return [StationSummary(name=s.name, title=s.title or s.name, relay=p.relay.feeds[s.name].stats(),
+                           serve_command=serve_command(s)) for s in p.config.stations]  # fmt: skip
+
+
+def serve_command(s: StationEntry) -> str:
+    """`station serve` with this entry's name, endpoints, store and reports: what the panel shows a station that
+    is not served."""
+    args = ["station", "serve", "--name", s.name, "--out", str(s.reports), "--db", str(s.store), "--control",
+            s.control, "--telemetry", s.telemetry]  # fmt: skip
+    if s.token_env:
+        args += ["--token-env", s.token_env]
+    return shlex.join(args)
 
 
 ASK_ERRORS = errors(401, 404, 409, 422, 502, 504)

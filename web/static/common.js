@@ -86,10 +86,38 @@ export async function start(active) {
   return session;
 }
 
-// A uPlot chart that follows its container's width.
+// A uPlot chart that follows its container's width (down to a phone's 360 px screen).
 export function chart(container, opts, data) {
-  const plot = new uPlot({ width: Math.max(container.clientWidth, 300), height: 220, ...opts }, data, container);
-  new ResizeObserver(() => plot.setSize({ width: Math.max(container.clientWidth, 300), height: plot.height }))
-    .observe(container);
+  const width = () => Math.max(container.clientWidth, 200);
+  const plot = new uPlot({ width: width(), height: 220, ...opts }, data, container);
+  new ResizeObserver(() => plot.setSize({ width: width(), height: plot.height })).observe(container);
   return plot;
+}
+
+export const COVERAGE_K = 2; // expanded uncertainty U = k u where the method states no coverage factor
+export const UNCERTAINTY_NOTE = "u: standard uncertainty (k = 1, about 68 %), the GUM budget's (Type A and B) " +
+  "where the method has one, else the least-squares fit's (seed 000 eq. 22); U = k u: expanded uncertainty with " +
+  `its coverage factor k (Student t from the budget, else k = ${COVERAGE_K}, about 95 %).`;
+
+// Every quantity with a value in a method's results, in either shape the methods write:
+// {coefficients: {name: {value, sigma, ...}}, units: {name: unit}} or {name: {value, sigma, unit}}.
+// The same reading as station/coefficients.py (coefficient_rows), for the browser.
+export function coefficientRows(results, where = "", units = {}) {
+  const rows = [];
+  const own = results && typeof results.units === "object" && !Array.isArray(results.units) ? results.units : {};
+  const u = { ...units, ...own };
+  const isNumber = (x) => typeof x === "number" && Number.isFinite(x);
+  for (const [key, item] of Object.entries(results || {})) {
+    if (!item || typeof item !== "object" || Array.isArray(item) || key === "units") continue;
+    if (key === "coefficients") { rows.push(...coefficientRows(item, where, u)); continue; }
+    if ("value" in item && (item.value === null || isNumber(item.value))) {
+      const budget = isNumber(item.standard_uncertainty) && isNumber(item.expanded_uncertainty) && isNumber(item.coverage_factor);
+      const sigma = isNumber(item.sigma) ? item.sigma : null;
+      const std = budget ? item.standard_uncertainty : sigma;
+      const k = budget ? item.coverage_factor : COVERAGE_K;
+      rows.push({ result: where || key, name: key, value: item.value, u: std, k, unit: item.unit ?? u[key] ?? "",
+        expanded: budget ? item.expanded_uncertainty : std === null ? null : k * std, note: item.note || "", budget });
+    } else rows.push(...coefficientRows(item, where ? `${where}.${key}` : key, u));
+  }
+  return rows;
 }

@@ -1,13 +1,15 @@
 // Live view: one card per station, fed by the panel's WebSocket relay; operators also get the controls.
-import { api, chart, duration, el, num, session, showError, start } from "/static/common.js";
+import { api, chart, coefficientRows, duration, el, num, session, showError, start, UNCERTAINTY_NOTE } from "/static/common.js";
 
 const STALE_S = 2; // no telemetry for this long: the station is shown as silent
-const TRACE_POINTS = 600; // samples in the displacement plot (the grating display stream gives ~250 per wall second)
+const NOT_SERVED_S = 5; // ... and for this long (or never heard): not served, with the command that serves it
+const TRACE_MESSAGES = 20; // display traces kept: about 2 s of wall time (the engine sends 10 a second)
 const SPEED_SPAN_S = 10; // wall seconds over which the station's speed is measured
 const RATES_KEEP = 8;
-const NOTICES_KEEP = 30;
+const NOTICES_KEEP = 200;
 const RENDER_MS = 100;
 const FINAL = ["finished", "aborted", "estopped", "failed"];
+const IN_HISTORY = ["window", "trace", "point", "event", "fault"]; // topics the history holds
 
 // Station seconds per wall second over the last few wall seconds of status messages (a simulated station runs
 // faster than real time, and jumps through the waits it knows the end of).
@@ -24,62 +26,219 @@ class SpeedMeter {
   }
 }
 
-// The table's displacement: against phase (t mod 1/f) when the station runs faster than real time, else time.
+// Samples decimated to at most two per pixel column: the min and the max of each column's time bucket, in time
+// order. A line through them is the true envelope of the motion (a stride would alias it into scattered dots).
+export function minMaxPerPixel(t, z, columns) {
+  const n = t.length;
+  if (n <= 2 * columns) return [t, z];
+  const t0 = t[0];
+  const span = t[n - 1] - t0 || 1;
+  const xs = [];
+  const ys = [];
+  let bucket = -1;
+  let iMin = 0;
+  let iMax = 0;
+  const flush = () => {
+    if (bucket < 0) return;
+    const pair = iMin === iMax ? [iMin] : iMin < iMax ? [iMin, iMax] : [iMax, iMin];
+    for (const i of pair) { xs.push(t[i]); ys.push(z[i]); }
+  };
+  for (let i = 0; i < n; i++) {
+    const b = Math.min(columns - 1, Math.floor(((t[i] - t0) / span) * columns));
+    if (b !== bucket) { flush(); bucket = b; iMin = i; iMax = i; }
+    else { if (z[i] < z[iMin]) iMin = i; if (z[i] > z[iMax]) iMax = i; }
+  }
+  flush();
+  return [xs, ys];
+}
+
+// The table's displacement over station time: upper and lower envelope per pixel column. Where the samples
+// resolve the motion (spacing under a quarter period) the two coincide and draw the trace itself; where they do
+// not (a simulated station at 100x sends a few samples per many periods) the band between the extremes of
+// neighbouring samples is drawn: the motion's envelope, not an alias. Gaps in the record are left open.
+export function envelopeSeries(t, z, freqHz, columns) {
+  const [xs, ys] = minMaxPerPixel(t, z, columns);
+  const n = xs.length;
+  const dts = [];
+  for (let i = 1; i < n; i++) dts.push(xs[i] - xs[i - 1]);
+  const median = dts.length ? [...dts].sort((a, b) => a - b)[Math.floor(dts.length / 2)] : 0;
+  const resolved = !(freqHz > 0) || median < 0.25 / freqHz;
+  const x = [];
+  const hi = [];
+  const lo = [];
+  for (let i = 0; i < n; i++) {
+    if (i && median > 0 && xs[i] - xs[i - 1] > 5 * median) { x.push((xs[i] + xs[i - 1]) / 2); hi.push(null); lo.push(null); }
+    const near = resolved ? [ys[i]] : ys.slice(Math.max(0, i - 1), i + 2);
+    x.push(xs[i]); hi.push(Math.max(...near)); lo.push(Math.min(...near));
+  }
+  return { x, hi, lo, resolved };
+}
+
+// The table's displacement from the grating as a continuous trace over station time (s): the last couple of
+// wall seconds of display traces, min/max per pixel column.
 class TracePlot {
   constructor(box) {
     this.box = box;
     this.messages = [];
-    this.mode = null;
     this.plot = null;
     this.updates = 0;
+    this.title = el("p", { class: "plot-title" }, "Table displacement (grating): no motion yet");
+    box.append(this.title);
   }
-  add(data, speed) {
+  add(data) {
+    if (!data.t_s || !data.t_s.length) return;
+    const last = this.messages.at(-1);
+    if (last && data.t_s[0] < last.t_s[last.t_s.length - 1]) this.messages = []; // time went back: a new window
     this.messages.push(data);
-    let total = this.messages.reduce((n, m) => n + m.t_s.length, 0);
-    while (this.messages.length > 1 && total - this.messages[0].t_s.length >= TRACE_POINTS) {
-      total -= this.messages.shift().t_s.length;
+    while (this.messages.length > TRACE_MESSAGES) this.messages.shift();
+    this.dirty = true;
+  }
+  clear(why) {
+    this.messages = [];
+    this.title.textContent = `Table displacement (grating): ${why}`;
+    if (this.plot) this.plot.setData([[], [], []]);
+  }
+  render() {
+    if (!this.dirty) return;
+    this.dirty = false;
+    const t = [];
+    const z = [];
+    for (const m of this.messages) for (let i = 0; i < m.t_s.length; i++) { t.push(m.t_s[i]); z.push(m.z_m[i] * 1000); }
+    if (!t.length) return;
+    if (!this.plot) {
+      this.plot = chart(this.box, {
+        scales: { x: { time: false } },
+        axes: [{ label: "station time (s)" }, { label: "z (mm)" }],
+        series: [{ label: "station time (s)" },
+          { label: "z max (mm)", stroke: "#1565c0", width: 1, points: { show: false } },
+          { label: "z min (mm)", stroke: "#1565c0", width: 1, points: { show: false } }],
+        bands: [{ series: [1, 2], fill: "rgba(21, 101, 192, 0.3)" }],
+        legend: { show: false },
+      }, [[], [], []]);
     }
-    const mode = speed !== null && speed > 2 && data.freq_hz > 0 ? "phase" : "time";
-    if (mode !== this.mode) this.reset(mode);
-    const pts = [];
-    for (const m of this.messages) {
-      const period = m.freq_hz > 0 ? 1 / m.freq_hz : 0;
-      for (let i = 0; i < m.t_s.length; i++) {
-        const x = mode === "phase" && period ? (360 * (m.t_s[i] % period)) / period : m.t_s[i];
-        pts.push([x, m.z_m[i] * 1000]);
-      }
-    }
-    pts.sort((a, b) => a[0] - b[0]);
-    this.plot.setData([pts.map((p) => p[0]), pts.map((p) => p[1])]);
+    const freq = this.messages.at(-1).freq_hz;
+    const columns = Math.max(Math.round(this.plot.bbox.width / devicePixelRatio), 100);
+    const e = envelopeSeries(t, z, freq, columns);
+    this.plot.setData([e.x, e.hi, e.lo]);
+    const span = t[t.length - 1] - t[0];
+    this.title.textContent = `Table displacement (grating): the last ${num(span, 3)} s of station time, ${t.length} ` +
+      (e.resolved ? "samples (min and max of each pixel column)"
+        : `samples, too few for ${num(freq, 3)} Hz at this speed: the band is the motion's envelope`);
     this.updates += 1;
     this.box.dataset.updates = String(this.updates);
-    this.box.dataset.points = String(pts.length);
+    this.box.dataset.points = String(e.x.length);
+    this.box.dataset.spanS = span.toFixed(3);
+    this.box.dataset.resolved = String(e.resolved);
+    this.box.dataset.xAxis = "station time (s)";
   }
-  reset(mode) {
-    this.mode = mode;
-    this.messages = this.messages.slice(-1);
-    if (this.plot) this.plot.destroy();
-    const x = mode === "phase" ? "phase in the table period (deg)" : "station time (s)";
-    this.plot = chart(this.box, {
-      title: "Table displacement (grating)",
-      scales: { x: { time: false } },
-      axes: [{ label: x }, { label: "z (mm)" }],
-      series: [{ label: x }, { label: "z (mm)", stroke: "#1565c0", paths: () => null,
-        points: { show: true, size: 3, fill: "#1565c0" } }],
-      legend: { show: false },
-    }, [[], []]);
+}
+
+// The open window: pulses over the window's station time. The counter reports its count at the close (the
+// preset); until then the count is the estimate preset x elapsed / expected, drawn as such, and the close as
+// the measured point (Tm, preset) with its mean rate.
+class WindowPlot {
+  constructor(box) {
+    this.box = box;
+    this.docs = [];
+    this.plot = null;
+    this.caption = el("p", { class: "plot-title" }, "Open window: none yet");
+    box.append(this.caption);
   }
+  add(d) {
+    if (d.event === "open" || (this.docs.length && this.docs[0].key !== d.key)) this.docs = [];
+    this.docs.push(d);
+    this.dirty = true;
+  }
+  clear() { this.docs = []; this.dirty = true; }
+  render() {
+    if (!this.dirty) return;
+    this.dirty = false;
+    const docs = this.docs.filter((d) => Number.isFinite(d.elapsed_s));
+    if (!docs.length) { if (this.plot) this.plot.setData([[], [], [], []]); return; }
+    const w = docs.at(-1);
+    const closed = w.event === "close";
+    const x = [];
+    const est = [];
+    const expected = [];
+    const measured = [];
+    const push = (xi, e, ex, m) => { x.push(xi); est.push(e); expected.push(ex); measured.push(m); };
+    push(0, 0, 0, null);
+    for (const d of docs) if (d.elapsed_s > 0 && d.event !== "close") push(d.elapsed_s, d.pulses_est, null, null);
+    if (Number.isFinite(w.expected_s)) push(w.expected_s, null, w.preset_pulses, null);
+    if (closed) push(w.elapsed_s, null, null, w.preset_pulses);
+    const order = x.map((_, i) => i).sort((a, b) => x[a] - x[b]);
+    const pick = (arr) => order.map((i) => arr[i]);
+    if (!this.plot) {
+      this.box.append(el("p", { class: "plot-legend" }, el("span", { class: "key est" }, "- - estimated (preset × elapsed / expected)"),
+        el("span", { class: "key exp" }, "○ expected close"), el("span", { class: "key meas" }, "● counted at the close")));
+      this.plot = chart(this.box, {
+        legend: { show: false },
+        scales: { x: { time: false } },
+        axes: [{ label: "station time since the window opened (s)" }, { label: "pulses", size: 60 }],
+        series: [{ label: "t (s)" },
+          { label: "estimated (elapsed / expected x preset)", stroke: "#90a4ae", dash: [6, 4], spanGaps: true, points: { show: true, size: 4 } },
+          { label: "expected close", stroke: "#1565c0", points: { show: true, size: 7 }, spanGaps: true },
+          { label: "counted at the close", stroke: "#c62828", points: { show: true, size: 9, fill: "#c62828" }, paths: () => null }],
+      }, [[], [], [], []]);
+    }
+    this.plot.setData([pick(x), pick(est), pick(expected), pick(measured)]);
+    const rate = closed && w.rate_radps !== undefined ? `; mean rate ${num(w.rate_radps, 7)} rad/s` : "";
+    this.caption.textContent = `Open window ${w.key}: ${closed ? `closed on its preset ${w.preset_pulses} pulses after ` +
+      `${num(w.elapsed_s, 6)} s${rate}` : `${duration(w.elapsed_s)} of about ${duration(w.expected_s)}; ` +
+      `about ${w.pulses_est} of ${w.preset_pulses} pulses (the counter reports at the close)`}`;
+    this.box.dataset.event = w.event;
+  }
+}
+
+// Each closed window's mean precession rate over the session.
+class RatesPlot {
+  constructor(box) {
+    this.box = box;
+    this.rates = []; // [key, rate_radps, elapsed_s]
+    this.plot = null;
+  }
+  add(d) {
+    if (d.rate_radps === undefined || this.rates.some((r) => r[0] === d.key && r[2] === d.elapsed_s)) return;
+    this.rates.push([d.key, d.rate_radps, d.elapsed_s]);
+    this.dirty = true;
+  }
+  clear() { this.rates = []; this.dirty = true; }
+  render() {
+    if (!this.dirty) return;
+    this.dirty = false;
+    if (!this.plot && this.rates.length) {
+      this.plot = chart(this.box, {
+        title: "Mean rate of each closed window",
+        scales: { x: { time: false } },
+        axes: [{ label: "window", incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500] },
+          { label: "rate (rad/s)", size: 70, values: (u, ticks) => ticks.map((v) => num(v, 3)) }],
+        series: [{ label: "window" }, { label: "rate (rad/s)", stroke: "#2e7d32", paths: () => null, points: { show: true, size: 6, fill: "#2e7d32" } }],
+        legend: { show: false },
+      }, [[], []]);
+    }
+    if (this.plot) this.plot.setData([this.rates.map((_, i) => i + 1), this.rates.map((r) => r[1])]);
+    this.box.dataset.points = String(this.rates.length);
+  }
+}
+
+function stamp(doc) {
+  const utc = Number.isFinite(doc.wall_s) ? new Date(doc.wall_s * 1000).toISOString().slice(11, 19) + " UTC" : "";
+  const st = Number.isFinite(doc.t_s) ? `t = ${num(doc.t_s, 7)} s` : "";
+  return [st, utc].filter(Boolean).join(" · ");
 }
 
 class StationView {
   constructor(info) {
     this.name = info.name;
+    this.serveCommand = info.serve_command || `station serve --name ${info.name}`;
     this.speed = new SpeedMeter();
     this.last = {}; // latest data by topic
-    this.rates = [];
     this.seenFaults = new Set();
     this.sessionUid = null;
-    this.silentS = null;
+    this.silentS = info.relay ? info.relay.silent_s : null;
+    this.heardReport = false;
+    this.points = 0;
+    this.skipUpTo = null; // seq of the newest message of the history just received (its frame only)
     this.dirty = true;
     this.build(info);
   }
@@ -88,17 +247,21 @@ class StationView {
     const f = (cls) => el("span", { class: cls }, "—");
     this.f = {
       link: f("link"), state: f("state"), procedure: f("procedure"), key: f("key"), counts: f("counts"),
-      eta: f("eta"), freq: f("freq"), head: f("head"), drive: f("drive"), window: f("window"),
-      windowTime: f("window-time"), rate: f("rate"), session: f("session"),
+      eta: f("eta"), freq: f("freq"), head: f("head"), drive: f("drive"), rate: f("rate"), session: f("session"),
+      points: f("points"),
     };
     this.bar = el("div", { class: "bar-fill" });
     this.progress = el("div", { class: "bar", role: "progressbar", "aria-label": "session progress",
       "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, this.bar);
-    this.windowBar = el("div", { class: "bar-fill" });
-    this.windowProgress = el("div", { class: "bar small", role: "progressbar", "aria-label": "window pulses",
-      "aria-valuemin": "0", "aria-valuemax": "100", "aria-valuenow": "0" }, this.windowBar);
+    this.notServed = el("div", { class: "not-served", role: "alert", hidden: true });
+    this.pauseBox = el("div", { class: "pause-box", role: "status", hidden: true });
+    this.results = el("section", { class: "results", hidden: true });
     this.traceBox = el("div", { class: "trace", dataset: { updates: "0" } });
     this.trace = new TracePlot(this.traceBox);
+    this.windowBox = el("div", { class: "window-plot" });
+    this.window = new WindowPlot(this.windowBox);
+    this.ratesBox = el("div", { class: "rates-plot", dataset: { points: "0" } });
+    this.ratesPlot = new RatesPlot(this.ratesBox);
     this.rateList = el("tbody");
     this.noticeList = el("ul", { class: "notices" });
     this.faultList = el("ul", { class: "faults" });
@@ -106,17 +269,18 @@ class StationView {
     this.controls = el("section", { class: "controls", hidden: true });
     this.card = el("article", { class: "station", dataset: { station: info.name } },
       el("header", {}, el("h2", {}, info.title), this.f.link, el("span", { class: "badge" }, this.f.state)),
+      this.notServed, this.pauseBox, this.results,
       el("div", { class: "grid" },
         el("section", {},
           el("h3", {}, "Session"),
           el("table", { class: "facts" }, row("procedure", this.f.procedure), row("session", this.f.session),
-            row("point", this.f.key), row("measurements", this.f.counts)),
+            row("point", this.f.key), row("measurements", this.f.counts), row("points stored", this.f.points)),
           this.progress, el("p", { class: "eta" }, this.f.eta),
-          el("h3", {}, "Open window"),
-          el("p", {}, this.f.window), this.windowProgress, el("p", {}, this.f.windowTime),
-          el("p", {}, "precession rate at the last close: ", this.f.rate),
-          el("table", { class: "rates" }, el("thead", {}, el("tr", {}, el("th", {}, "window"),
+          el("h3", {}, "Open window"), this.windowBox,
+          el("p", {}, "mean rate at the last close: ", this.f.rate),
+          el("div", { class: "scroll" }, el("table", { class: "rates" }, el("thead", {}, el("tr", {}, el("th", {}, "window"),
             el("th", {}, "rate (rad/s)"), el("th", {}, "length (s)"))), this.rateList)),
+          this.ratesBox),
         el("section", {},
           el("h3", {}, "Table and head"),
           el("table", { class: "facts" }, row("table frequency", this.f.freq), row("indexing head", this.f.head),
@@ -124,14 +288,19 @@ class StationView {
           this.traceBox),
         el("section", {},
           el("h3", {}, "Faults"), this.faultList,
-          el("h3", {}, "Events"), this.noticeList)),
+          el("h3", {}, "Events (station time · UTC)"), this.noticeList)),
       this.controls);
   }
 
   handle(doc) {
     const d = doc.data;
-    if (d.session_uid && d.session_uid !== this.sessionUid) this.newSession(d.session_uid);
+    // The latest messages replayed after the history may be in it already: each message counts once.
+    if (this.skipUpTo !== null && IN_HISTORY.includes(doc.topic) && doc.seq <= this.skipUpTo) return;
+    if (doc.topic !== "history" && d && d.session_uid && d.session_uid !== this.sessionUid) this.newSession(d.session_uid);
     switch (doc.topic) {
+      case "history":
+        this.history(d);
+        break;
       case "status":
         this.speed.add(doc);
         this.last.progress = { ...this.last.progress, ...d };
@@ -141,30 +310,32 @@ class StationView {
         break;
       case "state":
         this.last.progress = { ...this.last.progress, state: d.state, session_uid: d.session_uid };
-        this.notice("state", d.state, FINAL.includes(d.state) && d.state !== "finished" ? "warning" : "info");
+        this.notice(doc, "state", d.state, FINAL.includes(d.state) && d.state !== "finished" ? "warning" : "info");
         break;
       case "window":
-        this.last.window = d;
-        if (d.event === "close" && d.rate_radps !== undefined) {
-          this.rates.unshift([d.key, d.rate_radps, d.elapsed_s]);
-          this.rates.length = Math.min(this.rates.length, RATES_KEEP);
-        }
+        this.window.add(d);
+        if (d.event === "close") this.ratesPlot.add(d);
         break;
       case "motion":
         this.last.motion = d;
+        if (!d.freq_hz) this.trace.clear("the table is at rest");
         break;
       case "trace":
-        this.trace.add(d, this.speed.speed);
+        this.trace.add(d);
+        break;
+      case "point":
+        this.points += 1;
         break;
       case "analysis":
         this.last.analysis = d;
-        this.notice("analysis", d.summary.split("\n")[0], "info");
+        this.notice(doc, "analysis", d.summary.split("\n")[0], "info");
+        this.showResults(d);
         break;
       case "event":
-        this.notice(d.kind, d.message, d.level);
+        this.notice(doc, d.kind, d.message, d.level);
         break;
       case "fault":
-        this.notice(d.kind, d.message, "error", true);
+        this.notice(doc, d.kind, d.message, "error", true);
         break;
       default:
         return;
@@ -172,26 +343,79 @@ class StationView {
     this.dirty = true;
   }
 
-  // A new run: what belonged to the last one goes.
-  newSession(uid) {
-    this.sessionUid = uid;
-    this.rates = [];
-    delete this.last.window;
-  }
-
-  // The relay replays recent events and faults to a browser that (re)connects.
-  clearNotices() {
+  // The session so far, sent by the panel when this browser connects: points, closes, events, window, traces.
+  history(h) {
+    const docs = [...h.points, ...h.closes, ...h.notices, ...h.window, ...h.traces];
+    this.skipUpTo = docs.length ? Math.max(...docs.map((x) => x.seq)) : null;
     this.noticeList.replaceChildren();
     this.faultList.replaceChildren();
     this.seenFaults = new Set();
+    if (h.session_uid && h.session_uid !== this.sessionUid) this.newSession(h.session_uid);
+    this.points = h.points.length;
+    for (const c of h.closes) this.ratesPlot.add(c.data);
+    for (const w of h.window) this.window.add(w.data);
+    for (const t of h.traces) this.trace.add(t.data);
+    for (const n of h.notices) {
+      if (n.topic === "fault") this.notice(n, n.data.kind, n.data.message, "error", true);
+      else this.notice(n, n.data.kind, n.data.message, n.data.level);
+    }
   }
 
-  notice(kind, message, level, fault = false) {
-    const item = el("li", { class: level }, el("b", {}, kind), " ", message);
+  // A new run: what belonged to the last one goes.
+  newSession(uid) {
+    this.sessionUid = uid;
+    this.points = 0;
+    this.window.clear();
+    this.ratesPlot.clear();
+    this.results.hidden = true;
+    this.results.replaceChildren();
+    delete this.last.analysis;
+  }
+
+  notice(doc, kind, message, level, fault = false) {
+    const item = el("li", { class: level }, el("time", {}, stamp(doc)), " ", el("b", {}, kind), " ", message);
     (fault ? this.faultList : this.noticeList).prepend(item);
     for (const list of [this.faultList, this.noticeList]) {
       while (list.children.length > NOTICES_KEEP) list.lastChild.remove();
     }
+  }
+
+  // The coefficients with their units and uncertainties, and links to the report (and certificate), once the
+  // session's analysis is in.
+  showResults(a) {
+    const uid = a.session_uid;
+    const base = `/api/sessions/${encodeURIComponent(uid)}`;
+    const rows = coefficientRows(a.results);
+    const byResult = new Map();
+    for (const r of rows) byResult.set(r.result, [...(byResult.get(r.result) || []), r]);
+    const tables = [...byResult].map(([name, rs]) => {
+      const doc = a.results[name] || {};
+      const fit = Number.isFinite(doc.mu) && Number.isFinite(doc.mu_c)
+        ? el("p", { class: doc.reliable === false || doc.mu >= doc.mu_c ? "bad" : "ok" },
+          `μ = ${num(doc.mu, 3)} ${doc.mu < doc.mu_c ? "<" : "≥"} μc = ${num(doc.mu_c, 3)}: ` +
+          (doc.mu < doc.mu_c ? "no outlier (seed 000 eq. 28)" : "a possible outlier (seed 000 eq. 28)") +
+          (Number.isFinite(doc.sigma_residual) ? `; residual σ = ${num(doc.sigma_residual, 4)} rad/s` : ""))
+        : null;
+      return el("div", { class: "scroll" }, el("h4", {}, name),
+        el("table", { class: "coefficients" },
+          el("thead", {}, el("tr", {}, ["coefficient (unit)", "value", "u (k = 1)", "k", "U = k u"].map((h) => el("th", {}, h)))),
+          el("tbody", {}, rs.map((r) => el("tr", { dataset: { coefficient: r.name } },
+            el("td", {}, el("b", {}, r.name), " ", el("small", {}, r.unit ? `(${r.unit})` : "(unit not stated)")),
+            ...(r.value === null ? [el("td", { colspan: "4", class: "note" }, `not identified${r.note ? `: ${r.note}` : ""}`)]
+              : [el("td", {}, num(r.value, 7)), el("td", {}, r.u === null ? "—" : num(r.u, 3)), el("td", {}, num(r.k, 3)),
+                el("td", {}, r.expanded === null ? "—" : num(r.expanded, 3))]))))),
+        fit);
+    });
+    const links = el("p", { class: "links" },
+      el("a", { href: `${base}/report`, target: "_blank", class: "report-link" }, "HTML report"),
+      el("a", { href: `/sessions/${encodeURIComponent(uid)}` }, "session page"));
+    fetch(`${base}/certificate`, { credentials: "same-origin" }).then((r) => {
+      if (r.ok) links.append(el("a", { href: `${base}/certificate`, target: "_blank", class: "certificate-link" }, "certificate"));
+    }).catch(() => {});
+    this.results.replaceChildren(el("h3", {}, `Results of session ${uid}`),
+      ...(tables.length ? tables : [el("pre", {}, a.summary)]),
+      el("p", {}, el("small", {}, UNCERTAINTY_NOTE)), links);
+    this.results.hidden = false;
   }
 
   render() {
@@ -215,27 +439,83 @@ class StationView {
       this.f.drive.textContent = p.busy === undefined ? "—" : this.driveText(state, p);
       for (const fault of p.faults || []) this.faultOnce(fault);
     }
+    this.f.points.textContent = String(this.points);
     const m = this.last.motion;
-    const fHz = m ? m.freq_hz : p && p.freq_hz;
-    this.f.freq.textContent = fHz === undefined || fHz === null ? "—"
+    const fHz = this.tableHz();
+    this.f.freq.textContent = fHz === null ? "—"
       : fHz === 0 ? "at rest" : `${num(fHz, 6)} Hz` + (m && m.commanded_hz !== m.freq_hz ? ` (commanded ${num(m.commanded_hz, 6)} Hz)` : "");
-    const w = this.last.window;
-    if (w) {
-      const pulses = w.event === "close" ? w.preset_pulses : w.pulses_est; // a window closes on its preset count
-      const pct = w.preset_pulses ? Math.min(100, (100 * pulses) / w.preset_pulses) : 0;
-      this.windowBar.style.width = `${pct}%`;
-      this.windowProgress.setAttribute("aria-valuenow", pct.toFixed(1));
-      this.f.window.textContent = `${w.key}: ${pulses} of ${w.preset_pulses} pulses (${w.event})`;
-      this.f.windowTime.textContent = `${duration(w.elapsed_s)} of about ${duration(w.expected_s)}`;
-    }
-    this.f.rate.textContent = this.rates.length ? `${num(this.rates[0][1], 6)} rad/s (${this.rates[0][0]})` : "—";
-    this.rateList.replaceChildren(...this.rates.map(([k, r, t]) =>
-      el("tr", {}, el("td", {}, k), el("td", {}, num(r, 6)), el("td", {}, num(t, 5)))));
-    const silent = this.silentS === null || this.silentS > STALE_S;
-    this.f.link.textContent = this.silentS === null ? "no telemetry yet"
-      : silent ? `silent for ${duration(this.silentS)}` : "live";
-    this.f.link.className = `link ${silent ? "bad" : "ok"}`;
+    const rates = this.ratesPlot.rates;
+    this.f.rate.textContent = rates.length ? `${num(rates.at(-1)[1], 7)} rad/s (${rates.at(-1)[0]})` : "—";
+    this.rateList.replaceChildren(...rates.slice(-RATES_KEEP).reverse().map(([k, r, t]) =>
+      el("tr", {}, el("td", {}, k), el("td", {}, num(r, 7)), el("td", {}, num(t, 6)))));
+    this.trace.render();
+    this.window.render();
+    this.ratesPlot.render();
+    this.renderLink();
+    this.renderPause(state, fHz);
     this.renderControls(state, p);
+  }
+
+  // The table's frequency: the drive's measured one (motion) or the engine's commanded one (status), Hz.
+  tableHz() {
+    const m = this.last.motion;
+    const p = this.last.progress;
+    if (m && m.freq_hz !== undefined) return m.freq_hz;
+    if (p && p.freq_hz !== undefined && p.freq_hz !== null) return p.freq_hz;
+    return null;
+  }
+
+  renderLink() {
+    const never = this.silentS === null || this.silentS === undefined;
+    const silent = never || this.silentS > STALE_S;
+    const notServed = this.heardReport && (never || this.silentS > NOT_SERVED_S);
+    this.f.link.textContent = !this.heardReport ? "connecting" : never ? "not served"
+      : notServed ? `not served: silent for ${duration(this.silentS)}` : silent ? `silent for ${duration(this.silentS)}` : "live";
+    this.f.link.className = `link ${silent ? "bad" : "ok"}`;
+    this.card.dataset.served = notServed ? "no" : "yes";
+    this.notServed.hidden = !notServed;
+    if (notServed && !this.notServed.dataset.shown) {
+      this.notServed.dataset.shown = "1";
+      this.notServed.replaceChildren(
+        el("p", {}, el("b", {}, "Station not served. "), never ? "The panel has heard nothing from this station since it started."
+          : "The station has stopped publishing its telemetry.",
+          " Start it on the station computer (or check the endpoints in the panel's configuration):"),
+        el("pre", {}, el("code", {}, this.serveCommand)));
+    }
+    if (!notServed) delete this.notServed.dataset.shown;
+  }
+
+  // A paused run says whether the table is at rest or still vibrating, and offers to bring it to rest.
+  renderPause(state, fHz) {
+    const paused = state === "paused" || state === "pausing";
+    this.pauseBox.hidden = !paused;
+    if (!paused) { this.pauseBox.dataset.table = ""; return; }
+    const vibrating = fHz !== null && fHz > 0;
+    const table = vibrating ? "vibrating" : "at rest";
+    if (this.pauseBox.dataset.table === table && this.pauseBox.dataset.state === state) return;
+    this.pauseBox.dataset.table = table;
+    this.pauseBox.dataset.state = state;
+    const what = state === "pausing" ? "Pausing at the next safe point" : "Paused";
+    const text = vibrating
+      ? `${what}: the table is still vibrating at ${num(fHz, 4)} Hz (the run holds the crank at speed so that it resumes where it stopped).`
+      : `${what}: the table is at rest.`;
+    const parts = [el("p", {}, el("b", {}, text))];
+    if (vibrating && session.role === "operator") {
+      parts.push(el("p", {}, "To bring it to rest, abort the run: the engine ramps the table down and the session keeps " +
+        "every point it measured (resume it later from its session page or with `station resume UID`). ",
+      el("button", { type: "button", class: "warn", dataset: { action: "rest" }, onclick: () => this.bringToRest() },
+        "Bring the table to rest (abort)")));
+    } else if (vibrating) parts.push(el("p", {}, "An operator can bring it to rest by aborting the run."));
+    this.pauseBox.replaceChildren(...parts);
+  }
+
+  async bringToRest() {
+    if (!confirm(`Abort the paused run on ${this.name} and bring the table to rest? The session keeps what it measured.`)) return;
+    try {
+      await api(`/api/stations/${this.name}/abort`, { method: "POST" });
+    } catch (err) {
+      this.pauseBox.append(el("p", { class: "error", role: "alert" }, err.message));
+    }
   }
 
   driveText(state, p) {
@@ -249,7 +529,7 @@ class StationView {
   faultOnce(message) {
     if (this.seenFaults.has(message)) return;
     this.seenFaults.add(message);
-    this.notice("fault", message, "error", true);
+    this.notice({}, "fault", message, "error", true);
   }
 
   renderSessionLink(uid) {
@@ -407,24 +687,24 @@ function connect(views, status) {
   const names = new Map(views.map((v) => [v.name, v]));
   const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/telemetry`);
   ws.onopen = () => {
-    status.textContent = "connected";
+    status.textContent = "panel connected";
     status.className = "ok";
-    for (const v of views) v.clearNotices();
   };
   ws.onmessage = (event) => {
     for (const doc of JSON.parse(event.data)) {
       if (doc.topic === "relay") {
-        status.textContent = `connected; ${doc.data.dropped} messages dropped for this browser`;
+        status.textContent = `panel connected; ${doc.data.dropped} messages dropped for this browser`;
         for (const [name, stats] of Object.entries(doc.data.feeds)) {
           const view = names.get(name);
-          if (view) { view.silentS = stats.silent_s; view.dirty = true; }
+          if (view) { view.silentS = stats.silent_s; view.heardReport = true; view.dirty = true; }
         }
       } else names.get(doc.station)?.handle(doc);
     }
+    for (const v of views) v.skipUpTo = null; // the replay comes in the first frame; later ones are new
   };
   ws.onclose = (event) => {
     if (event.code === 4401) { location.assign("/login"); return; }
-    status.textContent = "disconnected: reconnecting";
+    status.textContent = "panel disconnected: reconnecting";
     status.className = "bad";
     setTimeout(() => connect(views, status), 1000);
   };

@@ -1,5 +1,5 @@
 // A session: summary, coefficients with uncertainties, residual plots, timing capture, events, report and download.
-import { api, chart, el, facts, num, session as me, showError, start, table } from "/static/common.js";
+import { api, chart, coefficientRows, el, facts, num, session as me, showError, start, table, UNCERTAINTY_NOTE } from "/static/common.js";
 
 const uid = decodeURIComponent(location.pathname.split("/").pop());
 const error = document.querySelector("#error");
@@ -7,15 +7,19 @@ const $ = (id) => document.querySelector(id);
 
 function coefficientTables(results) {
   if (!results.length) return [el("p", {}, "No results stored (the session is running, aborted, or its analysis failed).")];
-  return results.map(({ method, result }) => {
-    if (!result.coefficients) return el("pre", {}, JSON.stringify(result, null, 2));
-    const rows = Object.entries(result.coefficients).map(([name, c]) => [name, result.units?.[name] ?? "",
-      c.value === null ? "—" : num(c.value, 7), c.sigma === null ? (c.note ?? "—") : num(c.sigma, 3)]);
-    const extra = [`σ residual ${num(result.sigma_residual, 4)} rad/s`, `μ ${num(result.mu, 3)} vs μc ${num(result.mu_c, 3)}`,
-      result.reliable ? "accepted" : "possible outlier", `${result.n_points} points, ${result.dof} dof`].join("; ");
-    return el("section", { class: "method" }, el("h3", {}, method), table(["coefficient", "unit", "value", "σ"], rows),
-      el("p", {}, extra));
+  const sections = results.map(({ method, result }) => {
+    const found = coefficientRows({ [method]: result });
+    if (!found.length) return el("pre", {}, JSON.stringify(result, null, 2));
+    const rows = found.map((r) => [r.name, r.unit || "—", r.value === null ? `not identified${r.note ? ` (${r.note})` : ""}` : num(r.value, 7),
+      r.u === null ? "—" : num(r.u, 3), num(r.k, 3), r.expanded === null ? "—" : num(r.expanded, 3)]);
+    const extra = [Number.isFinite(result.sigma_residual) ? `σ residual ${num(result.sigma_residual, 4)} rad/s` : null,
+      Number.isFinite(result.mu) ? `μ ${num(result.mu, 3)} vs μc ${num(result.mu_c, 3)}` : null,
+      result.reliable === undefined ? null : result.reliable ? "accepted (no outlier, eq. 28)" : "possible outlier (eq. 28)",
+      result.n_points !== undefined ? `${result.n_points} points, ${result.dof} dof` : null].filter(Boolean).join("; ");
+    return el("section", { class: "method" }, el("h3", {}, method),
+      el("div", { class: "scroll" }, table(["coefficient", "unit", "value", "u (k = 1)", "k", "U = k u"], rows)), el("p", {}, extra));
   });
+  return [...sections, el("p", {}, el("small", {}, UNCERTAINTY_NOTE))];
 }
 
 function residualCharts(residuals) {

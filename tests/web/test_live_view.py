@@ -1,0 +1,228 @@
+"""The live view explains itself, on a phone's 360 px screen, in headless Debian Chromium (Playwright).
+
+A simulated station (`station serve`, 100 x real time) and a second configured station that nobody serves;
+the panel in a thread. A quick seed-000 session (20 points, 30 s windows): the displacement is a continuous
+trace over station time (min/max per pixel column, so the envelope is the table's amplitude), the open window
+is plotted, a pause says whether the table is at rest or vibrating (and offers to bring it to rest), a viewer
+who connects mid-session is given the session so far, events carry station time and UTC, and the finished
+session shows a results card with units and uncertainties. Screenshots go to tests/web/screenshots/.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from playwright.sync_api import Browser, Page, expect, sync_playwright
+
+from app.panel import panel_server
+from station.store import SessionStore
+from station.telemetry import envelope
+from web.config import PanelConfig, StationEntry
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic"]  # fmt: skip
+SCREENSHOTS = Path(__file__).resolve().parent / "screenshots"
+PHONE = {"width": 360, "height": 800}
+SPEED = 100.0  # the quick session takes about 15 s of wall time
+UI_TIMEOUT_MS = 30_000
+A0_MM = 30.0  # the crank's amplitude (physics.md: A0 = 0.03 m)
+AMPLITUDE_TOL_MM = 1.5  # the grating's noise and a bucket's extreme falling between samples cost far less
+
+
+def test_envelope_keeps_the_motion_where_a_stride_aliases_it():
+    """5 kHz samples of a 10 Hz, 30 mm motion over 100 s: a stride of 2000 samples is 4 periods, so every
+    kept sample has the same phase (the flat dashes of the old trace); min/max per bucket keeps +-A0."""
+    t = np.arange(0, 100, 1 / 5000)
+    z = 0.03 * np.sin(2 * np.pi * 10 * t + 0.3)
+    stride = z[:: len(t) // 250]
+    assert np.ptp(stride) < 1e-9  # aliased flat
+    tt, zz = envelope(t, z, 125)
+    assert len(tt) <= 250 and np.all(np.diff(tt) > 0)
+    assert zz.max() == pytest.approx(0.03, abs=1e-6) and zz.min() == pytest.approx(-0.03, abs=1e-6)
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory, tools) -> Iterator[dict]:
+    home = tmp_path_factory.mktemp("live")
+    station = tools.start_station(home / "station", speed=SPEED)
+    ghost = StationEntry(name="ghost", title="Station nobody serves", control=f"tcp://127.0.0.1:{tools.free_port()}",
+                         telemetry=f"tcp://127.0.0.1:{tools.free_port()}", store=home / "ghost" / "station.sqlite",
+                         reports=home / "ghost")  # fmt: skip
+    config = PanelConfig(users=tools.write_users(home / "users.json"), audit_log=home / "audit.jsonl",
+                         stations=(station.entry, ghost))  # fmt: skip
+    port = tools.free_port()
+    server = panel_server(config, "127.0.0.1", port)
+    thread = threading.Thread(target=server.run, name="panel", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started:
+        assert time.monotonic() < deadline and thread.is_alive(), "the panel did not start"
+        time.sleep(0.05)
+    try:
+        yield {"url": f"http://127.0.0.1:{port}", "station": station, "ghost": ghost}
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        tools.stop_process(station.proc)
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Browser]:
+    assert CHROMIUM.exists(), "Debian's chromium is missing: run web/setup.sh (apt-get install chromium)"
+    SCREENSHOTS.mkdir(exist_ok=True)
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+def phone_page(browser: Browser, url: str, name: str, password: str) -> Page:
+    page = browser.new_context(viewport=PHONE, device_scale_factor=1).new_page()
+    page.set_default_timeout(UI_TIMEOUT_MS)
+    page.goto(f"{url}/login")
+    page.fill("input[name=username]", name)
+    page.fill("input[name=password]", password)
+    page.click("button[type=submit]")
+    expect(page).to_have_url(f"{url}/")
+    return page
+
+
+def shot(page: Page, name: str) -> None:
+    page.screenshot(path=SCREENSHOTS / f"live-{name}.png", full_page=True)
+
+
+def fits_the_screen(page: Page) -> None:
+    """Nothing wider than the phone: the page does not scroll sideways."""
+    width = page.evaluate("document.documentElement.scrollWidth")
+    assert width <= PHONE["width"], f"the page is {width} px wide on a {PHONE['width']} px screen"
+
+
+def wait_until(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f"{what} not seen within {timeout_s} s"
+        time.sleep(0.05)
+
+
+def post(page: Page, path: str, body: dict | None = None) -> int:
+    return page.evaluate(
+        """async ([path, body]) => {
+            const me = await (await fetch('/api/me')).json();
+            const r = await fetch(path, {method: 'POST', headers: {'X-CSRF-Token': me.csrf,
+              'Content-Type': 'application/json'}, body: body === null ? undefined : JSON.stringify(body)});
+            return r.status;
+        }""",
+        [path, body],
+    )
+
+
+def test_a_station_nobody_serves_says_so_with_the_command_to_serve_it(browser, site, passwords):
+    page = phone_page(browser, site["url"], "victor", passwords["victor"])
+    ghost = page.locator("article.station[data-station=ghost]")
+    expect(ghost).to_have_attribute("data-served", "no")
+    expect(ghost.locator(".link")).to_have_text("not served")
+    expect(ghost.locator(".not-served")).to_contain_text("Station not served")
+    command = ghost.locator(".not-served code").inner_text()
+    assert command.startswith("station serve --name ghost") and site["ghost"].telemetry in command
+    expect(page.locator("article.station[data-station=sim] .link")).to_have_text("live")
+    fits_the_screen(page)
+    shot(page, "1-not-served-phone")
+    page.context.close()
+
+
+def test_a_session_watched_on_a_phone(browser, site, passwords, quick):
+    page = phone_page(browser, site["url"], "olga", passwords["olga"])
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    card = page.locator("article.station[data-station=sim]")
+    expect(card.locator(".link")).to_have_text("live")
+    status = post(page, "/api/stations/sim/start", {"procedure": "seed000.integral_precession", "params": quick,
+                                                    "instrument_serial": "LIVE-360"})  # fmt: skip
+    assert status == 200
+    expect(card).to_have_attribute("data-state", "running")
+
+    # The displacement: a continuous trace over station time whose envelope is the crank's amplitude.
+    trace = card.locator(".trace")
+    wait_until(lambda: int(trace.get_attribute("data-updates") or 0) >= 3, 20, "three trace updates")
+    assert float(trace.get_attribute("data-span-s")) > 0
+    assert trace.get_attribute("data-x-axis") == "station time (s)" and "s of station time" in trace.inner_text()
+    # 100 s of a 10 Hz, 30 mm motion at 5 kHz in 250 columns (4 periods each, where a stride would alias):
+    # every point drawn is a column's min or max, so every one is near +-A0.
+    z = page.evaluate(
+        """async () => {
+            const m = await import('/static/live.js');  // the page's own module instance
+            const t = Array.from({length: 500000}, (_, i) => i / 5000);
+            const z = t.map((x) => 30 * Math.sin(2 * Math.PI * 10 * x + 0.3));
+            const [xs, ys] = m.minMaxPerPixel(t, z, 250);
+            return {n: xs.length, ys, sorted: xs.every((x, i) => !i || x >= xs[i - 1])};
+        }"""
+    )
+    assert z["n"] == 500 and z["sorted"]
+    assert all(abs(abs(y) - A0_MM) < AMPLITUDE_TOL_MM for y in z["ys"])
+
+    # The open window is plotted; the rates of closed windows accumulate.
+    expect(card.locator(".window-plot .plot-title")).to_contain_text("Open window P")
+    rates = card.locator(".rates-plot")
+    wait_until(lambda: int(rates.get_attribute("data-points")) >= 2, 30, "two closed windows")
+    fits_the_screen(page)
+    shot(page, "2-running-phone")
+
+    # A viewer who connects now is given the session so far.
+    late = phone_page(browser, site["url"], "victor", passwords["victor"])
+    late_card = late.locator("article.station[data-station=sim]")
+    expect(late_card.locator(".link")).to_have_text("live")
+    wait_until(lambda: int(late_card.locator(".rates-plot").get_attribute("data-points")) >= 2, 10,
+               "the late viewer's rates")  # fmt: skip
+    assert int(late_card.locator(".points").inner_text()) >= 2
+    first_events = late_card.locator(".notices li").all_inner_texts()
+    assert any("running" in e for e in first_events), first_events  # the session's start, from before it joined
+    assert all(re.search(r"t = [\d.e+-]+ s · \d\d:\d\d:\d\d UTC", e) for e in first_events[-3:]), first_events
+    shot(late, "3-late-viewer-phone")
+    late.context.close()
+
+    # Pause: the card says whether the table is at rest or vibrating, and offers to bring it to rest.
+    card.locator("button[data-action=pause]").click()
+    expect(card).to_have_attribute("data-state", "paused")
+    box = card.locator(".pause-box")
+    expect(box).to_be_visible()
+    expect(box).to_have_attribute("data-table", re.compile("^(vibrating|at rest)$"))
+    table = box.get_attribute("data-table")
+    if table == "vibrating":
+        expect(box).to_contain_text("still vibrating at")
+        expect(box.locator("button[data-action=rest]")).to_be_visible()
+    else:
+        expect(box).to_contain_text("the table is at rest")
+    fits_the_screen(page)
+    shot(page, "4-paused-phone")
+    card.locator("button[data-action=resume]").click()
+    expect(card).to_have_attribute("data-state", "running")
+    expect(box).to_be_hidden()
+
+    # The end: a results card with the coefficients, their units and uncertainties, and the report link.
+    expect(card).to_have_attribute("data-state", "finished", timeout=90_000)
+    results = card.locator(".results")
+    expect(results).to_be_visible(timeout=UI_TIMEOUT_MS)
+    kz = results.locator("tr[data-coefficient=kz]").first
+    expect(kz).to_contain_text("rad/s/g")
+    expect(results.locator("tr[data-coefficient=k3]").first).to_contain_text("rad/s/g^3")
+    expect(results).to_contain_text("u (k = 1)")
+    href = results.locator("a.report-link").get_attribute("href")
+    assert re.fullmatch(r"/api/sessions/[A-Za-z0-9_-]+/report", href), href
+    uid = href.split("/")[3]
+    report = page.request.get(f"{site['url']}{href}")
+    assert report.status == 200 and "Coefficients" in report.text()
+    with SessionStore(site["station"].out / "station.sqlite") as store:  # what the analysis stored
+        stored = {r["method"]: r["result"] for r in store.results(uid)}
+    value = float(kz.locator("td").nth(1).inner_text())
+    assert value == pytest.approx(stored["integral"]["coefficients"]["kz"]["value"], rel=1e-6)  # 7 digits shown
+    fits_the_screen(page)
+    shot(page, "5-finished-phone")
+    assert not errors, errors
+    page.context.close()
