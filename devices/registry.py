@@ -46,6 +46,24 @@ class DeviceKind:
     core: bool = False  # one of the five devices every station has: a required section, a StationConfig field
 
 
+def serial_kind(
+    name: str, section: type, driver: type, emulator: Callable[[], type], *, core: bool = False
+) -> DeviceKind:
+    """The kind of a serial device with nothing to configure but its port and baud rate: opened as
+    `driver(port, baud=, clock=).open()`, emulated as `emulator()(world, baud=)`, started; `emulator` returns the
+    emulator class when called (an import inside a function, so that a real station never loads the twin)."""
+
+    def open_device(sec: Any, clock: Clock) -> Any:
+        return driver(sec.port or "", baud=sec.baud, clock=clock).open()
+
+    def emulate_device(sec: Any, world: Any) -> Any:
+        emu = emulator()(world, baud=sec.baud)
+        emu.start()
+        return emu
+
+    return DeviceKind(name, section, open_device, emulate_device, core=core)
+
+
 @cache
 def device_kinds() -> dict[str, DeviceKind]:
     """Every DEVICE_KIND declared by a device package's kind module (devices/<device>/kind.py), by name."""

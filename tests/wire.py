@@ -4,10 +4,11 @@ The bytes of a test come from the protocol description (the driver's docstring, 
 emulator follows), written out in the test, never produced by the codec under test; so a codec
 that driver and emulator share is still checked against the manual, both ways:
 
-- `scripted_port(transcript)`: a real pty whose far end plays a transcript of (bytes the driver
-  must write, bytes the device answers). The driver opens its path as it would /dev/ttyUSB0. On
-  leaving the block every step must have been played with exactly its bytes, and nothing more may
-  have been written (a transcript left over or an extra byte fails the test);
+- `scripted_port(transcript)` (and `driver_on(transcript, make)`, a driver opened on it): a real
+  pty whose far end plays a transcript of (bytes the driver must write, bytes the device answers).
+  The driver opens its path as it would /dev/ttyUSB0. On leaving the block every step must have
+  been played with exactly its bytes, and nothing more may have been written (a transcript left
+  over or an extra byte fails the test);
 - `answers(emulator, data)`: what an emulator sends back for `data`, taken from its `send`;
 - `FrozenClock`: station time that stands still (or moves only when told), so that time stamps
   in frames are known answers.
@@ -21,11 +22,12 @@ import select
 import threading
 import time
 import tty
-from collections.abc import Iterator, Sequence
-from typing import Any
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, TypeVar
 
 STEP_TIMEOUT_S = 2.0  # wall time the far end waits for a driver's command
 QUIET_S = 0.05  # after the transcript: a driver writing more within this fails the test
+D = TypeVar("D", bound=contextlib.AbstractContextManager)
 
 
 class FrozenClock:
@@ -104,6 +106,13 @@ def scripted_port(transcript: Sequence[tuple[bytes, bytes]]) -> Iterator[str]:
     expected = [command for command, _ in transcript]
     assert received == expected, f"driver wrote {received!r}, the transcript says {expected!r}"
     assert not extra, f"driver wrote {extra!r} after the transcript"
+
+
+@contextlib.contextmanager
+def driver_on(transcript: Sequence[tuple[bytes, bytes]], make: Callable[[str], D]) -> Iterator[D]:
+    """`make(port)` opened (as a context manager) on a port that plays `transcript`, and closed again."""
+    with scripted_port(transcript) as port, make(port) as driver:
+        yield driver
 
 
 def answers(emulator: Any, data: bytes, *, poll_at_s: float | None = None) -> bytes:

@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from devices.config import SerialSection
 from devices.counter_timer.driver import CounterTimer
-from devices.registry import DeviceKind
-from station.clock import Clock
+from devices.registry import serial_kind
 
 
-def open_counter(section: SerialSection, clock: Clock) -> CounterTimer:
-    return CounterTimer(section.port or "", baud=section.baud, clock=clock).open()
-
-
-def emulate_counter(section: SerialSection, world: Any) -> Any:
+def _emulator() -> type:
     from devices.counter_timer.emulator import CounterEmulator
 
-    emulator = CounterEmulator(world, baud=section.baud)
-    emulator.start()
-    return emulator
+    return CounterEmulator
 
 
-DEVICE_KIND = DeviceKind("counter", SerialSection, open_counter, emulate_counter, core=True)
+DEVICE_KIND = serial_kind("counter", SerialSection, CounterTimer, _emulator, core=True)

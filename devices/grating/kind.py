@@ -2,24 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from devices.config import SerialSection
 from devices.grating.driver import GratingReadHead
-from devices.registry import DeviceKind
-from station.clock import Clock
+from devices.registry import serial_kind
 
 
-def open_grating(section: SerialSection, clock: Clock) -> GratingReadHead:
-    return GratingReadHead(section.port or "", baud=section.baud, clock=clock).open()
-
-
-def emulate_grating(section: SerialSection, world: Any) -> Any:
+def _emulator() -> type:
     from devices.grating.emulator import GratingEmulator
 
-    emulator = GratingEmulator(world, baud=section.baud)
-    emulator.start()
-    return emulator
+    return GratingEmulator
 
 
-DEVICE_KIND = DeviceKind("grating", SerialSection, open_grating, emulate_grating, core=True)
+DEVICE_KIND = serial_kind("grating", SerialSection, GratingReadHead, _emulator, core=True)

@@ -3,24 +3,15 @@ emulated."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from devices.config import SerialSection
 from devices.reference_marks.driver import ReferenceMarks
-from devices.registry import DeviceKind
-from station.clock import Clock
+from devices.registry import serial_kind
 
 
-def open_reference(section: SerialSection, clock: Clock) -> ReferenceMarks:
-    return ReferenceMarks(section.port or "", baud=section.baud, clock=clock).open()
-
-
-def emulate_reference(section: SerialSection, world: Any) -> Any:
+def _emulator() -> type:
     from devices.reference_marks.emulator import ReferenceEmulator
 
-    emulator = ReferenceEmulator(world, baud=section.baud)
-    emulator.start()
-    return emulator
+    return ReferenceEmulator
 
 
-DEVICE_KIND = DeviceKind("reference", SerialSection, open_reference, emulate_reference, core=True)
+DEVICE_KIND = serial_kind("reference", SerialSection, ReferenceMarks, _emulator, core=True)

@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import binascii
 import contextlib
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from wire import FrozenClock, answers, scripted_port
+from wire import FrozenClock, answers, driver_on, scripted_port
 
 from devices.errors import DeviceFault, FrameError
 from devices.imu.driver import ImuInfo, StrapdownImu
@@ -52,12 +51,10 @@ S2_STAMPED_AS_1 = S1[:5] + H("02") + S1[6:-2] + H("4b d1")  # seq 2 with seq 1's
 TICK_S = 50e-9
 
 
-@contextlib.contextmanager
-def _imu_on(transcript: list[tuple[bytes, bytes]]) -> Iterator[StrapdownImu]:
+def _imu_on(transcript: list[tuple[bytes, bytes]]) -> contextlib.AbstractContextManager[StrapdownImu]:
     """The driver opened on a port that plays its opening, `transcript`, then the STOP it sends as it closes."""
-    full = [*OPENING, *transcript, (STOP, ACK_STOP)]
-    with scripted_port(full) as port, StrapdownImu(port, rate_hz=200, timeout_s=0.3, clock=FrozenClock(1.0)) as imu:
-        yield imu
+    return driver_on([*OPENING, *transcript, (STOP, ACK_STOP)],
+                     lambda port: StrapdownImu(port, rate_hz=200, timeout_s=0.3, clock=FrozenClock(1.0)))  # fmt: skip
 
 
 def test_open_sets_the_rate_and_reads_the_scale_factors() -> None:

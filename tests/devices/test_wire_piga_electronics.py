@@ -9,10 +9,9 @@ digits (worked out by hand for each line below). Every command gets exactly one 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
 
 import pytest
-from wire import FrozenClock, answers, scripted_port
+from wire import FrozenClock, answers, driver_on
 
 from devices.errors import ChecksumError, DeviceFault, LimitError
 from devices.piga_electronics.driver import PigaElectronics, ServoStatus
@@ -27,11 +26,9 @@ LOCKED = b"LOCK,0.000*09\r\n"
 OUT_OF_RANGE = b'ERR -222,"data out of range"*7E\r\n'
 
 
-@contextlib.contextmanager
-def _board_on(transcript: list[tuple[bytes, bytes]], **kw: float) -> Iterator[PigaElectronics]:
+def _board_on(transcript: list[tuple[bytes, bytes]], **kw: float) -> contextlib.AbstractContextManager[PigaElectronics]:
     """The driver on a port that plays `transcript`."""
-    with scripted_port(transcript) as port, PigaElectronics(port, timeout_s=0.3, clock=FrozenClock(), **kw) as board:
-        yield board
+    return driver_on(transcript, lambda port: PigaElectronics(port, timeout_s=0.3, clock=FrozenClock(), **kw))
 
 
 def test_identity() -> None:

@@ -8,10 +8,9 @@ below, outside the code under test). STAT? answers `OK <state> <mode> <level_g> 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
 
 import pytest
-from wire import FrozenClock, answers, scripted_port
+from wire import FrozenClock, answers, driver_on
 
 from devices.errors import ChecksumError, DeviceFault, FrameError, LimitError
 from devices.shaker.driver import ShakerController, ShakerStatus
@@ -33,14 +32,13 @@ RUNNING = b"OK RUN SINE 2.00000 --*C9EF\r\n"
 STOP_2 = b"STOP 2.000*FD25\n"
 
 
-@contextlib.contextmanager
-def _controller_on(transcript: list[tuple[bytes, bytes]], retries: int = 2) -> Iterator[ShakerController]:
+def _controller_on(
+    transcript: list[tuple[bytes, bytes]], retries: int = 2
+) -> contextlib.AbstractContextManager[ShakerController]:
     """The driver on a port that plays `transcript`, then the STOP over 2 s that the driver sends as it closes."""
-    with (
-        scripted_port([*transcript, (STOP_2, OK_0)]) as port,
-        ShakerController(port, TABLE, timeout_s=0.3, retries=retries) as shaker,
-    ):
-        yield shaker
+    return driver_on(
+        [*transcript, (STOP_2, OK_0)], lambda p: ShakerController(p, TABLE, timeout_s=0.3, retries=retries)
+    )
 
 
 def test_identity() -> None:

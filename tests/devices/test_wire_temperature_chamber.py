@@ -8,10 +8,9 @@ every byte after STX up to and including ETX (worked out by hand for each messag
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
 
 import pytest
-from wire import FrozenClock, answers, scripted_port
+from wire import FrozenClock, answers, driver_on
 
 from devices.errors import ChecksumError, DeviceFault, LimitError
 from devices.temperature_chamber.driver import ChamberStatus, TemperatureChamber
@@ -27,11 +26,11 @@ WRITE_SL_500 = b"\x040011\x02SL500.00\x03\x07"
 WRITE_RR_1 = b"\x040011\x02RR1.00\x03\x1c"
 
 
-@contextlib.contextmanager
-def _chamber_on(transcript: list[tuple[bytes, bytes]], retries: int = 2) -> Iterator[TemperatureChamber]:
+def _chamber_on(
+    transcript: list[tuple[bytes, bytes]], retries: int = 2
+) -> contextlib.AbstractContextManager[TemperatureChamber]:
     """The driver on a port that plays `transcript`."""
-    with scripted_port(transcript) as port, TemperatureChamber(port, timeout_s=0.3, retries=retries).open() as chamber:
-        yield chamber
+    return driver_on(transcript, lambda port: TemperatureChamber(port, timeout_s=0.3, retries=retries))
 
 
 def test_read_the_product_temperature() -> None:
