@@ -228,3 +228,24 @@ def type_a_only(
     return Budget(
         tuple(names), np.asarray(values, dtype=float), units, [type_a_source(names, cov, dof, note)], cov_a=cov
     )
+
+
+def type_a_json(
+    coefficients: dict[str, dict],
+    names: Sequence[str],
+    values: np.ndarray,
+    cov: np.ndarray,
+    dof: int,
+    units: Mapping[str, str],
+    type_b_note: str,
+) -> dict:
+    """Merge the GUM fields of a budget that holds the fit alone (k from t at its dof) into each entry of
+    `coefficients` (name -> {"value", "sigma", ...}); return the covariance and budget keys, with a statement of
+    the Type B inputs left out (so that a reader sees they were not evaluated, not that they are zero)."""
+    doc = type_a_only(names, values, cov, dof, units).to_json()
+    for name, fields in doc["coefficients"].items():
+        entry = coefficients.setdefault(name, {})
+        entry.update(fields)
+        entry.setdefault("sigma", fields["standard_uncertainty"])
+    return {"covariance": doc["covariance"], "budget": doc["budget"], "few_dof": doc["few_dof"],
+            "type_b": type_b_note}  # fmt: skip

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.linalg
 
 from methods.common.least_squares import FitError, reliability
+from methods.common.uncertainty import type_a_json
 from models.pendulous_accelerometer import CF_NAMES, branch_after_move
 from station.records import Field, declare
 from station.session import Session
@@ -75,6 +76,12 @@ EQ6 = np.array(
     ]
 )
 ERROR_NAMES = ("k0", "k2", "k3", "delta_o", "delta_ip")  # eq. 6, last line: K0, K2, K3, Mo, Mip over K1
+CF_UNITS = {"K0": "V", "K1": "V/g", "K2": "V/g^2", "K3": "V/g^3", "Mo": "V/g", "Mip": "V/g"}
+ERROR_UNITS = {"k0": "g", "k2": "g/g^2", "k3": "g/g^3", "delta_o": "rad", "delta_ip": "rad"}
+SEED001_TYPE_B = (
+    "Type A only (the stroke fit, k from Student's t at its dof): the dividing head's angle errors, the "
+    "voltmeter's calibration and the temperature readings are not propagated here"
+)
 MIN_LEVER_C = 1.0  # a temperature law's slope needs a temperature at least this far from T0
 
 
@@ -235,6 +242,10 @@ class EightPoint:
             "dof": self.dof,
             "mu": self.mu,
             "mu_c": self.mu_c,
+            "gum_cf": type_a_json(coef, CF_NAMES, self.cf, self.cf_cov, self.dof, CF_UNITS, SEED001_TYPE_B),
+            "gum_errors": type_a_json(
+                coef, ERROR_NAMES, self.errors, self.errors_cov, self.dof, ERROR_UNITS, SEED001_TYPE_B
+            ),
         }
 
 

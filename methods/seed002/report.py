@@ -17,6 +17,7 @@ from scipy.stats import chi2
 
 from engine.registry import Analysis
 from methods.common.least_squares import FitError
+from methods.common.uncertainty import type_a_json
 from methods.seed002.analysis import FlexureFit, estimate_flexure
 from models.fixture_poses import POSES
 from models.strapdown_imu import ARCSEC_PER_G, ARCSEC_RAD, TABLE1_ARCSEC_PER_G, TAU_NAMES
@@ -118,6 +119,12 @@ def _velocity_figure(runs: list[Measurement]) -> str:
     return svg(fig)
 
 
+SEED002_TYPE_B = (
+    "Type A only (the flexure fit, k from Student's t at its dof): the IMU's own calibration, the shaker's "
+    "amplitude and the site's g and latitude are not propagated here"
+)
+
+
 def analyse_session(session: Session) -> Analysis:
     """The flexure coefficients (eq. 21) and the verification runs, with the session's report."""
     fit = fit_session(session)
@@ -134,6 +141,11 @@ def analyse_session(session: Session) -> Analysis:
         "condition": fit.condition,
         "runs": [m.key for m in calibration],
     }
+    # GUM fields of the flexure coefficients in arcsec/g (Type A, k from t at the fit's dof)
+    gum_coefs: dict[str, dict] = {}
+    gum = type_a_json(gum_coefs, names, fit.values / ARCSEC_PER_G, fit.cov / ARCSEC_PER_G**2, fit.dof,
+                      dict.fromkeys(names, "arcsec/g"), SEED002_TYPE_B)  # fmt: skip
+    flexure["gum"] = {"coefficients": gum_coefs, **gum}
     checks = _verification(verification, fit)
     results = {"flexure": flexure, "verification": {"runs": checks}}
     uid = session.meta.get("store_uid", "")

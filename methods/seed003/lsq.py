@@ -15,9 +15,15 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from methods.common.least_squares import FitError
+from methods.common.uncertainty import type_a_json
 
 # Beyond this condition number of the column-scaled Jacobian the parameters are not separable in double precision.
 MAX_CONDITION = 1e10
+SEED003_TYPE_B = (
+    "Type A only (the fit, k from Student's t at its dof; with compensation the angle-error harmonics are fitted "
+    "with the coefficients, so their uncertainty is inside the covariance): latitude, g and the timer are not "
+    "propagated here"
+)
 
 
 @dataclass(frozen=True)
@@ -40,8 +46,12 @@ class Fit:
     def to_json(self) -> dict:
         coefs = {n: {"value": float(v), "sigma": float(s)} for n, v, s in zip(self.names, self.values, self.sigmas,
                                                                                strict=True)}  # fmt: skip
+        from methods.seed003.static_model import UNITS  # static_model imports this module
+
+        units = {n: UNITS.get(n.split(" ")[-1], "rad" if n[:1] in "cs" or "dtheta" in n else "") for n in self.names}
+        gum = type_a_json(coefs, self.names, self.values, self.cov, self.dof, units, SEED003_TYPE_B)
         return {"coefficients": coefs, "sigma_residual_radps": self.sigma_residual, "dof": self.dof,
-                "n": int(self.residuals.size)}  # fmt: skip
+                "n": int(self.residuals.size), **gum}  # fmt: skip
 
 
 def solve(

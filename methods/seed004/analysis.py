@@ -28,6 +28,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from methods.common.least_squares import FitError
+from methods.common.uncertainty import type_a_json
 from methods.seed000.identify import identify
 from models import nonlinear_error as ne
 from models.regressors import COEFFICIENTS, baseline_regressors
@@ -69,6 +70,7 @@ class Calibration:
     mu: float
     mu_c: float
     noise_radps: float
+    noise_dof: int = 0  # dof of noise_radps: the pooled sum, or 0 for the calibration's own (then `dof`)
 
     @property
     def sigma_kzz(self) -> float:
@@ -99,7 +101,13 @@ def calibrate(
     unit = r.cov / r.sigma_residual**2
     return Calibration(prefix, stage, offset_arcsec, float(r.values[i]), float(r.values[j]),
                        (float(unit[i, i]), float(unit[i, j]), float(unit[j, j])), r.sigma_residual, r.dof,
-                       len(points), r.mu, r.mu_c, r.sigma_residual)  # fmt: skip
+                       len(points), r.mu_eq28, r.mu_c_eq28, r.sigma_residual)  # fmt: skip
+
+
+SEED004_TYPE_B = (
+    "Type A only (k from Student's t at the dof of the pooled rate noise): the angular momentum H, the end "
+    "radius and the removal angle of eq. 22 are taken as exact here"
+)
 
 
 def pooled(cals: Sequence[Calibration]) -> list[Calibration]:
@@ -110,7 +118,7 @@ def pooled(cals: Sequence[Calibration]) -> list[Calibration]:
     """
     dof = sum(c.dof for c in cals)
     noise = math.sqrt(sum(c.dof * c.sigma_residual_radps**2 for c in cals) / dof) if dof else math.nan
-    return [replace(c, noise_radps=noise) for c in cals]
+    return [replace(c, noise_radps=noise, noise_dof=dof) for c in cals]
 
 
 def calibrations(session: Session) -> list[Calibration]:
@@ -244,6 +252,21 @@ class Suppression:
         """K2 with no offset: the sweep's calibration at 0" if there is one, else the spline there."""
         sweep = [c for c in self.calibrations if c.stage == SWEEP and c.offset_arcsec == 0.0]
         return sweep[0].k2_per_g if sweep else float(self.sweep.spline()(0.0))
+
+    def gum(self) -> dict:
+        """GUM fields of the headline figures: K2 at the best offset and after the removal, the removed mass
+        (Type A; k from Student's t at the dof of the noise they rest on, pooled where pooled)."""
+        rows: list[tuple[str, float, float, int, str]] = []
+        for label, cal in (("K2_at_best", self.at_best), ("K2_after_removal", self.after)):
+            if cal is not None:
+                rows.append((label, cal.k2_per_g, cal.sigma_k2_per_g, cal.noise_dof or cal.dof, "1/g0"))
+        if self.correction is not None and self.at_best is not None:
+            c, cal = self.correction, self.at_best
+            rows.append(("removed_mass", c.mass_mg, c.sigma_mass_mg, cal.noise_dof or cal.dof, "mg"))
+        coefs: dict[str, dict] = {}
+        for name, value, sigma, dof, unit in rows:
+            type_a_json(coefs, (name,), np.array([value]), np.array([[sigma**2]]), dof, {name: unit}, "")
+        return {"coefficients": coefs, "type_b": SEED004_TYPE_B}
 
     def headline(self) -> dict[str, float | None]:
         k2_0 = self.k2_no_offset_per_g

@@ -263,6 +263,7 @@ def analyse_suppression(session: Session) -> Analysis:
     results = {
         "suppression": {
             "headline": s.headline(),
+            "gum": s.gum(),
             "seed004": analysis.SEED_FIGURES,
             "sweep": s.sweep.to_json(),
             "correction": vars(s.correction) if s.correction else None,
