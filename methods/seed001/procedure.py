@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from devices.errors import DeviceTimeout
-from devices.voltmeter.driver import MAX_SAMPLES, NPLC_LIMITS, OVERRANGE, RANGES_V, reading_s
+from devices.voltmeter.protocol import MAX_SAMPLES, NPLC_LIMITS, OVERRANGE, RANGES_V, reading_s
 from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MoveIndex, Note, Step

@@ -25,7 +25,7 @@ import numpy as np
 
 from devices.errors import DriverError, LimitError
 from devices.imu.driver import ImuRecording
-from devices.shaker.driver import check_ramp, check_random, check_sine
+from devices.shaker.envelope import check_ramp, check_random, check_sine
 from engine.params import Param
 from engine.registry import procedure
 from engine.steps import Checkpoint, Note, OperatorAction, Step
