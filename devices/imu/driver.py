@@ -47,7 +47,6 @@ from devices.imu.protocol import (
     INFO,
     INFO_PAYLOAD,
     INFO_Q,
-    LINE_MARGIN,
     RATE,
     RATE_PAYLOAD,
     RATES_HZ,
@@ -60,6 +59,8 @@ from devices.imu.protocol import (
 )
 from devices.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from station.clock import Clock
+
+LINE_MARGIN = 0.5  # share of the line a lossless stream may fill (UART pacing, host reads, bursts)
 
 
 @dataclass(frozen=True)

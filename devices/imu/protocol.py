@@ -24,7 +24,6 @@ SAMPLE_DTYPE = np.dtype([("seq", "<u4"), ("ticks", "<u4"), ("dtheta", "<i4", 3),
 SAMPLE_FRAME_BYTES = OVERHEAD + SAMPLE_DTYPE.itemsize
 STATUS_BITS = {0: "gyro fault", 1: "accelerometer fault or saturation", 2: "over-temperature"}
 ACK_RESULTS = {1: "bad argument", 2: "busy: streaming"}
-LINE_MARGIN = 0.5  # share of the line a lossless stream may fill (UART pacing, host reads, bursts)
 
 # a whole SAMPLE frame, for vectorised encoding
 SAMPLE_FRAME_DTYPE = np.dtype([("sync", "u1", 2), ("type", "u1"), ("len", "<u2"), ("body", SAMPLE_DTYPE),
