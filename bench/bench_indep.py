@@ -1,12 +1,14 @@
 """Speed of the independent session generator (tests/indep, issue 10 d4/d5).
 
-For each design family and case kind, `make_case` is timed over seeds 0..N-1 (wall clock, one
-process, BLAS pinned to one thread); the table gives the median and maximum seconds per case,
-the median number of points (windows) and the median time per window, without and with raw
+For each design family and case kind, `make_case` is timed over seeds 0..N-1 (one process,
+BLAS pinned to one thread); the table gives the median and maximum CPU seconds per case (process
+time: on a shared machine wall time measures the neighbours' load), the median wall seconds, the
+median number of points (windows) and the median CPU time per window, without and with raw
 records. A "typical" case is a library effect scaled to its SNR (the noise-free session is
 simulated 2-4 times by the SNR scaling, then once with noise).
 
-    .venv/bin/python bench/bench_indep.py [N]
+    .venv/bin/python bench/bench_indep.py [N]        (cases per family and kind)
+    .venv/bin/python bench/bench_indep.py --large    (null sessions of 40, 160, 640 points)
 """
 
 from __future__ import annotations
@@ -25,7 +27,9 @@ from pathlib import Path  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+import numpy as np  # noqa: E402
 from indep.cases import FAMILIES, LIBRARY, make_case  # noqa: E402
+from indep.generator import Truth, equal_angle_design, random_coefficients, random_noise, write_session  # noqa: E402
 
 KINDS = ("null", "library", "pair", "ool")
 
@@ -41,28 +45,49 @@ def _kind(k: str, seed: int) -> str:
 
 
 def main() -> None:
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 10
-    print("| family | kind | raw | median s/case | max s/case | median points | median ms/point |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    n = int(sys.argv[1]) if len(sys.argv) > 1 and sys.argv[1].isdigit() else 10
+    print("| family | kind | raw | median CPU s/case | max CPU s/case | median wall s | median points | CPU ms/point |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     with tempfile.TemporaryDirectory() as tmp:
         for family in FAMILIES:
             for kind in KINDS:
                 for raw in (False, True):
                     if raw and kind not in ("null", "library"):
                         continue
-                    times, points = [], []
+                    times, walls, points = [], [], []
                     for seed in range(n):
-                        t0 = time.perf_counter()
+                        t0, c0 = time.perf_counter(), time.process_time()
                         truth = make_case(seed, _kind(kind, seed), Path(tmp) / "c", snr=10.0, family=family, raw=raw)
-                        times.append(time.perf_counter() - t0)
+                        times.append(time.process_time() - c0)
+                        walls.append(time.perf_counter() - t0)
                         points.append(truth["n_points"])
                     per = statistics.median(t / p for t, p in zip(times, points, strict=True))
                     print(
                         f"| {family} | {kind} | {raw} | {statistics.median(times):.2f} | {max(times):.2f} | "
-                        f"{statistics.median(points):.0f} | {1e3 * per:.1f} |",
+                        f"{statistics.median(walls):.2f} | {statistics.median(points):.0f} | {1e3 * per:.1f} |",
                         flush=True,
                     )
 
 
+def large() -> None:
+    """Null sessions of 40, 160 and 640 points (equal-angle, 9 frequencies, windows up to an hour)."""
+    print("| points | positions | raw | CPU s | wall s | CPU ms/point |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    freqs = (1.0, 2.0, 3.5, 4.0, 5.25, 6.0, 7.5, 8.0, 10.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        for n_pos in (4, 16, 64):
+            for raw in (False, True):
+                rng = np.random.default_rng(n_pos)
+                design = equal_angle_design(n_pos, freqs, window_revs=20, max_window_s=3600.0)
+                truth = Truth(random_coefficients(rng), noise=random_noise(rng))
+                t0, c0 = time.perf_counter(), time.process_time()
+                rows = write_session(Path(tmp) / "s", design, truth, rng, raw=raw)
+                cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+                print(
+                    f"| {len(rows)} | {n_pos} | {raw} | {cpu:.2f} | {wall:.2f} | {1e3 * cpu / len(rows):.1f} |",
+                    flush=True,
+                )
+
+
 if __name__ == "__main__":
-    main()
+    main() if "--large" not in sys.argv else large()

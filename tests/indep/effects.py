@@ -21,7 +21,9 @@ effect (no rate noise, no jitter, no ticks; the same crank phases and waits as t
 session), and SNR = sqrt(sum (r_i / sigma_i)^2) of the part of it orthogonal to the absorbed
 columns (weighted least squares projection). The effect's channel is the available channel on
 which its drawn parameters give the largest SNR; `scale_to_snr` multiplies the effect's strength
-parameters until that SNR equals the request (secant iteration to 0.1 %). For +-1 pulse
+parameters until that SNR equals the request (power-law secant iteration to 0.1 %; where a first
+passage moves by a whole period as the strength changes, SNR(strength) has small steps and the
+nearest value found, within a few %, is kept: the truth's snr_achieved states it). For +-1 pulse
 miscounts, a discrete effect, windows are miscounted one by one (random order) until the SNR
 reaches the request, so the SNR achieved is the nearest the windows allow.
 """
@@ -461,36 +463,58 @@ def scale_to_snr(
     # power-law secant: SNR ~ lam^p near the solution (p = 1 for most effects, 3 for L0 and kx together)
     lam_prev, s_prev, power = 1.0, unit[channel], effect.power
     lam = (snr / s_prev) ** (1.0 / power)
-    s = s_prev
+    best = (math.inf, lam_prev, s_prev)
     for _ in range(12):
         s = signature(ctx, with_effect(base, effect, scale_params(effect, params, lam))).snr(channel)
+        best = min(best, (abs(s - snr), lam, s))
         if abs(s - snr) <= 1e-3 * snr:
             break
         if s > 0 and s_prev > 0 and lam != lam_prev and s != s_prev:
-            power = min(max(math.log(s / s_prev) / math.log(lam / lam_prev), 0.3), 5.0)
+            # SNR(lam) has small steps (a first passage moves by whole periods as the strength changes):
+            # keep the exponent near the effect's own and the step damped
+            power = min(max(math.log(s / s_prev) / math.log(lam / lam_prev), 0.5 * effect.power), 2 * effect.power)
         lam_prev, s_prev = lam, s
         lam = lam * (snr / s) ** (1.0 / power) if s > 0 else lam * 10.0
+    _, lam, s = best
     return scale_params(effect, params, lam), channel, s
 
 
 def _scale_miscount(
     params: dict[str, float], snr: float, ctx: Context, base: Truth
 ) -> tuple[dict[str, float], str, float]:
+    """Miscount windows one by one (random order, random sign) until the SNR reaches snr.
+
+    A miscount changes only its own window's rate (and the later start times by one pulse time,
+    negligibly), so the SNR of each subset is computed from the per-window changes of one session
+    with every window miscounted; the chosen subset is then simulated for the SNR reached.
+    """
     rng = np.random.default_rng(int(params["order_seed"]))
     order = rng.permutation(len(ctx.plan))
     signs = rng.choice([-1, 1], len(ctx.plan))
+    every = copy.copy(base)
+    every.miscount = {i: int(signs[i]) for i in range(len(ctx.plan))}
+    s_all, s_0 = signature(ctx, every), signature(ctx, base)
     chosen: dict[int, int] = {}
-    channel, s = "vibration_rates", 0.0
+    static = np.array([not p.freq_hz for (p, _, _) in ctx.plan])
+    delta = s_all.r["vibration_rates"] - s_0.r["vibration_rates"]
+    mask = np.zeros(len(ctx.plan))
     for i in order:
+        mask[i] = 1.0
         chosen[int(i)] = int(signs[i])
-        t = copy.copy(base)
-        t.miscount = dict(chosen)
-        sig = signature(ctx, t)
-        channel = max(("static_rates", "vibration_rates"), key=lambda ch: sig.snr(ch))
-        s = sig.snr(channel)
-        if s >= snr:
+        trial = Signature(
+            {
+                "static_rates": s_0.r["static_rates"] + (delta * mask)[static],
+                "vibration_rates": s_0.r["vibration_rates"] + delta * mask,
+            },
+            {k: s_0.X[k] for k in ("static_rates", "vibration_rates")},
+        )
+        if max(trial.snr("static_rates"), trial.snr("vibration_rates")) >= snr:
             break
+    final = copy.copy(base)
+    final.miscount = dict(chosen)
+    sig = signature(ctx, final)
+    channel = max(("static_rates", "vibration_rates"), key=lambda ch: sig.snr(ch))
     p = dict(params)
     p["n_miscounted"] = float(len(chosen))
     p["points"] = {str(k): v for k, v in chosen.items()}  # type: ignore[assignment]
-    return p, channel, s
+    return p, channel, sig.snr(channel)

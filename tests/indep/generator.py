@@ -157,6 +157,33 @@ def random_design(rng: np.random.Generator, family: str) -> Design:
     )
 
 
+def equal_angle_design(
+    n_positions: int,
+    freqs_hz: tuple[float, ...],
+    *,
+    window_revs: int = 20,
+    static_repeats: int = 1,
+    max_window_s: float = 3600.0,
+) -> Design:
+    """A fixed equal-angle design of any size (n_positions x (static_repeats + len(freqs)) windows),
+    for sessions larger than random_design draws (e.g. 160 or 640 points)."""
+    if n_positions < 1:
+        raise ValueError(f"n_positions={n_positions}: must be >= 1")
+    positions = tuple(round(360.0 * k / n_positions, 9) for k in range(n_positions))
+    points = [PointSpec(th, f) for th in positions for f in (0.0, *freqs_hz)]
+    points += [PointSpec(th, 0.0) for _ in range(1, static_repeats) for th in positions]
+    return Design(
+        "equal_angle",
+        positions,
+        tuple(freqs_hz),
+        window_revs,
+        static_repeats,
+        "ascending",
+        tuple(points),
+        max_window_s=max_window_s,
+    )
+
+
 @dataclass
 class Noise:
     """Noise of the recording (see the module docstring)."""

@@ -81,7 +81,7 @@ def test_contract_keys_json_and_kinds(tmp_path: Path) -> None:
         if kind == "null":
             assert t["effects"] == [] and t["snr"] is None and t["channel"] is None
         else:
-            assert all(abs(s - 10.0) <= 0.01 * 10.0 for s in t["snr_achieved"].values()), t["snr_achieved"]
+            assert all(abs(s - 10.0) <= 0.03 * 10.0 for s in t["snr_achieved"].values()), t["snr_achieved"]
         assert (t["separable"] is None) == (not kind.startswith("pair:"))
     assert len(OUT_OF_LIBRARY) >= 8 and len(LIBRARY) == 11
 
@@ -232,3 +232,17 @@ def test_random_designs_cover_the_issue_ranges(family: str) -> None:
             assert np.allclose(gaps, 360.0 / n, atol=1e-4)
         for _, pulses, tm in plan_pulses(d, random_coefficients(rng)):
             assert tm <= d.max_window_s * (1 + 1e-9) and pulses >= 16
+
+
+@pytest.mark.parametrize("name", OUT_OF_LIBRARY)
+def test_every_out_of_library_effect_reaches_its_snr(tmp_path: Path, name: str) -> None:
+    t = make_case(100, f"ool:{name}", tmp_path / "o", snr=10.0, raw=False)
+    assert t["in_library"] is False and t["effects"] == [name]
+    s = t["snr_achieved"][name]
+    if name == "pulse_miscount":  # discrete: the nearest the windows allow, or every window miscounted
+        n_mis = t["params"][name]["n_miscounted"]
+        assert s >= 0.95 * 10.0 or n_mis == t["n_points"], (s, n_mis)
+    else:  # SNR(strength) has small steps where a first passage moves by a period: within 3 %
+        assert abs(s - 10.0) <= 0.03 * 10.0, s
+    if name == "bias_step":
+        assert 0.3 * t["design"]["session_s"] < t["params"][name]["t_step_s"] < 0.7 * t["design"]["session_s"]
