@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -33,6 +34,10 @@ ROLES = {"olga": "operator", "victor": "viewer"}
 QUICK = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [8, 9, 10], "window_s": 30}  # 20 points, identifiable
 PROCEDURE = "seed000.integral_precession"
 FINAL = ("finished", "aborted", "estopped", "failed")
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run", "--disable-quic"]  # fmt: skip
+SCREENSHOTS = Path(__file__).resolve().parent / "screenshots"
 
 
 def free_port() -> int:
@@ -131,7 +136,7 @@ def login(client: TestClient, name: str) -> TestClient:
 def tools() -> SimpleNamespace:
     """This file's helpers, for the test modules (which cannot import conftest)."""
     return SimpleNamespace(start_station=start_station, stop_process=stop_process, free_port=free_port,
-                           write_users=write_users)  # fmt: skip
+                           write_users=write_users, serving_panel=serving_panel, screenshots=SCREENSHOTS)  # fmt: skip
 
 
 @pytest.fixture(scope="session")
@@ -156,17 +161,39 @@ def as_user(app_client) -> Callable[[str], TestClient]:
     return lambda name: login(TestClient(app_client.app, base_url="http://127.0.0.1"), name)
 
 
-@pytest.fixture(scope="module")
-def served_panel(panel_config) -> Iterator[str]:
-    """The module's panel served by uvicorn on a free port (in a thread); its base URL."""
+@contextmanager
+def serving_panel(config: PanelConfig) -> Iterator[str]:
+    """The panel of `config` served by uvicorn on a free port (in a thread) while the block runs; its base URL."""
     port = free_port()
-    server = panel_server(panel_config, "127.0.0.1", port)
+    server = panel_server(config, "127.0.0.1", port)
     thread = threading.Thread(target=server.run, name="panel", daemon=True)
     thread.start()
     deadline = time.monotonic() + 20
     while not server.started:
         assert time.monotonic() < deadline and thread.is_alive(), "the panel did not start"
         time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}"
-    server.should_exit = True
-    thread.join(10)
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+@pytest.fixture(scope="module")
+def served_panel(panel_config) -> Iterator[str]:
+    """The module's panel served by uvicorn on a free port (in a thread); its base URL."""
+    with serving_panel(panel_config) as url:
+        yield url
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Headless Debian Chromium under Playwright (no browser download); screenshots go to SCREENSHOTS."""
+    from playwright.sync_api import sync_playwright
+
+    assert CHROMIUM.exists(), "Debian's chromium is missing: run web/setup.sh (apt-get install chromium)"
+    SCREENSHOTS.mkdir(exist_ok=True)
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+        yield b
+        b.close()

@@ -20,12 +20,9 @@ from pathlib import Path
 
 import httpx2
 import pytest
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Page, expect
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run", "--disable-quic"]  # fmt: skip
-SCREENSHOTS = Path(__file__).resolve().parent / "screenshots"
+SCREENSHOTS = Path(__file__).resolve().parent / "screenshots"  # where conftest's browser fixture puts them
 SPEED = 100.0  # the quick session then takes about 12 s of wall time: time to watch, pause and resume
 PANEL_START_S = 30.0
 UI_TIMEOUT_MS = 30_000
@@ -72,16 +69,6 @@ def panel_url(tmp_path_factory, passwords, tools) -> Iterator[str]:
     finally:
         tools.stop_process(panel)
         tools.stop_process(station.proc)
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    assert CHROMIUM.exists(), "Debian's chromium is missing: run web/setup.sh (apt-get install chromium)"
-    SCREENSHOTS.mkdir(exist_ok=True)
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        yield b
-        b.close()
 
 
 def log_in(page: Page, url: str, name: str, password: str) -> None:
@@ -170,7 +157,7 @@ def test_operator_runs_a_session_from_the_browser(browser, panel_url, passwords,
         page.click("#report-link")
     report = report_page.value
     report.wait_for_load_state()
-    expect(report.locator("h2").first).to_contain_text("Coefficients")
+    expect(report.locator("h2").filter(has_text="Coefficients").first).to_be_visible()  # after the provenance
     shot(report, "6-report")
 
     # The gap diagnosis of the session: verdict, held-out shrink, maps and ranked effects.

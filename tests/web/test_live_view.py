@@ -11,24 +11,19 @@ session shows a results card with units and uncertainties. Screenshots go to tes
 from __future__ import annotations
 
 import re
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
-from playwright.sync_api import Browser, Page, expect, sync_playwright
+from playwright.sync_api import Browser, Page, expect
 
-from app.panel import panel_server
 from station.store import SessionStore
 from station.telemetry import envelope
 from web.config import PanelConfig, StationEntry
 
-CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync", "--no-first-run", "--disable-quic"]  # fmt: skip
-SCREENSHOTS = Path(__file__).resolve().parent / "screenshots"
+SCREENSHOTS = Path(__file__).resolve().parent / "screenshots"  # where conftest's browser fixture puts them
 PHONE = {"width": 360, "height": 800}
 SPEED = 100.0  # the quick session takes about 15 s of wall time
 UI_TIMEOUT_MS = 30_000
@@ -57,30 +52,11 @@ def site(tmp_path_factory, tools) -> Iterator[dict]:
                          reports=home / "ghost")  # fmt: skip
     config = PanelConfig(users=tools.write_users(home / "users.json"), audit_log=home / "audit.jsonl",
                          stations=(station.entry, ghost))  # fmt: skip
-    port = tools.free_port()
-    server = panel_server(config, "127.0.0.1", port)
-    thread = threading.Thread(target=server.run, name="panel", daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        assert time.monotonic() < deadline and thread.is_alive(), "the panel did not start"
-        time.sleep(0.05)
     try:
-        yield {"url": f"http://127.0.0.1:{port}", "station": station, "ghost": ghost}
+        with tools.serving_panel(config) as url:
+            yield {"url": url, "station": station, "ghost": ghost}
     finally:
-        server.should_exit = True
-        thread.join(10)
         tools.stop_process(station.proc)
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Browser]:
-    assert CHROMIUM.exists(), "Debian's chromium is missing: run web/setup.sh (apt-get install chromium)"
-    SCREENSHOTS.mkdir(exist_ok=True)
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
-        yield b
-        b.close()
 
 
 def phone_page(browser: Browser, url: str, name: str, password: str) -> Page:
