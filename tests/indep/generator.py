@@ -331,6 +331,7 @@ class Row:
     true_Tm_s: float
     sd_rate: float
     window: Window
+    open_stamp: float = 0.0  # the counter's stamp of the opening edge (ticks, or s when noise-free)
 
 
 def simulate(
@@ -387,6 +388,7 @@ def simulate(
                 true_tm,
                 sd,
                 win,
+                float(tim.open_stamp),
             )
         )
         t += true_tm + 0.5
@@ -404,7 +406,7 @@ def raw_record(row: Row, draws: Draws, k: int, truth: Truth, rng: np.random.Gene
     gt, gz = grating_samples(win, t_a, t_b, draws.zbar_m, noise.grating_noise_m, rng)
     edges, dirs = pulse_edges(win, t_a, t_b)
     st = Stamper(noise.tick_s, lambda n: rng.normal(0.0, noise.timing_sigma_s, n), draws.counter_phase_s)
-    open_tick = st.stamp(np.array([win.start_s]))[0]
+    open_tick = int(row.open_stamp)  # the same opening stamp as Tm, t1 and t2
     e_ticks = st.stamp(win.start_s + edges)
     order = np.argsort(e_ticks, kind="stable")  # the counter reports edges in arrival order
     out = {
