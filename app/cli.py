@@ -13,6 +13,7 @@ import threading
 from pathlib import Path
 
 import zmq
+from tqdm import tqdm
 
 from app.console import (
     DEFAULT_PROCEDURE,
@@ -38,11 +39,12 @@ from methods.common.least_squares import FitError
 from methods.seed000.identify import METHODS, identify
 from models.config import TwinConfig, TwinConfigError, default_twin
 from models.plan import seed000_plan
-from models.session_sim import simulate_session
+from models.session_sim import simulate_points, station_info
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.errors import StationError
-from station.interchange import SessionFormatError, content_hash, read_session, write_session
+from station.interchange import SessionFormatError, SessionWriter, content_hash, read_session, write_session
 from station.provenance import make_provenance
+from station.session import Session
 from station.store import SessionStore, StoreError
 
 
@@ -171,10 +173,22 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    """The twin's seed-000 session, written point by point (raw streams into raw.h5 as they come, so memory holds
+    one point's arrays), with progress on stderr."""
     cfg = _load_twin(args.twin)
-    session = simulate_session(seed000_plan(), cfg, args.seed, raw=args.raw, notes="simulated seed-000 session")
-    write_session(session, args.out_dir, overwrite=args.overwrite)
-    print(f"wrote {len(session.points)} points to {args.out_dir}")
+    plan = seed000_plan()
+    writer = SessionWriter(args.out_dir, overwrite=args.overwrite)
+    try:
+        with tqdm(total=len(plan), unit="point", file=sys.stderr, desc="simulate", mininterval=1.0) as bar:
+            for sp in simulate_points(plan, cfg, args.seed, raw=args.raw):
+                writer.add_point(sp.record, sp.raw)
+                bar.update()
+    except BaseException:
+        writer.abort()
+        raise
+    prov = make_provenance(station_id="twin", simulated=True, seed=args.seed)
+    writer.finish(Session(station_info(cfg), [], notes="simulated seed-000 session", provenance=prov))
+    print(f"wrote {len(plan)} points to {args.out_dir}")
     return 0
 
 

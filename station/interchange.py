@@ -23,16 +23,18 @@ import re
 import shutil
 import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import h5py
 import numpy as np
 
 from station import constants
 from station.errors import InputError
 from station.provenance import ProvenanceError, check_provenance
+from station.rawfile import RAW_FIELDS, LazyRaw, RawWriter
 from station.records import Field, RecordError, RecordType, declared
 from station.session import STATION_FIELDS, Measurement, PointRecord, RawStreams, Session, StationInfo
 
@@ -62,6 +64,7 @@ MAX_PERIOD_MISMATCH = 2 * constants.FREQ_STABILITY_MAX
 MAX_JSON_BYTES = 64 << 20  # session.json: declarations, provenance, notes; never arrays
 MAX_ARRAY_BYTES = 4 << 30  # one decompressed array of an .npz (raw streams of a long window reach ~100 MB)
 MEASUREMENTS_DIR = "measurements"
+RAW_FILE = "raw.h5"  # the points' raw streams, one HDF5 group per point_id (physics.md's raw/*.npz is read too)
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,127}$")
 _RESERVED = ("sequence", "key", "arrays_file")  # the columns of a measurements table before its fields
 OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results")  # the rest of session.json: meta
@@ -278,35 +281,65 @@ def _load_npz(path: Path, name: str) -> dict[str, np.ndarray]:
         raise SessionFormatError(name, f"not a readable .npz archive ({exc})") from None
 
 
-def _read_raw(raw_dir: Path, ids: set[str]) -> dict[str, RawStreams]:
+def _check_raw(arrays: Mapping[str, np.ndarray], name: str) -> None:
+    """physics.md's raw record: grating_t, grating_z, pulse_t (optional pulse_dir, reference_t); 1-D, numeric,
+    finite, grating_t and grating_z of one length, times non-decreasing."""
+    for key in RAW_ARRAYS:
+        if key not in arrays:
+            raise SessionFormatError(name, f"missing array (needs {', '.join(RAW_ARRAYS)})", column=key)
+    for key, a in arrays.items():
+        if key not in RAW_FIELDS:
+            raise SessionFormatError(name, f"unknown array (allowed: {', '.join(RAW_FIELDS)})", column=key)
+        if a.ndim != 1 or not np.issubdtype(a.dtype, np.number):
+            raise SessionFormatError(
+                name, f"expected a 1-D numeric array, got shape {a.shape} dtype {a.dtype}", column=key
+            )
+        if not np.all(np.isfinite(a)):
+            raise SessionFormatError(name, "contains NaN or inf", column=key, value=int(np.sum(~np.isfinite(a))))
+    if arrays["grating_t"].size != arrays["grating_z"].size:
+        raise SessionFormatError(
+            name,
+            f"grating_t has {arrays['grating_t'].size} samples but grating_z {arrays['grating_z'].size}",
+            column="grating_z",
+        )
+    for key in ("grating_t", "pulse_t"):
+        if np.any(np.diff(arrays[key]) < 0):
+            raise SessionFormatError(name, "times must not decrease", column=key)
+
+
+def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
+    """raw/<point_id>.npz (physics.md), read whole; or raw.h5 (one group per point), checked point by point and
+    then read lazily (a session's raw streams may not fit in memory)."""
+    raw_dir, h5 = d / "raw", d / RAW_FILE
+    npz = sorted(raw_dir.glob("*.npz")) if raw_dir.is_dir() else []
+    if npz and h5.exists():
+        raise SessionFormatError(RAW_FILE, "a session has raw/*.npz or raw.h5, not both")
+    if h5.exists():
+        try:
+            with h5py.File(h5, "r", locking=False) as f:
+                for pid in f:
+                    name = f"{RAW_FILE}:/{pid}"
+                    if pid not in ids:
+                        raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
+                    group = f[pid]
+                    if not isinstance(group, h5py.Group) or any(not isinstance(group[k], h5py.Dataset) for k in group):
+                        raise SessionFormatError(name, "expected a group of datasets (one per array)")
+                    for key in group:
+                        if group[key].nbytes > MAX_ARRAY_BYTES:
+                            raise SessionFormatError(name, f"array larger than {MAX_ARRAY_BYTES >> 20} MiB", column=key)
+                    _check_raw({k: group[k][()] for k in group}, name)
+                found = list(f)
+        except OSError as exc:
+            raise SessionFormatError(RAW_FILE, f"not a readable HDF5 file ({exc})") from None
+        return LazyRaw.of_file(h5, found)
     raws: dict[str, RawStreams] = {}
-    if not raw_dir.is_dir():
-        return raws
-    for path in sorted(raw_dir.glob("*.npz")):
+    for path in npz:
         name = f"raw/{path.name}"
         pid = path.stem
         if pid not in ids:
             raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
         arrays = _load_npz(path, name)
-        for key in RAW_ARRAYS:
-            if key not in arrays:
-                raise SessionFormatError(name, f"missing array (needs {', '.join(RAW_ARRAYS)})", column=key)
-        for key, a in arrays.items():
-            if a.ndim != 1 or not np.issubdtype(a.dtype, np.number):
-                raise SessionFormatError(
-                    name, f"expected a 1-D numeric array, got shape {a.shape} dtype {a.dtype}", column=key
-                )
-            if not np.all(np.isfinite(a)):
-                raise SessionFormatError(name, "contains NaN or inf", column=key, value=int(np.sum(~np.isfinite(a))))
-        if arrays["grating_t"].size != arrays["grating_z"].size:
-            raise SessionFormatError(
-                name,
-                f"grating_t has {arrays['grating_t'].size} samples but grating_z {arrays['grating_z'].size}",
-                column="grating_z",
-            )
-        for key in ("grating_t", "pulse_t"):
-            if np.any(np.diff(arrays[key]) < 0):
-                raise SessionFormatError(name, "times must not decrease", column=key)
+        _check_raw(arrays, name)
         raws[pid] = RawStreams(
             arrays["grating_t"].astype(float),
             arrays["grating_z"].astype(float),
@@ -406,7 +439,7 @@ def read_session(directory: str | os.PathLike) -> Session:
         raise SessionFormatError(str(d), "not a directory")
     station, notes, meta, provenance, tables = _read_station(d / "session.json")
     points = _read_points(d / "points.csv")
-    raw = _read_raw(d / "raw", {p.point_id for p in points})
+    raw = _read_raw(d, {p.point_id for p in points})
     measurements, types = _read_measurements(d, tables)
     results = meta.pop("results")
     if not points and not measurements and not meta.pop("declares_measurements"):
@@ -497,59 +530,82 @@ def _write_measurements(session: Session, tmp: Path) -> list[dict]:
     return [rt.to_json() | {"file": f"{MEASUREMENTS_DIR}/{rt.kind}.csv"} for rt in types]
 
 
+class SessionWriter:
+    """A piga-session/1 directory written as the session goes: points one by one, their raw streams straight into
+    raw.h5 (flushed per point: memory holds one point's arrays, not the session's), then `finish` writes the
+    tables and session.json and renames the directory into place; nothing is in place until then."""
+
+    def __init__(self, directory: str | os.PathLike, *, overwrite: bool = False) -> None:
+        self.directory = Path(directory)
+        if self.directory.exists() and not overwrite:
+            raise FileExistsError(f"{self.directory} exists; pass overwrite=True to replace it")
+        self.directory.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.directory.name}.", dir=self.directory.parent))
+        self._points: list[PointRecord] = []
+        self._raw: RawWriter | None = None
+
+    def add_point(self, point: PointRecord, raw: RawStreams | None = None) -> None:
+        self._points.append(point)
+        if raw is not None:
+            if self._raw is None:
+                self._raw = RawWriter(self._tmp / RAW_FILE)
+            self._raw.add(point.point_id, raw)
+
+    def finish(self, session: Session) -> Path:
+        """Everything but the points' raw streams from `session` (its points, if none were added); into place."""
+        try:
+            if self._raw is not None:
+                self._raw.close()
+                self._raw = None
+            points = self._points or session.points
+            st = session.station
+            doc: dict[str, Any] = {"format": FORMAT, "station": {k: getattr(st, k) for k in STATION_KEYS},
+                                   "notes": session.notes}  # fmt: skip
+            if session.provenance:
+                doc["provenance"] = session.provenance
+            doc.update({k: v for k, v in session.meta.items() if k not in OWN_KEYS})
+            doc.setdefault("raw_time_origin", "the window's opening edge (t = 0)")
+            doc["measurements"] = _write_measurements(session, self._tmp)
+            if session.results:
+                doc["results"] = session.results
+            (self._tmp / "session.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
+            _write_points(points, self._tmp / "points.csv")
+            if self.directory.exists():
+                shutil.rmtree(self.directory)
+            self._tmp.rename(self.directory)
+        except BaseException:
+            self.abort()
+            raise
+        return self.directory
+
+    def abort(self) -> None:
+        if self._raw is not None:
+            self._raw.close()
+            self._raw = None
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+def _write_points(points: list[PointRecord], path: Path) -> None:
+    extras = sorted({k for p in points for k in p.extra})
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow([*COLUMNS, *extras])
+        for p in points:
+            w.writerow(
+                [p.point_id, p.sequence, _fmt(p.start_s), _fmt(p.position_deg), _fmt(p.freq_hz), p.kind, p.pulses,
+                 _fmt(p.Tm_s), _fmt(p.t1_s), _fmt(p.t2_s), _fmt(p.Np)]
+                + [p.extra.get(k, "") for k in extras]
+            )  # fmt: skip
+
+
 def write_session(session: Session, directory: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write the session as piga-session/1 (exact float round trip); atomic rename into place."""
-    d = Path(directory)
-    if d.exists() and not overwrite:
-        raise FileExistsError(f"{d} exists; pass overwrite=True to replace it")
-    d.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", dir=d.parent))
+    """Write the session as piga-session/1 (exact float round trip), raw streams point by point into raw.h5;
+    atomic rename into place."""
+    writer = SessionWriter(directory, overwrite=overwrite)
     try:
-        st = session.station
-        doc: dict[str, Any] = {"format": FORMAT, "station": {k: getattr(st, k) for k in STATION_KEYS},
-                               "notes": session.notes}  # fmt: skip
-        if session.provenance:
-            doc["provenance"] = session.provenance
-        doc.update({k: v for k, v in session.meta.items() if k not in OWN_KEYS})
-        doc.setdefault("raw_time_origin", "the window's opening edge (t = 0)")
-        doc["measurements"] = _write_measurements(session, tmp)
-        if session.results:
-            doc["results"] = session.results
-        (tmp / "session.json").write_text(json.dumps(doc, indent=2), encoding="utf-8")
-        extras = sorted({k for p in session.points for k in p.extra})
-        with (tmp / "points.csv").open("w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow([*COLUMNS, *extras])
-            for p in session.points:
-                w.writerow(
-                    [
-                        p.point_id,
-                        p.sequence,
-                        _fmt(p.start_s),
-                        _fmt(p.position_deg),
-                        _fmt(p.freq_hz),
-                        p.kind,
-                        p.pulses,
-                        _fmt(p.Tm_s),
-                        _fmt(p.t1_s),
-                        _fmt(p.t2_s),
-                        _fmt(p.Np),
-                    ]
-                    + [p.extra.get(k, "") for k in extras]
-                )
-        if session.raw:
-            (tmp / "raw").mkdir()
-            for pid, r in session.raw.items():
-                arrays = {"grating_t": r.grating_t, "grating_z": r.grating_z, "pulse_t": r.pulse_t}
-                if r.pulse_dir is not None:
-                    arrays["pulse_dir"] = r.pulse_dir
-                if r.reference_t is not None:
-                    arrays["reference_t"] = r.reference_t
-                np.savez_compressed(tmp / "raw" / f"{pid}.npz", **arrays)
-        if d.exists():
-            shutil.rmtree(d)
-        tmp.rename(d)
+        for p in session.points:
+            writer.add_point(p, session.raw.get(p.point_id))
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        writer.abort()
         raise
-    return d
+    return writer.finish(session)

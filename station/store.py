@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 import sqlite3
 import threading
 import uuid
@@ -27,6 +28,7 @@ import numpy as np
 
 from station.errors import StationFault
 from station.provenance import local_provenance, software_version, unknown_provenance
+from station.rawfile import LazyRaw, write_point_file
 from station.records import RecordError, RecordType, declared, infer_record_type
 from station.session import Measurement, PointRecord, RawStreams, Session, StationInfo
 
@@ -113,12 +115,19 @@ CREATE TABLE record_types (
     PRIMARY KEY (session_id, kind)
 );
 """
+_V5 = """
+ALTER TABLE points ADD COLUMN raw_file TEXT;
+"""
 _RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 
 
 class StoreError(StationFault):
     """A store operation that names an unknown session, would duplicate a point, or a store this software
     cannot read."""
+
+
+def _new_uid() -> str:
+    return datetime.now(UTC).strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:8]
 
 
 def _now() -> str:
@@ -219,6 +228,7 @@ MIGRATIONS: tuple[Migration, ...] = (
     Migration(2, "measurements and their arrays", _script(_V2)),
     Migration(3, "provenance, content hash of imports, declared record types", _migrate_v3),
     Migration(4, "status 'interrupted' (found running with no live process)", _migrate_v4),
+    Migration(5, "raw streams in HDF5 files beside the store (points.raw_file)", _script(_V5)),
 )
 SCHEMA_VERSION = MIGRATIONS[-1].version
 
@@ -229,6 +239,7 @@ class SessionStore:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.raw_dir = self.path.with_name(self.path.name + ".raw")  # the points' raw streams, one HDF5 file each
         # One connection shared by the engine and control threads: every use holds the lock.
         self._lock = threading.RLock()
         self._db = sqlite3.connect(self.path, timeout=30.0, isolation_level=None, check_same_thread=False)
@@ -314,8 +325,9 @@ class SessionStore:
         status: str,
         provenance: dict,
         content_hash: str | None = None,
+        uid: str | None = None,
     ) -> tuple[str, int]:
-        uid = datetime.now(UTC).strftime("%Y%m%dT%H%M%S") + "-" + uuid.uuid4().hex[:8]
+        uid = uid or _new_uid()
         cur = db.execute(
             "INSERT INTO sessions (uid, created_utc, procedure, instrument_serial, status, station_json,"
             " config_json, notes, provenance_json, content_hash)"
@@ -357,12 +369,17 @@ class SessionStore:
             )  # fmt: skip
         return uid
 
+    def _raw_path(self, uid: str, sequence: int) -> tuple[str, Path]:
+        """Where a point's raw streams go: <store>.raw/<uid>/<sequence>.h5 (relative name, path)."""
+        rel = f"{uid}/{sequence:06d}.h5"
+        return rel, self.raw_dir / rel
+
     @staticmethod
-    def _insert_point(db: sqlite3.Connection, sid: int, point: PointRecord, raw: RawStreams | None) -> None:
-        cur = db.execute(
+    def _insert_point(db: sqlite3.Connection, sid: int, point: PointRecord, raw_file: str | None) -> None:
+        db.execute(
             "INSERT INTO points (session_id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses,"
-            " Tm_s, t1_s, t2_s, Np, extra_json, recorded_utc)"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            " Tm_s, t1_s, t2_s, Np, extra_json, recorded_utc, raw_file)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 sid,
                 point.point_id,
@@ -378,20 +395,28 @@ class SessionStore:
                 point.Np,
                 json.dumps(point.extra),
                 _now(),
+                raw_file,
             ),
         )
-        if raw is not None:
-            for name in _RAW_FIELDS:
-                arr = getattr(raw, name)
-                if arr is not None:
-                    db.execute("INSERT INTO raw VALUES (?, ?, ?)", (cur.lastrowid, name, _to_blob(arr)))
 
     def add_point(self, uid: str, point: PointRecord, raw: RawStreams | None = None) -> None:
-        """Store one finished point and its raw arrays in a single durable transaction."""
+        """Store one finished point durably: its raw streams first (an HDF5 file of their own, written, flushed
+        and renamed into place), then its row in one transaction. A crash between the two leaves a file no row
+        names, which the point's next try replaces."""
         sid = self._session_row(uid)
+        taken = self._query(
+            "SELECT point_id, sequence FROM points WHERE session_id = ? AND (point_id = ? OR sequence = ?)",
+            (sid, point.point_id, point.sequence),
+        )
+        if taken:
+            raise StoreError(f"session {uid}: point {point.point_id!r} (sequence {point.sequence}) is already stored")
+        raw_file = None
+        if raw is not None:
+            raw_file, path = self._raw_path(uid, point.sequence)
+            write_point_file(path, raw)
         try:
             with self._tx() as db:
-                self._insert_point(db, sid, point, raw)
+                self._insert_point(db, sid, point, raw_file)
         except sqlite3.IntegrityError as exc:
             raise StoreError(
                 f"session {uid}: point {point.point_id!r} (sequence {point.sequence}) is already stored"
@@ -453,12 +478,18 @@ class SessionStore:
         provenance = session.provenance or unknown_provenance()
         serial = str(meta.get("instrument_serial") or provenance.get("instrument_serial") or "")
         types = {rt.kind: rt for rt in session.record_types}
+        uid = _new_uid()
+        raw_files: dict[str, str] = {}
         try:
+            for p in session.points:  # one point's arrays in memory at a time
+                if p.point_id in session.raw:
+                    raw_files[p.point_id], path = self._raw_path(uid, p.sequence)
+                    write_point_file(path, session.raw[p.point_id])
             with self._tx() as db:
-                uid, sid = self._insert_session(db, session.station, procedure, serial, config, session.notes,
-                                                "imported", provenance, content_hash)  # fmt: skip
+                _, sid = self._insert_session(db, session.station, procedure, serial, config, session.notes,
+                                              "imported", provenance, content_hash, uid)  # fmt: skip
                 for p in session.points:
-                    self._insert_point(db, sid, p, session.raw.get(p.point_id))
+                    self._insert_point(db, sid, p, raw_files.get(p.point_id))
                 for m in session.measurements:
                     self._insert_measurement(db, sid, m, types.get(m.kind))
                 for r in session.results:
@@ -467,7 +498,11 @@ class SessionStore:
                         (sid, r["method"], r["created_utc"], json.dumps(r["result"])),
                     )
         except sqlite3.IntegrityError as exc:
+            shutil.rmtree(self.raw_dir / uid, ignore_errors=True)
             raise StoreError(f"import refused, nothing stored: {exc}") from exc
+        except BaseException:
+            shutil.rmtree(self.raw_dir / uid, ignore_errors=True)
+            raise
         return uid, True
 
     def measurements(self, uid: str, *, with_arrays: bool = True) -> list[Measurement]:
@@ -559,15 +594,17 @@ class SessionStore:
         config = json.loads(config_json)
         rows = self._query(
             "SELECT id, point_id, sequence, start_s, position_deg, freq_hz, kind, pulses, Tm_s, t1_s, t2_s, Np,"
-            " extra_json FROM points WHERE session_id = ? ORDER BY sequence",
+            " extra_json, raw_file FROM points WHERE session_id = ? ORDER BY sequence",
             (sid,),
         )
-        points, raws = [], {}
+        points, raws, files = [], {}, {}
         for r in rows:
             points.append(
                 PointRecord(r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], json.loads(r[12]))
             )
-            if with_raw:
+            if with_raw and r[13]:
+                files[r[1]] = (self.raw_dir / r[13], "/")
+            elif with_raw:  # a store from before raw files: arrays as blobs
                 arrays = {
                     n: _from_blob(b) for n, b in self._query("SELECT name, data FROM raw WHERE point_row = ?", (r[0],))
                 }
@@ -577,7 +614,7 @@ class SessionStore:
             StationInfo(**json.loads(station_json)),
             points,
             notes=notes,
-            raw=raws,
+            raw=LazyRaw(files, raws),  # the HDF5 files are read point by point, when asked
             meta={
                 "store_uid": uid,
                 "procedure": config.get("procedure", config.get("imported_procedure")) or procedure,

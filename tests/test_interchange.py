@@ -2,8 +2,8 @@
 
 import csv
 import json
-import shutil
 
+import h5py
 import numpy as np
 import pytest
 
@@ -127,6 +127,9 @@ def test_garbled_csv_and_short_rows(session_dir):
 
 
 def test_bad_raw_arrays(session_dir, session):
+    """physics.md's raw/<point_id>.npz, and the same checks for the raw.h5 the station writes."""
+    (session_dir / "raw.h5").unlink()
+    (session_dir / "raw").mkdir()
     pid = next(iter(session.raw))
     np.savez(
         session_dir / "raw" / f"{pid}.npz",
@@ -146,6 +149,26 @@ def test_bad_raw_arrays(session_dir, session):
         read_session(session_dir)
 
 
+def test_raw_h5_is_checked_like_the_npz(session_dir, session):
+    pid = next(iter(session.raw))
+    with h5py.File(session_dir / "raw.h5", "r+") as f:
+        del f[pid]["grating_z"]
+        f[pid]["grating_z"] = np.array([0.0, np.nan, 1.0])
+    with pytest.raises(SessionFormatError, match=rf"raw\.h5:/{pid}, column 'grating_z'.*NaN"):
+        read_session(session_dir)
+    with h5py.File(session_dir / "raw.h5", "r+") as f:
+        del f[pid]["grating_z"]
+        f[pid]["grating_z"] = session.raw[pid].grating_z
+        f.create_group("nobody")
+    with pytest.raises(SessionFormatError, match="no point with this point_id"):
+        read_session(session_dir)
+    (session_dir / "raw").mkdir()
+    np.savez(session_dir / "raw" / f"{pid}.npz", grating_t=np.arange(3.0), grating_z=np.arange(3.0),
+             pulse_t=np.arange(2.0))  # fmt: skip
+    with pytest.raises(SessionFormatError, match=r"raw/\*\.npz or raw\.h5, not both"):
+        read_session(session_dir)
+
+
 def test_import_is_all_or_nothing(tmp_path, session_dir):
     db = tmp_path / "db.sqlite"
     _rewrite(session_dir, 7, "Tm_s", "nan")  # a defect on a late row
@@ -155,7 +178,7 @@ def test_import_is_all_or_nothing(tmp_path, session_dir):
 
 
 def test_identify_command_writes_the_schema(tmp_path, session_dir):
-    shutil.rmtree(session_dir / "raw")
+    (session_dir / "raw.h5").unlink()
     out = tmp_path / "r.json"
     # 3 positions x 2 frequencies: too few to separate four coefficients with a static level each? 6 vib + 3 static
     assert main(["identify", str(session_dir), "--json", str(out)]) == 0
@@ -163,7 +186,8 @@ def test_identify_command_writes_the_schema(tmp_path, session_dir):
     assert doc["method"] == "integral"
     assert set(doc["coefficients"]) == {"kz", "kzz", "ky", "k3"}
     assert {"value", "sigma"} <= set(doc["coefficients"]["kzz"])
-    assert doc["n_points"] == 9 and doc["mu_c"] == pytest.approx(1.25 + np.log(np.sqrt(9 / 3)))
+    # eq. 28 as the seed defines it: N = the 6 vibration test points
+    assert doc["n_points"] == 9 and doc["mu_c"] == pytest.approx(1.25 + np.log(np.sqrt(6 / 3)))
     assert main(["identify", str(session_dir), "--json", str(out), "--method", "baseline"]) == 0
     base = json.loads(out.read_text())
     assert base["method"] == "baseline" and base["coefficients"]["kz"]["value"] is None
