@@ -29,6 +29,7 @@ from app.console import (
 from app.control import TOKEN_FILE, ControlServer, ensure_token
 from app.controller import ControlError
 from app.panel import add_commands as add_panel_commands
+from app.signals import RunSignals
 from devices.config import ConfigError
 from devices.errors import DriverError
 from engine.context import ValidationError
@@ -45,6 +46,7 @@ from station.errors import StationError
 from station.interchange import SessionFormatError, SessionWriter, content_hash, read_session, write_session
 from station.provenance import make_provenance
 from station.session import Session
+from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
 
 
@@ -95,6 +97,7 @@ def _run(
         with (
             open_station(config, twin, seed=args.seed, speed=args.speed) as hw,
             controller_for(config, hw, store, out, args.telemetry) as controller,
+            RunSignals(controller),  # Ctrl-C pauses and asks, a second one aborts; SIGTERM aborts
         ):
             outcome = run_with_progress(
                 controller, spec.name, params, instrument_serial=args.serial or serial, resume_uid=resume_uid
@@ -194,6 +197,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_sessions(args: argparse.Namespace) -> int:
     with SessionStore(existing_store(args.db)) as store:
+        recover_interrupted(store)  # running with no live process: interrupted (resumable, reportable)
         for s in store.sessions():
             print(f"{s['uid']}  {s['created_utc']}  {s['procedure']:32s} {s['status']:9s} {s['n_points']:4d} points"
                   f" {s['n_measurements']:4d} measurements")  # fmt: skip
@@ -353,4 +357,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    except KeyboardInterrupt:  # Ctrl-C before a run started or after it ended: nothing is moving
+        print(f"station {args.command}: interrupted", file=sys.stderr)
+        return 130
     sys.exit(main())

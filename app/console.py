@@ -199,6 +199,7 @@ def controller_for(
     try:
         yield controller
     finally:
+        controller.close()  # a run still under way is aborted (bounded) before the devices close
         if beacon is not None:
             beacon.set()
         if pub is not None:
