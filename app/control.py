@@ -208,6 +208,8 @@ class ControlServer:
         args = request.get("args") or {}
         if not isinstance(args, dict):
             return {"ok": False, "error": {"type": "BadRequest", "message": f"args = {args!r}: expected an object"}}
+        if cmd == "start":  # the session's provenance names who started it: the panel's user, else the OS user
+            self.controller.engine.operator = str(request.get("user") or "")[:64] or None
         try:
             result = handler(args)
         except REQUEST_ERRORS as exc:

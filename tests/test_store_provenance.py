@@ -66,3 +66,29 @@ def test_a_session_without_provenance_exports_without_inventing_one(tmp_path):
     s = Session(StationInfo(), [], meta={}, measurements=[])
     d = write_session(s, tmp_path / "bare")
     assert "provenance" not in json.loads((d / "session.json").read_text())
+
+
+def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
+    """A run started over the control channel on behalf of a logged-in user records that user; the station file's
+    id, the simulated station's seed and the serial given go with it."""
+    from app.control import ControlClient, ControlServer
+    from app.controller import StationController
+    from devices.config import load_station_config
+    from devices.station import simulated_station
+    from models.config import default_twin
+
+    config = load_station_config(CONFIG / "station-sim.toml")
+    quick = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 5, "settle_s": 0}
+    with simulated_station(config, default_twin(), seed=23, speed=1000.0) as sim, SessionStore(tmp_path / "s.db") as db:
+        controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)
+        server = ControlServer(controller, "tcp://127.0.0.1:*", token="t" * 32).start()
+        try:
+            client = ControlClient(server.endpoint, token="t" * 32, timeout_s=20)
+            args = {"procedure": "seed000.integral_precession", "params": quick, "instrument_serial": "PIGA-7"}
+            uid = client.request("start", args, user="alice")["result"]["session_uid"]
+            controller.wait(120)
+        finally:
+            server.close()
+        prov = db.provenance(uid)
+    assert (prov["operator"], prov["station_id"], prov["seed"], prov["simulated"]) == ("alice", "station-sim", 23, True)
+    assert prov["instrument_serial"] == "PIGA-7"
