@@ -36,7 +36,7 @@ import canopen
 from canopen.emcy import EmcyError
 from canopen.nmt import NmtError
 from canopen.pdo import PdoMap
-from canopen.profiles.p402 import BaseNode402, State402
+from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from devices.config import ServoSection, StationConfig
@@ -49,17 +49,30 @@ from devices.errors import (
     InterlockError,
     LimitError,
 )
+from devices.servo.protocol import (
+    ACCEL_UNIT_HZ_PER_S,
+    CW_DISABLE_VOLTAGE,
+    CW_ENABLE_OPERATION,
+    CW_FAULT_RESET,
+    CW_QUICK_STOP,
+    CW_SHUTDOWN,
+    CW_SWITCH_ON,
+    MODE_PROFILE_VELOCITY,
+    POSITION_UNITS_PER_REV,
+    RPDO_OBJECTS,
+    SUPPORTED_MODE_PV_BIT,
+    SW_FAULT,
+    SW_TARGET_REACHED,
+    TPDO_OBJECTS,
+    VELOCITY_UNIT_HZ,
+    state_of,
+)
+from engine.protocols import ServoReading
 from station.clock import Clock, WallClock
 
 log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
-VELOCITY_UNIT_HZ = 1e-6  # 0x606C, 0x60FF: 1e-6 rev/s
-ACCEL_UNIT_HZ_PER_S = 1e-6  # 0x6083, 0x6084, 0x6085: 1e-6 rev/s^2
-POSITION_UNITS_PER_REV = 65536  # 0x6064
-from engine.protocols import ServoReading
-MODE_PROFILE_VELOCITY = 3
-SUPPORTED_MODE_PV_BIT = 0x04  # 0x6502 bit 2
 
 MASTER_NODE_ID = 0x7F
 NOTIFIER_CYCLE_S = 0.05  # bounds how long close() waits for the receive thread
@@ -69,21 +82,11 @@ STATE_TIMEOUT_S = 1.0  # one 402 state transition
 FAULT_RESET_TIMEOUT_S = 1.0
 AT_SPEED_TOL_HZ = 1e-3  # velocity window for "at speed", like 0x606D
 RAMP_MARGIN_S = 0.5  # added to the ramp time when waiting for a speed
-SW_FAULT = 0x0008
-SW_TARGET_REACHED = 0x0400
-CW_DISABLE_VOLTAGE = 0x0000
-CW_QUICK_STOP = 0x0002
-CW_SHUTDOWN = 0x0006
-CW_SWITCH_ON = 0x0007
-CW_ENABLE_OPERATION = 0x000F
-CW_FAULT_RESET = 0x0080
 _ENABLE_PATH = (
     (CW_SHUTDOWN, "READY TO SWITCH ON"),
     (CW_SWITCH_ON, "SWITCHED ON"),
     (CW_ENABLE_OPERATION, "OPERATION ENABLED"),
 )
-_TPDO_OBJECTS = (0x6041, 0x6061, 0x606C, 0x6064)
-_RPDO_OBJECTS = (0x6040, 0x6060)
 
 
 def _target_reached(statusword: int) -> bool:
@@ -93,14 +96,6 @@ def _target_reached(statusword: int) -> bool:
 def _quick_stop_done(statusword: int) -> bool:
     """Quick stop option 2 ends in SWITCH ON DISABLED once the crank is at rest."""
     return state_of(statusword) == "SWITCH ON DISABLED"
-
-
-def state_of(statusword: int) -> str:
-    """The 402 state name a statusword encodes."""
-    for name, (mask, bits) in State402.SW_MASK.items():
-        if statusword & mask == bits:
-            return name
-    return "UNKNOWN"
 
 
 @dataclass(frozen=True)
@@ -551,8 +546,8 @@ class VibrationTableServo:
             )
 
     def _check_pdo_mapping(self) -> None:
-        missing = [i for i in _TPDO_OBJECTS if i not in self._node.tpdo_pointers]
-        missing += [i for i in _RPDO_OBJECTS if i not in self._node.rpdo_pointers]
+        missing = [i for i in TPDO_OBJECTS if i not in self._node.tpdo_pointers]
+        missing += [i for i in RPDO_OBJECTS if i not in self._node.rpdo_pointers]
         if missing:
             raise DriverError(
                 self.DEVICE,

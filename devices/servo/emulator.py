@@ -41,35 +41,33 @@ from canopen.pdo import PdoMap
 from canopen.sdo import SdoAbortedError
 
 from devices.config import ServoSection
+from devices.servo.protocol import (
+    ACCEL_UNIT_HZ_PER_S,
+    CW_FAULT_RESET,
+    EMCY_HEARTBEAT_ERROR,
+    FAULT,
+    MODE_PROFILE_VELOCITY,
+    OE,
+    POSITION_UNITS_PER_REV,
+    QSA,
+    RTSO,
+    SDO_ABORT_VALUE_INVALID,
+    SDO_ABORT_VALUE_TOO_HIGH,
+    SDO_ABORT_VALUE_TOO_LOW,
+    SO,
+    SOD,
+    STATE_STATUSWORD,
+    SW_REMOTE,
+    SW_TARGET_REACHED,
+    VELOCITY_UNIT_HZ,
+)
 from models.crank import CrankModel
 from station.clock import Clock, WallClock
 
 log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
-# Drive units, as documented in the EDS (deliberately not shared with the driver).
-VELOCITY_UNIT_REV_S = 1e-6
-ACCEL_UNIT_REV_S2 = 1e-6
-POSITION_UNITS_PER_REV = 65536
-MODE_PROFILE_VELOCITY = 3
 SUPPORTED_MODES = (0, MODE_PROFILE_VELOCITY)
-EMCY_HEARTBEAT_ERROR = 0x8130
-
-SOD = "SWITCH ON DISABLED"
-RTSO = "READY TO SWITCH ON"
-SO = "SWITCHED ON"
-OE = "OPERATION ENABLED"
-QSA = "QUICK STOP ACTIVE"
-FAULT = "FAULT"
-
-_STATUSWORD = {SOD: 0x0040, RTSO: 0x0031, SO: 0x0033, OE: 0x0037, QSA: 0x0017, FAULT: 0x0008}
-SW_REMOTE = 0x0200
-SW_TARGET_REACHED = 0x0400
-CW_FAULT_RESET = 0x0080
-
-_ABORT_VALUE_INVALID = 0x06090030
-_ABORT_VALUE_TOO_HIGH = 0x06090031
-_ABORT_VALUE_TOO_LOW = 0x06090032
 
 
 def next_state(state: str, cw: int, prev_cw: int) -> str:
@@ -264,7 +262,7 @@ class ServoEmulator:
                 return self._error_register
             belief = 1.0 + self.crank.eps_f
             if index == 0x606C:
-                return round(self.crank.speed_radps(t_s) / belief / TWO_PI / VELOCITY_UNIT_REV_S)
+                return round(self.crank.speed_radps(t_s) / belief / TWO_PI / VELOCITY_UNIT_HZ)
             if index == 0x6064:
                 counts = round(self.crank.phase_rad(t_s) / belief / TWO_PI * POSITION_UNITS_PER_REV)
                 return (counts + 2**31) % 2**32 - 2**31
@@ -280,9 +278,9 @@ class ServoEmulator:
         value = od.decode_raw(data)
         if isinstance(value, int):
             if od.min is not None and value < od.min:
-                raise SdoAbortedError(_ABORT_VALUE_TOO_LOW)
+                raise SdoAbortedError(SDO_ABORT_VALUE_TOO_LOW)
             if od.max is not None and value > od.max:
-                raise SdoAbortedError(_ABORT_VALUE_TOO_HIGH)
+                raise SdoAbortedError(SDO_ABORT_VALUE_TOO_HIGH)
         with self._lock:
             t_s = self._clock.now_s()
             if index == 0x6040:
@@ -291,7 +289,7 @@ class ServoEmulator:
                 self._on_mode(value, t_s)
             elif index == 0x60FF:
                 if abs(value) > self._params[0x607F]:
-                    raise SdoAbortedError(_ABORT_VALUE_TOO_HIGH)
+                    raise SdoAbortedError(SDO_ABORT_VALUE_TOO_HIGH)
                 self._params[index] = value
                 self._command_velocity(t_s)
             elif index in (0x6083, 0x6084, 0x6085):
@@ -318,7 +316,7 @@ class ServoEmulator:
     # ---- device behaviour (called with the lock held) ---------------------------------
 
     def _statusword(self, t_s: float) -> int:
-        sw = _STATUSWORD[self._state] | SW_REMOTE
+        sw = STATE_STATUSWORD[self._state] | SW_REMOTE
         pv = self._state == OE and self._mode_display == MODE_PROFILE_VELOCITY
         if pv and self.crank.at_speed(t_s):
             sw |= SW_TARGET_REACHED
@@ -340,7 +338,7 @@ class ServoEmulator:
 
     def _on_mode(self, mode: int, t_s: float) -> None:
         if mode not in SUPPORTED_MODES:
-            raise SdoAbortedError(_ABORT_VALUE_INVALID)
+            raise SdoAbortedError(SDO_ABORT_VALUE_INVALID)
         if not self._mode_frozen and mode != self._mode_display:
             self._mode_display = mode
             self._command_velocity(t_s)
@@ -348,12 +346,12 @@ class ServoEmulator:
     def _command_velocity(self, t_s: float) -> None:
         """Profile velocity when enabled in mode 3; otherwise brake to rest on 0x6085."""
         if self._state == OE and self._mode_display == MODE_PROFILE_VELOCITY:
-            w_radps = TWO_PI * self._params[0x60FF] * VELOCITY_UNIT_REV_S
+            w_radps = TWO_PI * self._params[0x60FF] * VELOCITY_UNIT_HZ
             speeding_up = abs(w_radps) >= abs(self.crank.speed_radps(t_s))
             accel = self._params[0x6083 if speeding_up else 0x6084]
         else:
             w_radps, accel = 0.0, self._params[0x6085]
-        self.crank.command_speed(w_radps, TWO_PI * accel * ACCEL_UNIT_REV_S2, t_s)
+        self.crank.command_speed(w_radps, TWO_PI * accel * ACCEL_UNIT_HZ_PER_S, t_s)
 
     def _enter_fault(self, code: int) -> None:
         self._error_code = code
