@@ -6,6 +6,9 @@ resumes with the cases not yet done. The file's first line holds the run's setti
 settings is refused rather than mixing two runs. Results come back in the order of the cases whatever the
 executor, so a run scored on one executor scores the same on another with the same seeds.
 
+Every case runs with one BLAS thread (threadpoolctl), as dask's workers do by default: the summation order
+of a multi-threaded BLAS depends on the threads it gets, and a verdict near a threshold could follow it.
+
 Executors: `local`, a pool of forked processes on this machine (one in-process loop for one worker);
 `dask`, the workers of an existing dask.distributed scheduler (`scheduler`, e.g. tcp://head:8786) or,
 without one, of a LocalCluster started for the run (one single-threaded worker process per core asked).
@@ -23,6 +26,8 @@ from dataclasses import asdict, dataclass, is_dataclass
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Literal
+
+from threadpoolctl import threadpool_limits
 
 from station.errors import InputError
 from station.jsonsafe import json_safe
@@ -129,6 +134,12 @@ class CaseLog:
         self.done[key] = result
 
 
+def run_pinned(fn: Callable[[Any], Any], case: Any) -> Any:
+    """fn(case) with one BLAS thread: the same floating-point sums on every executor."""
+    with threadpool_limits(limits=1):
+        return fn(case)
+
+
 def case_key(case: Any) -> str:
     """A case's key in the results file: its JSON (a dataclass by its fields)."""
     return json.dumps(asdict(case) if is_dataclass(case) else case, sort_keys=True, default=str)
@@ -190,10 +201,10 @@ def run_cases(
 
     if spec.kind == "local" and (spec.n_workers == 1 or len(todo) <= 1):
         for k, c in todo:
-            finished(k, fn(c))
+            finished(k, run_pinned(fn, c))
     elif todo:
         with open_executor(spec) as ex:
-            futures = {ex.submit(fn, c): k for k, c in todo}
+            futures = {ex.submit(run_pinned, fn, c): k for k, c in todo}
             try:
                 for f in cf.as_completed(futures):
                     finished(futures[f], f.result())
