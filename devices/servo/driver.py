@@ -14,7 +14,15 @@ Safety rules:
   state unknown and raises DeviceTimeout); SDO reads are retried once;
 - every wait is bounded and raises DeviceTimeout, DeviceFault or BusOff;
 - the driver produces a heartbeat (node MASTER_NODE_ID) that the drive consumes
-  (0x1016) and consumes the drive's (0x1017): a drive silent for HEARTBEAT_FACTOR
+  (0x1016), only while `master_alive()` holds (the station's supervisor of motion
+  sets it: a master whose supervision is lost must fall silent, or the drive's
+  watchdog never fires), and configures what the drive does on its own when that
+  heartbeat stops: 0x6007 abort connection option = 1 (fault signal: the drive
+  faults with EMCY 0x8130 and brakes on the quick-stop ramp) and 0x605A quick stop
+  option = 2 (quick-stop ramp 0x6085, then SWITCH ON DISABLED, which quick_stop()
+  waits for); both written and read back at open (DeviceFault if the drive does
+  not keep them);
+- the driver consumes the drive's heartbeat (0x1017): a drive silent for HEARTBEAT_FACTOR
   heartbeat periods latches DeviceTimeout (TPDOs still arriving) or BusOff (node
   silent altogether) and gets a best-effort quick stop; EMCY latches DeviceFault.
   Latched errors are raised by the next call (or by check()/watch()).
@@ -75,6 +83,8 @@ log = logging.getLogger(__name__)
 TWO_PI = 2.0 * math.pi
 
 MASTER_NODE_ID = 0x7F
+ABORT_CONNECTION_OPTION = 1  # 0x6007: fault signal on a lost master (CiA 402)
+QUICK_STOP_OPTION = 2  # 0x605A: quick-stop ramp, then SWITCH ON DISABLED
 NOTIFIER_CYCLE_S = 0.05  # bounds how long close() waits for the receive thread
 HEARTBEAT_FACTOR = 3  # consumer time = 3 producer periods, on both sides
 READ_ATTEMPTS = 2
@@ -208,7 +218,9 @@ class VibrationTableServo:
         self._tpdo = _TpdoCache(self._clock)
         self._network: canopen.Network | None = None
         self._node: BaseNode402 | None = None
-        self._hb_task: canopen.network.PeriodicMessageTask | None = None
+        self._hb_thread: threading.Thread | None = None
+        self._hb_stop = threading.Event()
+        self.master_alive: Callable[[], bool] = lambda: True  # the heartbeat goes out only while this holds
         self._hb_period_s = servo.heartbeat_ms / 1000.0
         self._hb_timeout_s = HEARTBEAT_FACTOR * self._hb_period_s
         self._hb_last_mono_s = time.monotonic()
@@ -269,7 +281,10 @@ class VibrationTableServo:
                 allowed="a drive producing its heartbeat",
             ) from e
         # our heartbeat (NMT state 0x05, OPERATIONAL), consumed by the drive through 0x1016
-        self._hb_task = self._network.send_periodic(0x700 + MASTER_NODE_ID, [0x05], self._hb_period_s)
+        self._hb_stop.clear()
+        self._hb_thread = threading.Thread(target=self._produce_heartbeat, name="servo-master-heartbeat", daemon=True)
+        self._hb_thread.start()
+        self._configure_master_loss()
         consumer_ms = round(HEARTBEAT_FACTOR * self._cfg.heartbeat_ms)
         self._sdo_write(0x1016, (MASTER_NODE_ID << 16) | consumer_ms, subindex=1)
 
@@ -311,9 +326,10 @@ class VibrationTableServo:
         self._disconnect()
 
     def _disconnect(self) -> None:
-        if self._hb_task is not None:
-            self._hb_task.stop()
-            self._hb_task = None
+        if self._hb_thread is not None:
+            self._hb_stop.set()
+            self._hb_thread.join(timeout=1.0)
+            self._hb_thread = None
         if self._network is not None:
             self._network.disconnect()
             self._network = None
@@ -329,11 +345,15 @@ class VibrationTableServo:
 
     @property
     def state(self) -> str:
-        """402 state from the last statusword received."""
+        """402 state from the last statusword received ('UNKNOWN' before the first, or with no link)."""
+        if self._network is None or not self._tpdo.seq(0x6041):
+            return "UNKNOWN"
         return state_of(self._tpdo.latest(0x6041))
 
     def check(self) -> None:
-        """Raise the latched link error (BusOff, DeviceTimeout) or drive fault, if any."""
+        """Raise the latched link error (BusOff, DeviceTimeout) or drive fault, if any; Disconnected if not open."""
+        if self._network is None:
+            raise Disconnected(self.DEVICE, "not connected (a reopen failed, or closed): reset, then retry")
         with self._err_lock:
             err = self._link_error or self._fault
         if err is not None:
@@ -367,6 +387,38 @@ class VibrationTableServo:
 
     def _on_heartbeat(self, nmt_state: int) -> None:
         self._hb_last_mono_s = time.monotonic()
+
+    def _produce_heartbeat(self) -> None:
+        """The master heartbeat, every period while master_alive() holds; silent otherwise."""
+        while True:
+            try:
+                if self.master_alive():
+                    self._network.send_message(0x700 + MASTER_NODE_ID, bytes([0x05]))
+            except (can.CanError, RuntimeError, AttributeError) as e:  # bus gone or network closed
+                log.warning("%s: master heartbeat not sent: %s", self.DEVICE, e)
+            if self._hb_stop.wait(self._hb_period_s):
+                return
+
+    def _configure_master_loss(self) -> None:
+        """0x6007 and 0x605A written, then read back: the drive must stop on its own if the master is lost."""
+        for index, value, meaning in (
+            (0x6007, ABORT_CONNECTION_OPTION, "abort connection option: fault signal"),
+            (0x605A, QUICK_STOP_OPTION, "quick stop option: quick-stop ramp, then SWITCH ON DISABLED"),
+        ):
+            self._sdo_write(index, value)
+            got = self._sdo_read(index)
+            if got != value:
+                raise DeviceFault(
+                    self.DEVICE,
+                    "the drive did not keep the option written",
+                    field=f"0x{index:04X}",
+                    value=got,
+                    allowed=f"{value} ({meaning})",
+                )
+
+    def master_loss_options(self) -> dict[str, int]:
+        """0x6007 and 0x605A as the drive holds them now (SDO reads)."""
+        return {"0x6007": self._sdo_read(0x6007), "0x605A": self._sdo_read(0x605A)}
 
     def _watchdog(self) -> None:
         poll_s = min(0.025, self._hb_period_s / 4)
@@ -657,6 +709,8 @@ class VibrationTableServo:
         return got
 
     def _send_controlword(self, cw: int) -> None:
+        if self._network is None or self._node is None:
+            raise Disconnected(self.DEVICE, f"controlword 0x{cw:04X} not sent: not connected")
         var = self._node.rpdo_pointers[0x6040]
         with self._cw_lock:
             var.raw = cw

@@ -9,10 +9,14 @@ SDOs; this module adds what a drive does on its own (see field notes):
   (0x1800+n sub 5, re-read whenever PDO parameters are written), only in
   NMT OPERATIONAL;
 - runs the 402 state machine (controlword 0x6040 -> statusword 0x6041), the mode
-  of operation and its display (0x6060/0x6061), quick stop (option code 2:
-  decelerate on 0x6085, then SWITCH ON DISABLED) and fault reset;
+  of operation and its display (0x6060/0x6061), quick stop (option code 0x605A:
+  1/2 decelerate on 0x6084/0x6085 then SWITCH ON DISABLED, 5/6 the same ramps then
+  stay in QUICK STOP ACTIVE) and fault reset;
 - produces its heartbeat (0x1017) and consumes the master's (0x1016 sub 1): when
-  the master falls silent the drive faults (EMCY 0x8130) and brings the crank to rest.
+  the master falls silent the drive does what 0x6007 (abort connection option)
+  says: 0 nothing (the crank keeps turning: the EDS default, which is why the
+  driver writes it), 1 fault (EMCY 0x8130, crank braked on 0x6085), 2 disable
+  voltage (crank braked on 0x6084), 3 quick stop (as 0x605A says).
 
 Two clocks: `clock` (the station clock, real or virtual) time-stamps everything
 physical (crank commands, speed, phase); `bus_clock` times the bus protocol
@@ -24,7 +28,7 @@ The drive's feedback is assumed to carry the twin's frequency error: velocity
 drive believes; only an independent sensor (the grating) sees the true motion.
 
 Fault injection for tests: inject_fault, silence_sdo, silence_heartbeat,
-ignore_master_heartbeat, go_bus_off, freeze_mode_display.
+ignore_master_heartbeat, go_bus_off, freeze_mode_display, ignore_option_writes.
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ log = logging.getLogger(__name__)
 
 TWO_PI = 2.0 * math.pi
 SUPPORTED_MODES = (0, MODE_PROFILE_VELOCITY)
+ABORT_OPTIONS = (0, 1, 2, 3)  # 0x6007 values this drive implements
+QUICK_STOP_OPTIONS = (1, 2, 5, 6)  # 0x605A values this drive implements
 
 
 def next_state(state: str, cw: int, prev_cw: int) -> str:
@@ -129,7 +135,7 @@ class ServoEmulator:
         self._error_code = 0
         self._error_register = 0
         self._fault_persistent = False
-        self._params: dict[int, int] = {}  # 0x60FF, 0x607F, 0x6083, 0x6084, 0x6085
+        self._params: dict[int, int] = {}  # 0x60FF, 0x607F, 0x6083, 0x6084, 0x6085, 0x6007, 0x605A
         # bus-side state
         self._pdo_config_dirty = True
         self._event_timer_s: dict[int, float] = {}
@@ -142,6 +148,7 @@ class ServoEmulator:
         self._master_hb_ignored = False
         self._bus_off = False
         self._mode_frozen = False
+        self._options_frozen = False
 
     @classmethod
     def from_config(cls, servo: ServoSection, clock: Clock, crank: CrankModel | None = None) -> ServoEmulator:
@@ -165,7 +172,7 @@ class ServoEmulator:
         self._node = node
         node.add_read_callback(self._on_read)
         node.add_write_callback(self._on_write)
-        for index in (0x60FF, 0x607F, 0x6083, 0x6084, 0x6085):
+        for index in (0x60FF, 0x607F, 0x6083, 0x6084, 0x6085, 0x6007, 0x605A):
             self._params[index] = node.sdo[index].raw
         with self._lock:
             self._configure_consumer(node.sdo[0x1016][1].raw)
@@ -242,6 +249,17 @@ class ServoEmulator:
         self.silence_sdo()
         self.silence_heartbeat()
 
+    def ignore_option_writes(self) -> None:
+        """0x6007 and 0x605A writes are acknowledged but not kept (a drive that ignores the master's settings)."""
+        with self._lock:
+            self._options_frozen = True
+
+    @property
+    def master_loss_options(self) -> tuple[int, int]:
+        """(0x6007, 0x605A) as the drive holds them."""
+        with self._lock:
+            return self._params[0x6007], self._params[0x605A]
+
     def freeze_mode_display(self) -> None:
         """0x6061 no longer follows 0x6060 (a mode switch that silently fails)."""
         with self._lock:
@@ -260,6 +278,8 @@ class ServoEmulator:
                 return self._error_code
             if index == 0x1001:
                 return self._error_register
+            if index in (0x6007, 0x605A) and index in self._params:
+                return self._params[index]
             belief = 1.0 + self.crank.eps_f
             if index == 0x606C:
                 return round(self.crank.speed_radps(t_s) / belief / TWO_PI / VELOCITY_UNIT_HZ)
@@ -295,6 +315,11 @@ class ServoEmulator:
             elif index in (0x6083, 0x6084, 0x6085):
                 self._params[index] = value
                 self._command_velocity(t_s)
+            elif index in (0x6007, 0x605A):
+                if value not in (ABORT_OPTIONS if index == 0x6007 else QUICK_STOP_OPTIONS):
+                    raise SdoAbortedError(SDO_ABORT_VALUE_INVALID)
+                if not self._options_frozen:
+                    self._params[index] = value
             elif index == 0x1016 and subindex == 1:
                 self._configure_consumer(value)
 
@@ -344,11 +369,14 @@ class ServoEmulator:
             self._command_velocity(t_s)
 
     def _command_velocity(self, t_s: float) -> None:
-        """Profile velocity when enabled in mode 3; otherwise brake to rest on 0x6085."""
+        """Profile velocity when enabled in mode 3; otherwise brake to rest on 0x6085
+        (on 0x6084 in a quick stop with option 1 or 5)."""
         if self._state == OE and self._mode_display == MODE_PROFILE_VELOCITY:
             w_radps = TWO_PI * self._params[0x60FF] * VELOCITY_UNIT_HZ
             speeding_up = abs(w_radps) >= abs(self.crank.speed_radps(t_s))
             accel = self._params[0x6083 if speeding_up else 0x6084]
+        elif self._state == QSA and self._params[0x605A] in (1, 5):
+            w_radps, accel = 0.0, self._params[0x6084]
         else:
             w_radps, accel = 0.0, self._params[0x6085]
         self.crank.command_speed(w_radps, TWO_PI * accel * ACCEL_UNIT_HZ_PER_S, t_s)
@@ -405,8 +433,8 @@ class ServoEmulator:
             t_s = self._clock.now_s()
             if self._pdo_config_dirty:
                 self._load_pdo_config()
-            if self._state == QSA and self.crank.at_speed(t_s):
-                self._state = SOD  # quick stop option 2: at rest -> SWITCH ON DISABLED
+            if self._state == QSA and self._params[0x605A] in (1, 2) and self.crank.at_speed(t_s):
+                self._state = SOD  # quick stop option 1 or 2: at rest -> SWITCH ON DISABLED
             self._check_master_heartbeat(now_s)
             if self._bus_off or self._node.nmt.state != "OPERATIONAL":
                 return self._tick_s
@@ -432,7 +460,17 @@ class ServoEmulator:
     def _check_master_heartbeat(self, now_s: float) -> None:
         if self._hb_last_s is None or now_s - self._hb_last_s <= self._hb_timeout_s:
             return
-        log.warning("servo emulator: master heartbeat lost, bringing the crank to rest")
         self._hb_last_s = None
-        if self._state != FAULT:
+        option = self._params[0x6007]
+        log.warning("servo emulator: master heartbeat lost; abort connection option 0x6007 = %d", option)
+        if self._state == FAULT or option == 0:
+            return
+        if option == 1:
             self._enter_fault(EMCY_HEARTBEAT_ERROR)
+            return
+        self._state = SOD if option == 2 or self._state != OE else QSA
+        t_s = self._clock.now_s()
+        if option == 2:  # disable voltage: no torque; the crank runs down on the profile deceleration
+            self.crank.command_speed(0.0, TWO_PI * self._params[0x6084] * ACCEL_UNIT_HZ_PER_S, t_s)
+        else:
+            self._command_velocity(t_s)
