@@ -23,7 +23,9 @@ columns (weighted least squares projection). The effect's channel is the availab
 which its drawn parameters give the largest SNR; `scale_to_snr` multiplies the effect's strength
 parameters until that SNR equals the request (power-law secant iteration to 0.1 %; where a first
 passage moves by a whole period as the strength changes, SNR(strength) has small steps and the
-nearest value found, within a few %, is kept: the truth's snr_achieved states it). For +-1 pulse
+nearest value found, within a few %, is kept: the truth's snr_achieved states it). No effect is made
+stronger than STRENGTH_CAP = 10 times its plausible bounds: where a design cannot show an effect
+at that strength, the SNR reached is below the request (snr_achieved says so, `plausible` is False). For +-1 pulse
 miscounts, a discrete effect, windows are miscounted one by one (random order) until the SNR
 reaches the request, so the SNR achieved is the nearest the windows allow.
 """
@@ -41,6 +43,7 @@ from indep.generator import Design, Draws, Row, Truth, simulate
 from indep.world import A0_M, ARCSEC_RAD, EARTH_RATE_RADPS, LATITUDE_DEG, PULSE_RAD, Perturbation
 
 UM = 1e-6
+STRENGTH_CAP = 10.0  # scale_to_snr never makes an effect stronger than this many times its plausible bounds
 CHANNELS = ("static_rates", "vibration_rates", "period_identity", "grating")
 
 
@@ -455,26 +458,35 @@ def scale_to_snr(
     base = truth if truth is not None else ctx.truth
     if effect.name == "pulse_miscount":
         return _scale_miscount(params, snr, ctx, base)
+    # the strongest the effect may be made: STRENGTH_CAP times its plausible bounds
+    caps = [STRENGTH_CAP * effect.bounds[k] / abs(v) for k, v in params.items() if k in effect.scaled and v]
+    lam_max = min(caps) if caps else math.inf
     sig = signature(ctx, with_effect(base, effect, params))
     unit = {ch: sig.snr(ch) for ch in sig.r}
+    lam_probe = 1.0
+    if max(unit.values()) < 1.0 and math.isfinite(lam_max):
+        # too weak to tell its channel from rounding (~1e-2): look again at the strongest allowed
+        lam_probe = lam_max
+        sig = signature(ctx, with_effect(base, effect, scale_params(effect, params, lam_probe)))
+        unit = {ch: sig.snr(ch) for ch in sig.r}
     channel = max(unit, key=lambda ch: unit[ch])
     if unit[channel] == 0.0:
         raise ValueError(f"effect {effect.name}: no signature on any channel of this design")
     # power-law secant: SNR ~ lam^p near the solution (p = 1 for most effects, 3 for L0 and kx together)
-    lam_prev, s_prev, power = 1.0, unit[channel], effect.power
-    lam = (snr / s_prev) ** (1.0 / power)
+    lam_prev, s_prev, power = lam_probe, unit[channel], effect.power
+    lam = min(lam_prev * (snr / s_prev) ** (1.0 / power), lam_max)
     best = (math.inf, lam_prev, s_prev)
     for _ in range(12):
         s = signature(ctx, with_effect(base, effect, scale_params(effect, params, lam))).snr(channel)
         best = min(best, (abs(s - snr), lam, s))
-        if abs(s - snr) <= 1e-3 * snr:
+        if abs(s - snr) <= 1e-3 * snr or (lam >= lam_max and s < snr):
             break
         if s > 0 and s_prev > 0 and lam != lam_prev and s != s_prev:
             # SNR(lam) has small steps (a first passage moves by whole periods as the strength changes):
             # keep the exponent near the effect's own and the step damped
             power = min(max(math.log(s / s_prev) / math.log(lam / lam_prev), 0.5 * effect.power), 2 * effect.power)
         lam_prev, s_prev = lam, s
-        lam = lam * (snr / s) ** (1.0 / power) if s > 0 else lam * 10.0
+        lam = min(lam * (snr / s) ** (1.0 / power) if s > 0 else lam * 10.0, lam_max)
     _, lam, s = best
     return scale_params(effect, params, lam), channel, s
 
