@@ -46,21 +46,15 @@ def software_version() -> str:
         version = "unknown"
     source = Path(__file__).resolve().parents[1]
     if (source / ".git").exists():
+
+        def git(*args: str) -> str:
+            run = subprocess.run(["git", "-C", str(source), *args], capture_output=True, text=True, timeout=5)
+            run.check_returncode()
+            return run.stdout.strip()
+
         try:
-            commit = subprocess.run(
-                ["git", "-C", str(source), "rev-parse", "--short=12", "HEAD"],
-                capture_output=True,
-                text=True,
-                timeout=5,
-                check=True,
-            ).stdout.strip()
-            dirty = subprocess.run(
-                ["git", "-C", str(source), "status", "--porcelain", "--untracked-files=no"],
-                capture_output=True,
-                text=True,
-                timeout=5,
-                check=True,
-            ).stdout.strip()
+            commit = git("rev-parse", "--short=12", "HEAD")
+            dirty = git("status", "--porcelain", "--untracked-files=no")
         except (OSError, subprocess.SubprocessError):
             return version
         if commit:

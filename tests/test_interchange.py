@@ -1,11 +1,11 @@
 """piga-session/1 import and export: exact round trip, and every malformed input refused clearly."""
 
-import csv
 import json
 
 import h5py
 import numpy as np
 import pytest
+from session_files import set_cell
 
 from app.cli import main
 from models.config import TwinConfig
@@ -36,16 +36,6 @@ def test_round_trip_is_exact(session, session_dir):
         np.testing.assert_array_equal(back.raw[pid].grating_z, raw.grating_z)
 
 
-def _rewrite(session_dir, row: int, column: str, value: str):
-    path = session_dir / "points.csv"
-    rows = list(csv.DictReader(path.open()))
-    rows[row - 2][column] = value
-    with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-
-
 # row 2 is the first vibration point (0 deg, 9 Hz); row 4 the static point at 0 deg
 BAD_CELLS = [
     (2, "kind", "vibrating", "kind must be 'static' or 'vibration'"),
@@ -70,7 +60,7 @@ BAD_CELLS = [
 
 @pytest.mark.parametrize(("row", "column", "value", "message"), BAD_CELLS)
 def test_malformed_cell_names_file_row_column_value(session_dir, row, column, value, message):
-    _rewrite(session_dir, row, column, value)
+    set_cell(session_dir, row, column, value)
     with pytest.raises(SessionFormatError, match=message) as info:
         read_session(session_dir)
     text = str(info.value)
@@ -171,7 +161,7 @@ def test_raw_h5_is_checked_like_the_npz(session_dir, session):
 
 def test_import_is_all_or_nothing(tmp_path, session_dir):
     db = tmp_path / "db.sqlite"
-    _rewrite(session_dir, 7, "Tm_s", "nan")  # a defect on a late row
+    set_cell(session_dir, 7, "Tm_s", "nan")  # a defect on a late row
     assert main(["import", str(session_dir), "--db", str(db)]) == 2
     with SessionStore(db) as store:
         assert store.sessions() == []  # nothing half-imported

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from session_files import set_cell
 
 from app.cli import main
 from models.config import TwinConfig
@@ -36,16 +37,6 @@ def _import(session_dir, db) -> int:
 def _sessions(db) -> list[dict]:
     with SessionStore(db) as store:
         return store.sessions()
-
-
-def _set_cell(session_dir, row: int, column: str, value: str) -> None:
-    path = session_dir / "points.csv"
-    rows = list(csv.DictReader(path.open()))
-    rows[row - 2][column] = value
-    with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
 
 
 def _set_station(session_dir, **keys) -> None:
@@ -80,7 +71,7 @@ def test_bom_and_crlf_are_the_same_content(tmp_path, session_dir, session):
 
 def test_a_duplicate_sequence_on_the_fifth_point_stores_nothing(tmp_path, session_dir):
     db = tmp_path / "db.sqlite"
-    _set_cell(session_dir, 6, "sequence", "0")  # row 6 = the fifth point
+    set_cell(session_dir, 6, "sequence", "0")  # row 6 = the fifth point
     with pytest.raises(SessionFormatError, match=r"points\.csv row 6, column 'sequence', value '0'.*duplicate"):
         read_session(session_dir)
     assert _import(session_dir, db) == 2
@@ -89,7 +80,7 @@ def test_a_duplicate_sequence_on_the_fifth_point_stores_nothing(tmp_path, sessio
 
 def test_an_overflow_leaves_no_empty_session(tmp_path, session_dir):
     db = tmp_path / "db.sqlite"
-    _set_cell(session_dir, 9, "pulses", str(2**70))  # beyond what the counter (and SQLite's INTEGER) can hold
+    set_cell(session_dir, 9, "pulses", str(2**70))  # beyond what the counter (and SQLite's INTEGER) can hold
     assert _import(session_dir, db) == 2
     assert _sessions(db) == []
 

@@ -92,3 +92,17 @@ def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
         prov = db.provenance(uid)
     assert (prov["operator"], prov["station_id"], prov["seed"], prov["simulated"]) == ("alice", "station-sim", 23, True)
     assert prov["instrument_serial"] == "PIGA-7"
+
+
+def test_the_procedure_files_instrument_serial_is_recorded(tmp_path):
+    """`instrument_serial` in a procedure file names the instrument of the session (no silent default)."""
+    proc = tmp_path / "quick.toml"
+    proc.write_text('procedure = "seed000.integral_precession"\ninstrument_serial = "PIGA-FILE-9"\n[params]\n'
+                    'positions_deg = [0, 180]\nfreqs_hz = [10]\nwindow_s = 5\nsettle_s = 0\n')  # fmt: skip
+    out = tmp_path / "out"
+    main(["run", str(proc), "--out", str(out), "--seed", "4"])  # the analysis may refuse so short a session
+    with SessionStore(out / "station.sqlite") as store:
+        (row,) = store.sessions()
+        prov = store.provenance(row["uid"])
+    assert row["instrument_serial"] == prov["instrument_serial"] == "PIGA-FILE-9" and prov["seed"] == 4
+    main(["run", str(proc), "--out", str(out), "--serial", "PIGA-CLI-1", "--dry-run"])  # the command line wins
