@@ -1,0 +1,89 @@
+"""What the console prints: facts on stdout (units, u and U = k u, mu vs mu_c, a verdict), progress and the
+analysis-and-report stage on stderr; and station.coefficients, which reads any method's results for it."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from station.coefficients import COVERAGE_K, coefficient_rows, format_rows, verdict
+
+REPO = Path(__file__).resolve().parents[1]
+QUICK = ('procedure = "seed000.integral_precession"\ntitle = "quick"\n[params]\n'
+         "positions_deg = [0, 72, 144, 216, 288]\nfreqs_hz = [8, 9, 10]\nwindow_s = 30\n")  # fmt: skip
+RUN_TIMEOUT_S = 240.0
+UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3"}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> subprocess.CompletedProcess:
+    out = tmp_path_factory.mktemp("console")
+    (out / "quick.toml").write_text(QUICK)
+    r = subprocess.run([sys.executable, "-m", "app.cli", "run", str(out / "quick.toml"), "--out", str(out)],
+                       capture_output=True, text=True, cwd=REPO, timeout=RUN_TIMEOUT_S)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+def test_stdout_has_units_uncertainty_meaning_and_a_verdict_and_no_progress(run):
+    out = run.stdout
+    assert "\r" not in out and "station-s [" not in out and "progress:" not in out  # no bar in a redirected log
+    for name, unit in UNITS.items():  # every printed coefficient carries its unit, on the value and on u and U
+        line = next(x for x in out.splitlines() if x.strip().startswith(f"{name} ") and "=" in x)
+        assert line.count(unit) == 3, line
+        assert re.search(r"U = \S+ " + re.escape(unit) + r" \(k = [\d.]+", line), line
+    assert "residual sigma = " in out and " rad/s" in out
+    assert "u is the standard uncertainty (k = 1" in out and "mu_c = 1.25 + ln sqrt(N/3)" in out
+    last = out.strip().splitlines()[-1]
+    assert re.fullmatch(r"verdict: (NOT )?ACCEPTED: integral: mu [\d.]+ [<>=]+ mu_c [\d.]+ .*", last), last
+
+
+def test_stderr_shows_progress_then_the_analysis_and_report_stage(run):
+    err = run.stderr.splitlines()
+    progress = [x for x in err if x.startswith("progress: ")]
+    assert 3 <= len(progress) <= 11  # one line per tenth of the plan in a log, not a carriage-return bar
+    measured = next(i for i, x in enumerate(err) if x.startswith("measuring finished: 20/20"))
+    started = next(i for i, x in enumerate(err) if x.startswith("analysis and report: fitting"))
+    done = next(i for i, x in enumerate(err) if re.match(r"analysis and report: done in [\d.]+ s", x))
+    assert max(err.index(p) for p in progress) < measured < started < done
+
+
+SEED000_DOC = {  # the shape of methods.seed000.identify's to_json, with a GUM budget on kz only
+    "method": "integral",
+    "coefficients": {
+        "kz": {"value": 0.56, "sigma": 2.8e-4, "unit": "rad/s/g", "standard_uncertainty": 3.0e-4,
+               "coverage_factor": 2.2, "coverage_probability": 0.95, "expanded_uncertainty": 6.6e-4},
+        "kzz": {"value": 6.0e-6, "sigma": 4.0e-8},
+        "ky": {"value": None, "sigma": None, "note": "not identifiable by the baseline model"},
+    },
+    "units": {"kzz": "rad/s/g^2", "ky": "rad/s/g^2"},
+    "mu": 1.4, "mu_c": 2.2, "reliable": True, "n_points": 20,
+}  # fmt: skip
+
+
+def test_coefficient_rows_read_both_shapes_and_the_budget():
+    rows = {r.name: r for r in coefficient_rows({"integral": SEED000_DOC, "alignment": {
+        "dtheta_h": {"value": 1e-4, "sigma": 2e-5, "unit": "rad"}}})}  # fmt: skip
+    kz, kzz, ky, dth = rows["kz"], rows["kzz"], rows["ky"], rows["dtheta_h"]
+    assert (kz.u, kz.k, kz.expanded, kz.u_fit, kz.budgeted) == (3.0e-4, 2.2, 6.6e-4, 2.8e-4, True)
+    assert (kzz.unit, kzz.u, kzz.k, kzz.budgeted) == ("rad/s/g^2", 4.0e-8, COVERAGE_K, False)
+    assert kzz.expanded == pytest.approx(COVERAGE_K * 4.0e-8, rel=1e-15)
+    assert ky.value is None and "not identifiable" in ky.note
+    assert (dth.result, dth.unit) == ("alignment", "rad")  # the results key it came from
+    lines = format_rows([kz, kzz, ky])
+    assert "U = 6.60e-04 rad/s/g (k = 2.20, 95 %)" in lines[0] and "fit alone 2.80e-04" in lines[0]
+    assert "(k = 2.00)" in lines[1] and "not identified" in lines[2]
+
+
+def test_the_verdict_gives_its_reasons():
+    ok = verdict("finished", {"integral": SEED000_DOC})
+    assert ok == "verdict: ACCEPTED: integral: mu 1.40 < mu_c 2.20 (no outlier), 20 points; no fault"
+    outlier = verdict("finished", {"integral": {**SEED000_DOC, "mu": 2.5, "reliable": False}})
+    assert outlier.startswith("verdict: NOT ACCEPTED: ") and "mu 2.50 >= mu_c 2.20 (an outlier" in outlier
+    aborted = verdict("aborted", None, ["DeviceTimeout: counter: no answer"])
+    assert aborted == "verdict: NOT ACCEPTED: the run aborted; 1 fault: DeviceTimeout: counter: no answer"
+    assert "reports no outlier test" in verdict("finished", {"tumble": {"K1": {"value": 1.0, "sigma": 0.1}}})
