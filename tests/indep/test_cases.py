@@ -246,3 +246,21 @@ def test_every_out_of_library_effect_reaches_its_snr(tmp_path: Path, name: str) 
         assert abs(s - 10.0) <= 0.03 * 10.0, s
     if name == "bias_step":
         assert 0.3 * t["design"]["session_s"] < t["params"][name]["t_step_s"] < 0.7 * t["design"]["session_s"]
+
+
+def test_scaling_never_exceeds_ten_times_the_plausible_bounds() -> None:
+    """An effect a design cannot show is capped at STRENGTH_CAP x its bounds and reports the SNR reached."""
+    from indep.effects import EFFECTS, STRENGTH_CAP, Context, scale_to_snr
+    from indep.generator import Truth, draw_session, random_noise, simulate
+
+    rng = np.random.default_rng(5)
+    design = random_design(rng, "equal_angle")
+    truth = Truth(random_coefficients(rng), noise=random_noise(rng))
+    plan = plan_pulses(design, truth.co)
+    draws = draw_session(rng, len(plan), False, plan)
+    ctx = Context(design, truth, draws, plan, False)
+    ctx.rows0 = simulate(design, truth, draws, plan)
+    eff = EFFECTS["mount_misalignment"]
+    p, _, s = scale_to_snr(eff, {"dtheta_mount_rad": 1e-6}, 1e9, ctx)
+    assert abs(p["dtheta_mount_rad"]) == pytest.approx(STRENGTH_CAP * eff.bounds["dtheta_mount_rad"])
+    assert 0 < s < 1e9
