@@ -41,7 +41,7 @@ from station.clock import Clock
 class DeviceKind:
     name: str  # the config section and the device's name
     section: type  # the section's @settings dataclass (station.validation)
-    open: Callable[[Any, Clock], Any]  # (section, clock) -> opened driver with close()
+    open: Callable[..., Any]  # (section, clock, **wiring of a core device) -> opened driver with close()
     emulate: Callable[[Any, Any], Any]  # (section, SimStation) -> started emulator with .port and close()
     core: bool = False  # one of the five devices every station has: a required section, a StationConfig field
 

@@ -20,10 +20,11 @@ ARM_3, ACK_ARM_OK = H("a5 5a 20 05 00 03 00 00 00 00 23 dd"), H("a5 5a a0 02 00 
 
 
 def test_the_second_counter_speaks_the_counter_protocol() -> None:
-    with scripted_port([(STATUS_Q, STATUS_ARMED)]) as port:
+    with scripted_port([(STATUS_Q, STATUS_ARMED), (ARM_3, ACK_ARM_OK)]) as port:
         counter = kind.open_counter(SerialSection(port=port, baud=921_600), FrozenClock(1.0))
         try:
             assert counter.status() == {"state": "armed", "preset": 1000, "ticks": 0x12345678, "fault": None}
+            counter.arm(3)
         finally:
             counter.close()
 
