@@ -28,18 +28,23 @@ from station.session import StationInfo
 class Alignment:
     method: str
     dtheta_h_rad: float
-    sigma_rad: float
+    sigma_rad: float | None  # None: no residual degrees of freedom to estimate it
     kz_radps_per_g: float
-    sigma_kz: float
+    sigma_kz: float | None
     k0_radps: float
-    residual_sigma_radps: float
+    residual_sigma_radps: float | None  # None: no residual degrees of freedom (eq. 26, or three positions)
+    sigma_k0_radps: float | None = None  # None where the design gives no estimate of it
 
     def to_json(self) -> dict:
+        """Quantities with value, sigma and unit; a sigma the design cannot give is None with the reason."""
+        k0 = {"value": self.k0_radps, "sigma": self.sigma_k0_radps, "unit": "rad/s"}
+        if self.sigma_k0_radps is None:
+            k0["note"] = "no residual degrees of freedom: sigma(k0) not estimable"
         return {
             "method": self.method,
             "dtheta_h": {"value": self.dtheta_h_rad, "sigma": self.sigma_rad, "unit": "rad"},
             "kz": {"value": self.kz_radps_per_g, "sigma": self.sigma_kz, "unit": "rad/s/g"},
-            "k0": {"value": self.k0_radps, "unit": "rad/s"},
+            "k0": k0,
             "residual_sigma_radps": self.residual_sigma_radps,
         }
 
@@ -72,7 +77,8 @@ def two_position(
     var_c += (wie * math.cos(lam) / kz_radps_per_g * sigma_latitude_rad) ** 2 + (c / kz_radps_per_g * sigma_kz) ** 2
     sigma = d_dc * math.sqrt(var_c)
     k0 = 0.5 * (rate_0_radps + rate_180_radps)  # the earth-rate terms cancel in the sum at 0 and 180 deg
-    return Alignment("eq. 26 (0 and 180 deg)", angle, sigma, kz_radps_per_g, sigma_kz, k0, math.nan)
+    sigma_k0 = sigma_rate_radps / math.sqrt(2.0)  # the mean of two rates of sigma_rate each
+    return Alignment("eq. 26 (0 and 180 deg)", angle, sigma, kz_radps_per_g, sigma_kz, k0, None, sigma_k0)
 
 
 def multi_position(theta_rad: np.ndarray, rates_radps: np.ndarray, station: StationInfo) -> Alignment:
@@ -83,20 +89,17 @@ def multi_position(theta_rad: np.ndarray, rates_radps: np.ndarray, station: Stat
     beta, *_ = np.linalg.lstsq(X, y, rcond=None)
     dof = len(y) - 3
     resid = y - X @ beta
-    sigma_e = math.sqrt(float(resid @ resid) / dof) if dof > 0 else math.nan
-    cov = np.linalg.inv(X.T @ X) * (sigma_e**2 if dof > 0 else math.nan)
+    sigma_e = math.sqrt(float(resid @ resid) / dof) if dof > 0 else None
+    cov = np.linalg.inv(X.T @ X) * (sigma_e**2 if sigma_e is not None else math.nan)
     k0, a, b = beta  # a = kz cos(d), b = kz sin(d)
     kz = math.hypot(a, b)
     angle = math.atan2(b, a)
     # gradients of (kz, angle) with respect to (a, b)
     J = np.array([[a / kz, b / kz], [-b / kz**2, a / kz**2]])
     cov_ka = J @ cov[1:, 1:] @ J.T
-    return Alignment(
-        f"eq. 25 least squares ({len(y)} positions)",
-        angle,
-        math.sqrt(cov_ka[1, 1]),
-        kz,
-        math.sqrt(cov_ka[0, 0]),
-        float(k0),
-        sigma_e,
-    )
+
+    def sd(var: float) -> float | None:
+        return math.sqrt(var) if sigma_e is not None else None
+
+    return Alignment(f"eq. 25 least squares ({len(y)} positions)", angle, sd(cov_ka[1, 1]), kz, sd(cov_ka[0, 0]),
+                     float(k0), sigma_e, sd(cov[0, 0]))  # fmt: skip

@@ -273,10 +273,11 @@ def analyse_alignment(session: Session) -> Analysis:
         result = multi_position(np.radians(pos), rates, session.station)
     doc = result.to_json()
     rows = [
-        (k, f"{v['value']:.6e}", f"{v.get('sigma', math.nan):.2e}", v["unit"])
+        (k, f"{v['value']:.6e}", "not estimable (no residual dof)" if v.get("sigma") is None or
+         not math.isfinite(v["sigma"]) else f"{v['sigma']:.2e}", v["unit"])
         for k, v in doc.items()
         if isinstance(v, dict)
-    ]
+    ]  # fmt: skip
     parts = [
         f"<p>Method: {esc(result.method)}; {len(pts)} static windows at {esc(pos.tolist())} deg.</p>",
         table(("quantity", "value", "σ", "unit"), rows),
@@ -285,7 +286,8 @@ def analyse_alignment(session: Session) -> Analysis:
             ((f"{q.position_deg:g}", f"{q.Tm_s:.6f}", f"{r:.9e}") for q, r in zip(pts, rates, strict=True)),
         ),
     ]
-    summary = f"misalignment {result.dtheta_h_rad:.3e} ± {result.sigma_rad:.1e} rad ({result.method})"
+    sigma = "sigma not estimable (no residual dof)" if result.sigma_rad is None else f"± {result.sigma_rad:.1e}"
+    summary = f"misalignment {result.dtheta_h_rad:.3e} rad {sigma} ({result.method})"
     return Analysis({"alignment": doc}, document("Self-alignment (seed 000 eqs. 25-27)", parts), summary)
 
 

@@ -147,3 +147,22 @@ def test_multi_frequency_flags_too_few_dof_and_quotes_t_based_u() -> None:
     assert "few dof" in a.summary
     assert "fewer than 10 effective degrees of freedom" in a.report_html
     assert "Few degrees of freedom" in a.files["certificate-t15-mf.html"].decode()
+
+
+@pytest.mark.parametrize("positions", [[0.0, 180.0], [0.0, 120.0, 240.0], [0.0, 60.0, 180.0, 300.0]])
+def test_self_alignment_report_has_no_nan(positions) -> None:
+    """Eq. 26 (two positions) and eq. 25 with no residual dof (three) cannot estimate every sigma: said, not nan."""
+    from methods.seed000.procedure import analyse_alignment
+    from models.plan import PointSpec, preset_pulses
+
+    plan = [PointSpec(p, 0.0, preset_pulses(p, 560.0)) for p in positions]
+    s = simulate_session(plan, default_twin(), seed=1)
+    s.meta["params"] = {"kz_radps_per_g": 0.56, "sigma_kz": 1e-4, "sigma_latitude_deg": 0.1}
+    a = analyse_alignment(s)
+    _no_nan(a.report_html)
+    _no_nan(a.summary)
+    k0 = a.results["alignment"]["k0"]
+    if len(positions) == 3:
+        assert k0["sigma"] is None and "not estimable" in k0["note"]
+    else:
+        assert k0["sigma"] > 0
