@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from devices.config import StationConfig
+from devices.config import SERIAL_SECTIONS, StationConfig
 from devices.counter_timer.driver import CounterTimer
 from devices.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError, LostSamples
 from devices.grating.driver import GratingReadHead
@@ -89,7 +89,7 @@ class StationDevices:
     def open(cls, config: StationConfig, clock: Clock | None = None) -> StationDevices:
         """Open every device of `config` (ports must be filled in); DriverError names the one that failed."""
         clock = clock or WallClock()
-        missing = [n for n in CORE_DEVICES[1:] if getattr(config, n).port is None]
+        missing = [n for n in SERIAL_SECTIONS if getattr(config, n).port is None]
         if missing:
             raise InterlockError("station", f"no serial port configured for {', '.join(missing)}")
         opened: list[Callable[[], None]] = []
