@@ -25,11 +25,11 @@ class ServerError(StationFault):
     """PostgreSQL is not installed, or the throwaway cluster would not start."""
 
 
-def pg_bin_dir() -> Path:
-    """The newest /usr/lib/postgresql/<major>/bin that has initdb, or ServerError saying how to install one."""
-    found = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"), key=lambda p: int(Path(p).parts[-3]))
+def pg_bin_dir(root: str | Path = "/usr/lib/postgresql") -> Path:
+    """The newest <root>/<major>/bin that has initdb, or ServerError saying how to install one."""
+    found = sorted(glob.glob(f"{root}/*/bin/initdb"), key=lambda p: int(Path(p).parts[-3]))
     if not found:
-        raise ServerError(f"PostgreSQL is not installed (no /usr/lib/postgresql/*/bin/initdb): run `{INSTALL_HINT}`")
+        raise ServerError(f"PostgreSQL is not installed (no {root}/*/bin/initdb): run `{INSTALL_HINT}`")
     return Path(found[-1]).parent
 
 

@@ -7,6 +7,7 @@ PostgreSQL missing is a failure that says how to install it, never a skip.
 from __future__ import annotations
 
 import itertools
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -121,3 +122,16 @@ def fill():
 @pytest.fixture(scope="session")
 def measure():
     return add_measurement
+
+
+def copy_store(src: Path, dst: Path) -> None:
+    """A copy of a store: its SQLite file and, when the store keeps raw streams beside it, their files."""
+    shutil.copy(src, dst)
+    raw = src.with_name(src.name + ".raw")
+    if raw.is_dir():
+        shutil.copytree(raw, dst.with_name(dst.name + ".raw"))
+
+
+@pytest.fixture(scope="session")
+def copy():
+    return copy_store

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 import sqlite3
 from pathlib import Path
 
@@ -22,7 +21,7 @@ QUICK = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [10], "window_s": 
 
 
 def test_station_sync_pushes_then_adds_nothing_and_refuses_a_conflict(tmp_path, central_url, arrays_dir, fill,
-                                                                      capsys):  # fmt: skip
+                                                                      copy, capsys):  # fmt: skip
     db = tmp_path / "station.sqlite"
     with SessionStore(db) as store:
         uids = fill(store, ("finished", "aborted", "running"))
@@ -34,11 +33,11 @@ def test_station_sync_pushes_then_adds_nothing_and_refuses_a_conflict(tmp_path, 
     assert "0 added, 0 extended, 2 unchanged" in capsys.readouterr().out
     with CentralStore(central_url, arrays_dir) as central:
         assert [r["station"] for r in central.sessions()] == ["lab-1", "lab-1"]
-    copy = tmp_path / "restored.sqlite"
-    shutil.copy(db, copy)
-    with sqlite3.connect(copy) as conn:
+    restored = tmp_path / "restored.sqlite"
+    copy(db, restored)
+    with sqlite3.connect(restored) as conn:
         conn.execute("UPDATE results SET result_json = '{\"kz\": 5}'")
-    assert main(["sync", str(copy), *sync[2:]]) == 1
+    assert main(["sync", str(restored), *sync[2:]]) == 1
     err = capsys.readouterr().err
     assert f"refused: session {uids[0]}" in err and "results '0' (#0) differs" in err
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 import sqlite3
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import sqlalchemy as sa
 from station.central.content import ArrayFile, read_session
 from station.central.migrations import SCHEMA_VERSION, CentralSchemaError, migrate
 from station.central.reader import CentralStore
+from station.central.server import ServerError, pg_bin_dir
 from station.central.sync import ArrayRoot, CentralError, open_central, sync_store
 from station.store import SessionStore, StoreError
 
@@ -108,7 +108,7 @@ def _tamper(db: Path, sql: str) -> None:
         conn.execute(sql)
 
 
-def test_same_uid_with_different_content_is_refused_and_left_alone(tmp_path, central_url, arrays_dir, fill):
+def test_same_uid_with_different_content_is_refused_and_left_alone(tmp_path, central_url, arrays_dir, fill, copy):
     with SessionStore(tmp_path / "s.sqlite") as store:
         uid, other = fill(store, ("finished", "finished"))
         engine = open_central(central_url)
@@ -121,10 +121,10 @@ def test_same_uid_with_different_content_is_refused_and_left_alone(tmp_path, cen
         (f"UPDATE sessions SET notes = 'edited' WHERE uid = '{uid}'", "configuration, notes"),
         (f"UPDATE sessions SET status = 'aborted' WHERE uid = '{uid}'", "central status 'finished'"),
     ]):  # fmt: skip
-        copy = tmp_path / f"copy{n}.sqlite"
-        shutil.copy(tmp_path / "s.sqlite", copy)
-        _tamper(copy, sql)
-        with SessionStore(copy) as changed:
+        restored = tmp_path / f"copy{n}.sqlite"
+        copy(tmp_path / "s.sqlite", restored)
+        _tamper(restored, sql)
+        with SessionStore(restored) as changed:
             report = sync_store(changed, engine, arrays_dir, "sim")
         assert report.unchanged == [other] and report.added == [] and report.extended == []
         (message,) = report.conflicts
@@ -192,3 +192,10 @@ def test_an_altered_array_file_is_an_error_naming_it(tmp_path, central_url, arra
     victim.write_bytes(victim.read_bytes()[:-8])
     with CentralStore(central_url, arrays_dir) as central, pytest.raises(StoreError, match=f"{victim}.*SHA-256"):
         central.load_session(uid)
+
+
+def test_a_machine_without_postgresql_is_told_how_to_install_it(tmp_path):
+    (tmp_path / "15" / "bin").mkdir(parents=True)  # a package half removed: no initdb
+    with pytest.raises(ServerError, match=r"no .*/\*/bin/initdb.*apt-get install -y postgresql"):
+        pg_bin_dir(tmp_path)
+    assert (pg_bin_dir() / "pg_ctl").is_file()  # the server these tests run on
