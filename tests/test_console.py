@@ -5,28 +5,18 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
-from pathlib import Path
 
 import pytest
+from quick_run import run_quick_session
 
 from station.coefficients import COVERAGE_K, coefficient_rows, format_rows, verdict
 
-REPO = Path(__file__).resolve().parents[1]
-QUICK = ('procedure = "seed000.integral_precession"\ntitle = "quick"\n[params]\n'
-         "positions_deg = [0, 72, 144, 216, 288]\nfreqs_hz = [8, 9, 10]\nwindow_s = 30\n")  # fmt: skip
-RUN_TIMEOUT_S = 240.0
 UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3"}
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory) -> subprocess.CompletedProcess:
-    out = tmp_path_factory.mktemp("console")
-    (out / "quick.toml").write_text(QUICK)
-    r = subprocess.run([sys.executable, "-m", "app.cli", "run", str(out / "quick.toml"), "--out", str(out)],
-                       capture_output=True, text=True, cwd=REPO, timeout=RUN_TIMEOUT_S)  # fmt: skip
-    assert r.returncode == 0, r.stdout + r.stderr
-    return r
+    return run_quick_session(tmp_path_factory.mktemp("console"))
 
 
 def test_stdout_has_units_uncertainty_meaning_and_a_verdict_and_no_progress(run):

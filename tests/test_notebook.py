@@ -17,26 +17,20 @@ from pathlib import Path
 import nbformat
 import pytest
 from nbclient import NotebookClient
+from quick_run import REPO, run_quick_session
 
 from station.coefficients import COVERAGE_K
 from station.errors import InputError
 from station.store import SessionStore
 
-REPO = Path(__file__).resolve().parents[1]
 NOTEBOOK = REPO / "examples" / "session_in_a_notebook.ipynb"
-QUICK = ('procedure = "seed000.integral_precession"\ntitle = "quick"\n[params]\n'
-         "positions_deg = [0, 72, 144, 216, 288]\nfreqs_hz = [8, 9, 10]\nwindow_s = 30\n")  # fmt: skip
-RUN_TIMEOUT_S = 240.0
 CELL_TIMEOUT_S = 120
 
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("nb")
-    (out / "quick.toml").write_text(QUICK)
-    r = subprocess.run([sys.executable, "-m", "app.cli", "run", str(out / "quick.toml"), "--out", str(out)],
-                       capture_output=True, text=True, cwd=REPO, timeout=RUN_TIMEOUT_S)  # fmt: skip
-    assert r.returncode == 0, r.stdout + r.stderr
+    run_quick_session(out)
     return out
 
 
