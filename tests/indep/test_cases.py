@@ -70,7 +70,7 @@ def _digest(d: Path) -> dict[str, str]:
 
 
 def test_contract_keys_json_and_kinds(tmp_path: Path) -> None:
-    kinds = ["null", "index_harmonics", f"pair:{LIBRARY[0]}+{LIBRARY[-1]}", f"ool:{OUT_OF_LIBRARY[0]}"]
+    kinds = ["null", "index_harmonics", "pair:mount_misalignment+frequency_error", f"ool:{OUT_OF_LIBRARY[0]}"]
     for k, kind in enumerate(kinds):
         t = make_case(11, kind, tmp_path / f"c{k}", snr=10.0, raw=False)
         assert set(t) >= KEYS, kind
