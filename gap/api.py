@@ -1,6 +1,6 @@
 """Sim-to-real gap diagnosis of a recorded session against a twin: `diagnose` and `station gap`.
 
-    station gap SESSION_DIR [--twin CONFIG] --json OUT.json [--html OUT.html] [--twin-out OUT.toml]
+    station gap SESSION_DIR [--twin CONFIG] [--json OUT.json] [--html OUT.html] [--twin-out OUT.toml]
     station gap --db STORE.sqlite UID --json OUT.json ...      (a session of our own store)
 
 Python API (stable; the web panel uses it):
@@ -227,6 +227,7 @@ def _candidate_table(
             "parameters": {},
             "uncertainty": {},
             "units": {fp.param: fp.unit for fp in cand.free},
+            "plausible_bounds": {fp.param: fp.bound for fp in cand.free},
             "evidence": None,
             "heldout_shrink": None,
         }
@@ -361,9 +362,9 @@ def diagnose(
     maps_before = maps(design, z_before, tau_z_before)
     maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
     where = {
-        "summary": where_text(maps_before, dets_before, family_level(dets_before))
+        "summary": where_text(maps_before, dets_before, family_level(len(dets_before)))
         + (f" {raw_summary_text(raw)}." if raw else ""),
-        "after_effects": where_text(maps_after, dets_after, family_level(dets_after)) if maps_after else None,
+        "after_effects": where_text(maps_after, dets_after, family_level(len(dets_after))) if maps_after else None,
         "maps": maps_before,
         "maps_after_effects": maps_after,
         "structure_tests_before": [d.to_json() for d in dets_before],
@@ -416,7 +417,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", metavar="SESSION_DIR", help="a piga-session/1 directory (or a session UID with --db)")
     p.add_argument("--db", metavar="STORE", help="read session UID from this SQLite store instead of a directory")
     p.add_argument("--twin", help="twin configuration TOML to compare with (default: the embedded default twin)")
-    p.add_argument("--json", required=True, metavar="OUT.json", help="write the diagnosis here")
+    p.add_argument("--json", metavar="OUT.json", help="also write the whole diagnosis here (JSON)")
     p.add_argument("--html", metavar="OUT.html", help="also write a self-contained HTML report")
     p.add_argument("--twin-out", metavar="OUT.toml", help="write the twin with the chosen effect(s) switched on")
     p.add_argument(
@@ -460,19 +461,68 @@ def main(argv: list[str] | None = None) -> int:
     except (GapInputError, SessionFormatError, TwinConfigError, StoreError, ValueError, FileNotFoundError) as exc:
         print(f"station gap: error: {exc}", file=sys.stderr)
         return 2
-    Path(args.json).write_text(json.dumps(report.to_json(), indent=2, allow_nan=False))
+    if args.json:
+        Path(args.json).write_text(json.dumps(report.to_json(), indent=2, allow_nan=False))
     if args.html:
         from gap.report_html import render
 
         Path(args.html).write_text(render(report))
     if args.twin_out:
         Path(args.twin_out).write_text(report.twin_out.to_toml())
-    print(f"verdict: {report.verdict.verdict}: {report.verdict.text}")
-    print(
-        f"gap before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g} (held-out mean z^2 - 1); "
-        f"{report.elapsed_s:.1f} s"
-    )
+    print(summary_text(report))
     return 0
+
+
+def _value(v: float, sd: float, unit: str) -> str:
+    return f"{v:.4g} ± {sd:.2g} {unit}".rstrip()
+
+
+def summary_text(report: GapReport) -> str:
+    """A short human summary: verdict, effects with parameters and uncertainty, shrink, what is untestable."""
+    v = report.verdict
+    lines = [f"verdict: {v.verdict}", f"  {v.text}"]
+    named = v.effects or v.partial or v.ambiguous
+    for entry in report.candidates:
+        if entry["name"] not in named or not entry["parameters"]:
+            continue
+        params = ", ".join(
+            f"{k} = {_value(val, entry['uncertainty'][k], entry['units'].get(k, ''))}"
+            for k, val in entry["parameters"].items()
+        )
+        sh = entry["heldout_shrink"]
+        lines.append(f"  {entry['name']}: {params}" + (f" (held-out shrink alone {sh:.2f})" if sh is not None else ""))
+    sh = shrink(report.gap_before, report.gap_after)
+    lines.append(
+        f"held-out gap (mean z^2 - 1): before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g}"
+        + (f", shrink {sh:.2f}" if sh is not None and v.effects else "")
+        + f" (se if no gap {report.gap_before.se:.2g})"
+    )
+    tests = report.where["structure_tests_after" if v.effects or v.partial else "structure_tests_before"]
+    level = family_level(len(tests)) / max(len(tests), 1)  # the verdict's Bonferroni level
+    bad = [t for t in tests if t["p_value"] is not None and t["p_value"] < level]
+    if bad:
+        lines.append(
+            "tests that reject the model: "
+            + "; ".join(
+                f"{t['name']} ({t['channel']}, p = {t['p_value']:.1e})" + (f" at {t['at']}" if t["at"] else "")
+                for t in bad
+            )
+        )
+    untestable = [c for c in report.identifiability.candidates.values() if not c.identifiable]
+    if untestable:
+        lines.append("not testable in this design: " + ", ".join(c.name for c in untestable))
+    for c in untestable + [report.identifiability.candidates[n] for n in v.ambiguous]:
+        tests = sorted({s.test for p in c.params for s in p.separating if s.separates})
+        if tests:
+            lines.append(f"  {c.name} would be tested by: {'; '.join(tests)}")
+    noise = report.noise
+    known = [k for k, val in noise["stated_by_session"].items() if val is not None]
+    lines.append(
+        f"noise: sigma0 {noise['sigma0_radps']:.3g} rad/s ({noise['source']}); "
+        + (f"stated by the session: {', '.join(known)}" if known else "nothing stated by the session (estimated)")
+    )
+    lines.append(f"{report.session_info['n_points']} points, {report.elapsed_s:.1f} s")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -79,7 +79,7 @@ class Channels:
         tau = self.white_tau(period_identity_s(d, cfg)[d.vib])
         if self.grating is None:
             return tau
-        return np.concatenate([tau, self.grating.white(self.grating.predict_m(cfg))])
+        return np.concatenate([tau, self.grating.white(self.grating.predict(cfg))])
 
     def other_observed_white(self) -> np.ndarray:
         d = self.design

@@ -30,12 +30,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from gap.design import PointDesign
-from models.config import InstrumentCoefficients, TwinConfig
-from models.precession import PrecessionWindow, periodic_rate
+from models.config import TwinConfig
+from models.inputs import instrument_inputs, instrument_rate_radps
+from models.precession import N_PHASES, PeriodicRate
 
 CALIBRATED: tuple[str, ...] = ("kz", "kzz", "ky", "k3")
-# Effects whose only action is an instrument term: dropped from the unit-coefficient configs.
-_INSTRUMENT_TERM_EFFECTS = ("odd_quadratic", "cross_coupling", "lateral_resonance")
 
 
 @dataclass(frozen=True)
@@ -50,13 +49,6 @@ class Prediction:
     base_radps: np.ndarray
     units_radps: np.ndarray
     tau_s: np.ndarray
-
-
-def unit_config(cfg: TwinConfig, coefficient: str) -> TwinConfig:
-    """cfg with one calibrated coefficient = 1, every other rate term zero (geometry kept)."""
-    effects = {k: v for k, v in cfg.effects.items() if k not in _INSTRUMENT_TERM_EFFECTS}
-    zero = InstrumentCoefficients(k0=0.0, kz=0.0, kzz=0.0, ky=0.0, k3=0.0)
-    return replace(cfg, instrument=replace(zero, **{coefficient: 1.0}), effects=effects, earth_rate_on=False)
 
 
 def base_config(cfg: TwinConfig) -> TwinConfig:
@@ -80,8 +72,18 @@ def period_identity_s(design: PointDesign, cfg: TwinConfig) -> np.ndarray:
 
 
 def predict(design: PointDesign, cfg: TwinConfig) -> Prediction:
-    """Base and unit columns of the window-mean rate of every point, and the period identity."""
-    means = _window_means(design, cfg, [base_config(cfg)] + [unit_config(cfg, c) for c in CALIBRATED])
+    """Base and unit columns of the window-mean rate of every point, and the period identity.
+
+    The unit columns are the window means of aI, aI^2, aP^2, aI^3 (kz, kzz, ky, k3 = 1; physics.md
+    regressors) under cfg's geometry; the base is the rate with k0 and K zero (earth rate, effect terms)."""
+    base_cfg = base_config(cfg)
+
+    def samples(theta: float, psi: np.ndarray, w: float) -> list[np.ndarray]:
+        a_i, a_p, _, _ = instrument_inputs(theta, psi, w, cfg)
+        base = np.asarray(instrument_rate_radps(theta, psi, w, base_cfg), dtype=float)
+        return [base, a_i, a_i**2, a_p**2, a_i**3]
+
+    means = _window_means(design, cfg, samples, 1 + len(CALIBRATED))
     base = means[:, 0] + drift_mean_radps(cfg.param("bias_drift", "d"), design.start_s, design.Tm_s)
     return Prediction(base, means[:, 1:], period_identity_s(design, cfg))
 
@@ -93,43 +95,55 @@ def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray)
     need (k0 is the twin's; a difference of two predictions cancels it).
     """
     inst = replace(cfg.instrument, **dict(zip(CALIBRATED, map(float, coefficients), strict=True)))
-    rate = _window_means(design, cfg, [replace(cfg, instrument=inst)])[:, 0]
+    full = replace(cfg, instrument=inst)
+
+    def samples(theta: float, psi: np.ndarray, w: float) -> list[np.ndarray]:
+        return [np.asarray(instrument_rate_radps(theta, psi, w, full), dtype=float)]
+
+    rate = _window_means(design, cfg, samples, 1)[:, 0]
     rate = rate + drift_mean_radps(cfg.param("bias_drift", "d"), design.start_s, design.Tm_s)
     return rate, period_identity_s(design, cfg)
 
 
-def _static_levels(design: PointDesign, configs: list[TwinConfig]) -> np.ndarray:
-    """Static rate at each point's position under each config (points x configs)."""
-    per_position = np.array([[periodic_rate(th, 0.0, c).c0_radps for c in configs] for th in design.position_rad])
-    return per_position[design.pos_index]
+def fourier_window_mean(rate: PeriodicRate, w_radps: float, gamma0_rad: np.ndarray, Tm_s: np.ndarray) -> np.ndarray:
+    """phi(Tm) / Tm of windows sharing one rate series, for arrays of opening phases and lengths.
+
+    The closed form of models.precession.PrecessionWindow.phi_rad (its module docstring), vectorised
+    over windows: phi = c0 Tm + sum_k [alpha_k (sin k psi_T - sin k gamma0) + beta_k (cos k gamma0 - cos k psi_T)]
+    / (k w), psi_T = w Tm + gamma0."""
+    if not rate.k.size:
+        return np.full(np.shape(Tm_s), rate.c0_radps)
+    k = rate.k.astype(float)
+    kg = np.multiply.outer(gamma0_rad, k)
+    kT = np.multiply.outer(w_radps * Tm_s + gamma0_rad, k)
+    per = (rate.alpha * (np.sin(kT) - np.sin(kg)) + rate.beta * (np.cos(kg) - np.cos(kT))) / (k * w_radps)
+    return rate.c0_radps + per.sum(axis=-1) / Tm_s
 
 
-def _rates_by_case(design: PointDesign, f_true: np.ndarray, configs: list[TwinConfig]) -> dict:
-    """periodic_rate of each distinct (position, true frequency) of the vibration points, per config.
+def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> np.ndarray:
+    """Window means of every point (points x n_out) of the rates that samples(theta, psi, w) returns.
 
-    Points that share a position and frequency share the rate's Fourier series (the costly part);
-    only the window's phase and length differ."""
-    out: dict[tuple[int, float], list] = {}
-    for i in np.flatnonzero(design.vib):
-        key = (int(design.pos_index[i]), float(f_true[i]))
-        if key not in out:
-            theta = float(design.position_rad[key[0]])
-            out[key] = [periodic_rate(theta, key[1], c) for c in configs]
-    return out
-
-
-def _window_means(design: PointDesign, cfg: TwinConfig, configs: list[TwinConfig]) -> np.ndarray:
-    """Window-mean rate of every point under each config (points x configs), frequency and latency from cfg.
-
-    gamma0 = -w_true (t1 - delta): the read head stamps the crossing of psi = 0 delta late (physics.md).
+    Static points: the crank rests at psi = 0 (physics.md). Vibration points that share a position and
+    frequency share one Fourier series per output (the costly part); frequency and latency come from cfg:
+    gamma0 = -w_true (t1 - delta), the read head stamps the crossing of psi = 0 delta late (physics.md).
     """
+    out = np.empty((design.n_points, n_out))
+    zero = np.zeros(1)
+    for j, theta in enumerate(design.position_rad):
+        rows = samples(float(theta), zero, 0.0)
+        at = (design.pos_index == j) & ~design.vib
+        out[at] = [float(np.ravel(r)[0]) for r in rows]
     f_true = design.freq_hz * (1.0 + cfg.param("frequency_error", "eps_f"))
     latency_s = cfg.param("readhead_latency", "delta")
-    out = _static_levels(design, configs)
-    rates = _rates_by_case(design, f_true, configs)
-    for i in np.flatnonzero(design.vib):
-        w = 2.0 * math.pi * f_true[i]
-        gamma0 = -w * (design.t1_s[i] - latency_s)
-        per_config = rates[(int(design.pos_index[i]), float(f_true[i]))]
-        out[i] = [float(PrecessionWindow(r, w, gamma0).phi_rad(design.Tm_s[i])) / design.Tm_s[i] for r in per_config]
+    psi = 2.0 * np.pi * np.arange(N_PHASES) / N_PHASES
+    vib = np.flatnonzero(design.vib)
+    keys = np.column_stack([design.pos_index[vib], f_true[vib]])
+    for key in np.unique(keys, axis=0):
+        j, f = int(key[0]), float(key[1])
+        idx = vib[(design.pos_index[vib] == j) & (f_true[vib] == f)]
+        w = 2.0 * math.pi * f
+        gamma0 = -w * (design.t1_s[idx] - latency_s)
+        for c, r in enumerate(samples(float(design.position_rad[j]), psi, w)):
+            series = PeriodicRate.from_samples(np.broadcast_to(np.asarray(r, dtype=float), psi.shape).copy())
+            out[idx, c] = fourier_window_mean(series, w, gamma0, design.Tm_s[idx])
     return out

@@ -32,8 +32,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from gap.design import PointDesign
+from gap.rawstreams import ROWS_PER_RECORD
 
 BLOCKS = 4
+UNPREDICTABLE_EIG = 1e-9
 
 
 @dataclass(frozen=True)
@@ -91,12 +93,28 @@ def _r(x: float) -> float | None:
 
 
 def _predict_fold(Q: np.ndarray, rw: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Held-out z^2 of `rows` and their predictive variance factor 1 + h (closed form from Q of all rows)."""
+    """Held-out z^2 of `rows` and their leverage h (closed form from Q of all rows); NaN where unpredictable.
+
+    (I - Q_g Q_g^T)^-1 = I + Q_g (I_p - Q_g^T Q_g)^-1 Q_g^T (Woodbury): p x p work, p the model's rank.
+    A fold that takes away every row exciting some direction of the model (an eigenvalue of
+    I_p - Q_g^T Q_g near 0) cannot predict the held-out rows that depend on it: those get NaN."""
     Qg = Q[rows]
-    A = np.eye(rows.size) - Qg @ Qg.T  # I - H_gg
-    e = np.linalg.solve(A, rw[rows])
-    v = np.diag(np.linalg.inv(A))  # 1 + x (J_T^T J_T)^-1 x^T
-    return e * e / v, v - 1.0
+    lam, V = np.linalg.eigh(np.eye(Qg.shape[1]) - Qg.T @ Qg)
+    ok = lam > UNPREDICTABLE_EIG
+    QV = Qg @ V
+    QM = QV[:, ok] / lam[ok]
+    e = rw[rows] + QM @ (QV[:, ok].T @ rw[rows])  # (I - H_gg)^-1 r_g
+    v = 1.0 + np.sum(QM * QV[:, ok], axis=1)  # diag (I - H_gg)^-1 = 1 + x (J_T^T J_T)^-1 x^T
+    z2 = e * e / v
+    lost = np.sum(QV[:, ~ok] ** 2, axis=1) > UNPREDICTABLE_EIG
+    z2[lost] = np.nan
+    return z2, v - 1.0
+
+
+def _nanmean(x: np.ndarray) -> float:
+    """Mean over the predictable rows (NaN if there is none)."""
+    x = x[np.isfinite(x)]
+    return float(x.mean()) if x.size else math.nan
 
 
 def _orthonormal(J: np.ndarray) -> np.ndarray:
@@ -120,7 +138,7 @@ def heldout(
 
     rate_sigma_ratio = honest sigma0 / the sigma0 that whitened J and r: the rate
     rows are re-whitened by the honest noise before anything else. grating_index:
-    the points with grating rows (6 each, in that order).
+    the points with grating rows (ROWS_PER_RECORD each, in that order).
     """
     n = design.n_points
     vib_idx = np.flatnonzero(design.vib)
@@ -130,7 +148,7 @@ def heldout(
     g_rows: dict[int, np.ndarray] = {}
     if grating_index is not None:
         for m, i in enumerate(grating_index):
-            g_rows[int(i)] = n + n_tau + 6 * m + np.arange(6)
+            g_rows[int(i)] = n + n_tau + ROWS_PER_RECORD * m + np.arange(ROWS_PER_RECORD)
     Jw, rw = J.copy(), r.copy()
     Jw[:n] /= rate_sigma_ratio
     rw[:n] /= rate_sigma_ratio
@@ -152,24 +170,24 @@ def heldout(
             # Back to physical units: rate rows referred to T_ref, timing rows in seconds.
             ex_rate.append((z2[:k] - 1.0) * (1.0 + h[:k]) * sigma0_radps**2)
             ex_tau.append((z2[k : k + kt] - 1.0) * (1.0 + h[k : k + kt]) * sigma_tau_s**2)
-        by_scheme[scheme] = float(np.mean(np.concatenate(z2_scheme)) - 1.0)
+        by_scheme[scheme] = float(_nanmean(np.concatenate(z2_scheme)) - 1.0)
     if not by_scheme:
         return HeldOut(math.nan, {}, {}, math.nan, math.nan, math.nan, 0)
     by_channel = {
-        "rate": float(np.mean(np.concatenate(z2_rate)) - 1.0),
-        "timing": float(np.mean(np.concatenate(z2_tau)) - 1.0) if n_tau else math.nan,
+        "rate": float(_nanmean(np.concatenate(z2_rate)) - 1.0),
+        "timing": float(_nanmean(np.concatenate(z2_tau)) - 1.0) if n_tau else math.nan,
     }
     if g_rows:
-        by_channel["grating"] = float(np.mean(np.concatenate(z2_g)) - 1.0)
-    rows_per_scheme = n + n_tau + 6 * len(g_rows)
+        by_channel["grating"] = float(_nanmean(np.concatenate(z2_g)) - 1.0)
+    rows_per_scheme = n + n_tau + ROWS_PER_RECORD * len(g_rows)
     return HeldOut(
         G=float(np.mean(list(by_scheme.values()))),
         by_scheme=by_scheme,
         by_channel=by_channel,
         se=math.sqrt(2.0 / rows_per_scheme),
-        rate_excess_rms_radps=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_rate))))),
-        timing_excess_rms_s=math.sqrt(max(0.0, float(np.mean(np.concatenate(ex_tau))))) if n_tau else math.nan,
-        n_rows=int(sum(z.size for z in z2_rate + z2_tau + z2_g)),
+        rate_excess_rms_radps=math.sqrt(max(0.0, float(_nanmean(np.concatenate(ex_rate))))),
+        timing_excess_rms_s=math.sqrt(max(0.0, float(_nanmean(np.concatenate(ex_tau))))) if n_tau else math.nan,
+        n_rows=int(sum(np.count_nonzero(np.isfinite(z)) for z in z2_rate + z2_tau + z2_g)),
     )
 
 

@@ -33,9 +33,20 @@ from models.precession import N_PHASES, periodic_rate
 from station.session import Session
 
 MAX_SAMPLES = 200_000
-# A harmonic of the table motion is not trusted below the read head's resolution (1 nm, models.raw):
-# quantisation and interpolation leave biases of a few 0.1 nm that no sample scatter shows.
-GRATING_FLOOR_M = 1e-9
+# A harmonic of a quantised record without dither is not trusted below its quantum (the read head's
+# resolution, 1 nm in models.raw): the quantisation error is then periodic with the motion and leaves biases
+# of a few 0.1 nm that no sample scatter shows. With sample noise above the quantum the error is dithered
+# and averages down like the noise. A smallest step between distinct values below MIN_QUANTUM_M: unquantised.
+MIN_QUANTUM_M = 1e-11
+
+
+def grating_floor_m(z_m: np.ndarray, residual_sd_m: float) -> float:
+    """The record's quantum (its smallest step between distinct values) when the noise does not dither it."""
+    u = np.unique(z_m)
+    q = float(np.min(np.diff(u))) if u.size > 1 else 0.0
+    return q if q >= MIN_QUANTUM_M and residual_sd_m < q else 0.0
+
+
 HARMONICS = (1, 2, 3)
 _GRATING_NAMES = ("Zs1+A0", "Zc1", "Zs2", "Zc2", "Zs3", "Zc3")
 
@@ -97,24 +108,31 @@ def _phase_se(coef: np.ndarray, w: float, sd_stamp_s: float) -> np.ndarray:
     return out
 
 
+ROWS_PER_RECORD = 7  # six harmonics and the record's own frequency error
+
+
 @dataclass(frozen=True)
 class GratingRecord:
-    """The grating's harmonics at every vibration point with a raw record: a channel of the fit (gap.fit).
+    """The grating at every vibration point with a raw record: a channel of the fit (gap.fit).
 
-    measured_m[k] = (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3) of point index[k], read in the apparent
-    crank phase w_m (t - t1); se_m their standard errors: the least-squares scatter (the stated
-    grating noise when session.json gives it, else the fit's own residual, estimated from
-    thousands of samples) combined with the phase error of the stamp t1.
+    measured[k] = (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3, eps_g) of point index[k]: the harmonics (m)
+    read in the apparent crank phase w_m (t - t_ref), and the frequency error eps_g = w_g / w_cmd - 1
+    that the record's own phase drift gives (w_g = w_m + dw, dw the Gauss-Newton step of the phase
+    slope (t - t_mid) dz/dpsi, no stamp needed). t_ref is the reference stamp t1, or the mean of
+    every stamp of reference_t (each minus its whole periods) when the record has them, which
+    cuts the stamp's phase error by sqrt(n). se their standard errors: the least-squares scatter
+    (the stated grating noise when session.json gives it, else the fit's own residual, from
+    thousands of samples), the phase error of t_ref, and the quantum of an undithered record.
     """
 
     index: np.ndarray  # point indices
     w_radps: np.ndarray  # from the record's own timing capture
-    measured_m: np.ndarray  # (points, 6)
-    se_m: np.ndarray  # (points, 6)
+    measured: np.ndarray  # (points, ROWS_PER_RECORD)
+    se: np.ndarray  # (points, ROWS_PER_RECORD)
 
     @property
     def n_rows(self) -> int:
-        return int(self.measured_m.size)
+        return int(self.measured.size)
 
     @classmethod
     def from_session(
@@ -126,28 +144,57 @@ class GratingRecord:
             if raw is None or not design.vib[i] or raw.grating_t.size <= 20:
                 continue
             w = _apparent_w(design, i)
+            t_ref, sd_ref = _reference_phase(raw.reference_t, design.t1_s[i], w, sd_stamp_s)
             s = _stride(raw.grating_t.size)
             t, z = raw.grating_t[s], raw.grating_z[s]
-            A = _design(w * (t - design.t1_s[i]))
+            A = _design(w * (t - t_ref))
             coef, se = _lsq(A, z, noise_m)
+            floor = grating_floor_m(z, float(np.std(z - A @ coef)))
+            se = np.hypot(np.hypot(se[1:], _phase_se(coef[1:], w, sd_ref)), floor)
+            # The phase slope: dz/dpsi of the fitted harmonics times (t - t_mid), one Gauss-Newton step in w.
+            psi = w * (t - t_ref)
+            dz = sum(
+                j * (coef[2 * k + 1] * np.cos(j * psi) - coef[2 * k + 2] * np.sin(j * psi))
+                for k, j in enumerate(HARMONICS)
+            )
+            slope = np.column_stack([A, (t - t.mean()) * dz])
+            c2, se2 = _lsq(slope, z, noise_m)
+            w_cmd = 2 * math.pi * float(design.freq_hz[i])
+            eps_g, se_eps = (w + c2[-1]) / w_cmd - 1.0, se2[-1] / w_cmd
             idx.append(i)
             ws.append(w)
-            meas.append(coef[1:])
-            ses.append(np.hypot(se[1:], _phase_se(coef[1:], w, sd_stamp_s)))
+            meas.append(np.append(coef[1:], eps_g))
+            ses.append(np.maximum(np.append(se, se_eps), 1e-15))
         if not idx:
             return None
-        return cls(np.array(idx), np.array(ws), np.array(meas), np.hypot(np.array(ses), GRATING_FLOOR_M))
+        return cls(np.array(idx), np.array(ws), np.array(meas), np.array(ses))
 
-    def predict_m(self, cfg: TwinConfig) -> np.ndarray:
-        """What the twin's table motion gives for the same numbers, rows flattened (point-major)."""
+    def predict(self, cfg: TwinConfig) -> np.ndarray:
+        """What the twin gives for the same numbers (its table motion, latency, eps_f), point-major."""
         delta = cfg.param("readhead_latency", "delta")
-        return np.concatenate([_twin_grating(float(w), delta, cfg) for w in self.w_radps])
+        eps = cfg.param("frequency_error", "eps_f")
+        return np.concatenate([np.append(_twin_grating(float(w), delta, cfg), eps) for w in self.w_radps])
 
-    def white(self, values_m: np.ndarray) -> np.ndarray:
-        return values_m / self.se_m.ravel()
+    def white(self, values: np.ndarray) -> np.ndarray:
+        return values / self.se.ravel()
 
     def observed_white(self) -> np.ndarray:
-        return self.white(self.measured_m.ravel())
+        return self.white(self.measured.ravel())
+
+
+def _reference_phase(
+    reference_t: np.ndarray | None, t1_s: float, w_radps: float, sd_stamp_s: float
+) -> tuple[float, float]:
+    """The crank's psi = 0 time and its sd: t1, or the mean of all reference stamps referred back to t1.
+
+    Grating sample times and stamps share only the window's opening edge, itself a stamp: its error
+    adds one stamp's variance to the phase of the grating against the reference marks."""
+    if reference_t is None or np.size(reference_t) < 2:
+        return float(t1_s), math.sqrt(2.0) * sd_stamp_s
+    period = 2 * math.pi / w_radps
+    k = np.round((np.asarray(reference_t, dtype=float) - t1_s) / period)
+    n = np.size(reference_t)
+    return float(np.mean(reference_t - k * period)), sd_stamp_s * math.sqrt(1.0 + 1.0 / n)
 
 
 def _apparent_w(design: PointDesign, i: int) -> float:
@@ -183,9 +230,11 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
         if raw.grating_t.size > 20:
             s = _stride(raw.grating_t.size)
             t, z = raw.grating_t[s], raw.grating_z[s]
-            coef, se = _lsq(_design(w * (t - t1)), z)
+            A = _design(w * (t - t1))
+            coef, se = _lsq(A, z)
             meas = coef[1:]
-            se = np.hypot(np.hypot(se[1:], _phase_se(meas, w, sd_stamp_s)), GRATING_FLOOR_M)
+            floor = grating_floor_m(z, float(np.std(z - A @ coef)))
+            se = np.hypot(np.hypot(se[1:], _phase_se(meas, w, sd_stamp_s)), floor)
             pred = _twin_grating(w, delta, cfg)
             diff = meas - pred
             entry["grating"] = {

@@ -61,16 +61,17 @@ class Verdict:
 
 def residual_checks(dets: list[Detector], noise: NoiseCheck) -> list[str]:
     """The structure tests and the excess-scatter test significant as one family (Bonferroni at ALPHA)."""
-    level = family_level(dets)  # significant() divides by len(dets)
+    level = family_level(len(dets))  # significant() divides by len(dets)
     found = [f"{d.label} (F = {d.F:.1f}, p = {d.p_value:.1e})" for d in significant(dets, level)]
     if noise.p_value is not None and noise.p_value < ALPHA / (len(dets) + 1):
         found.append(f"excess scatter against the {noise.reference} (p = {noise.p_value:.1e})")
     return found
 
 
-def family_level(dets: list[Detector]) -> float:
-    """The level at which significant() flags a member of the family of structure tests plus the noise check."""
-    return ALPHA * len(dets) / (len(dets) + 1)
+def family_level(n_tests: int) -> float:
+    """The level at which significant() flags a member of a family of n_tests structure tests plus the noise
+    check (Bonferroni at ALPHA over n_tests + 1)."""
+    return ALPHA * n_tests / (n_tests + 1)
 
 
 def _look_alikes(selection: Selection) -> dict[str, list[str]]:

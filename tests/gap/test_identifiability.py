@@ -55,14 +55,14 @@ def test_a_collinear_pair_is_reported_and_told_apart_by_plausible_bounds(seed000
     """Ten equal positions: a constant tilt is in the span of the 8 index-angle harmonics (physics.md, seed 003).
 
     The design reports the collinearity; the fits decide. A 1" tilt (SNR 15) is reproduced by index errors
-    of arc-seconds: cannot tell. A 41" tilt would need index harmonics beyond their 10" bound: explained."""
+    of arc-seconds: cannot tell. A 62" tilt would need index harmonics beyond their 20" bound: explained."""
     rep = seed000_report("null", None, 0.0, 1001, suggest=True)
     mount = rep.identifiability.candidates["mount_misalignment"]
     assert dict(mount.collinear_with)["index_harmonics"] > 0.99 > COLLINEAR_COS
     small = seed000_report("effect", "mount_misalignment", 15.0, 3)
     assert small.verdict.verdict == "cannot_tell", small.verdict.text
     assert {"mount_misalignment", "index_harmonics"} <= set(small.verdict.ambiguous)
-    tilt_rad = 2e-4
+    tilt_rad = 3e-4
     session = simulate_session(seed000_plan(), twin.with_effect("mount_misalignment", dtheta_mount=tilt_rad), 3)
     big = diagnose(session, twin, suggest=False)
     assert big.verdict.verdict == "explained" and big.effects == ["mount_misalignment"], big.verdict.text

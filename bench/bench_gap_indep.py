@@ -1,0 +1,247 @@
+"""The gap diagnosis scored on sessions it has never seen: tests/indep's independent generator (issue 10, d6).
+
+Each case is a piga-session/1 directory written by `indep.cases.make_case` (an implementation
+of physics.md that shares no code with the twin: other position designs, frequency sets,
+window lengths, noise levels and instrument coefficients), diagnosed blind by
+`gap.api.diagnose` against the default twin (suggest=False, as a batch would). Cases, per
+design family: nulls; each library effect at SNR 5, 10 and 30 on the channel it shows in;
+pairs of library effects; every out-of-library effect. One JSON line per case (--out), then
+the scores against the targets:
+
+- correct: `explained` with the effect first, or `cannot_tell` naming it (per family, SNR band);
+- null false attribution: a null case whose verdict names an effect (explained or cannot_tell);
+- out-of-library explained: an out-of-library case declared `explained`;
+- separable pairs: both effects named (explained, partial or cannot_tell) when indep calls the pair separable;
+- median held-out shrink of the true effect's candidate alone (library cases, SNR >= 10).
+
+    .venv/bin/python bench/bench_gap_indep.py --reps 1 --nulls 4 --workers 2 --out /tmp/indep.jsonl
+
+BLAS threads are pinned to one per worker.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import traceback  # noqa: E402
+from multiprocessing import get_context  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.append(str(ROOT / "tests"))  # indep lives under tests/, after the project's own packages
+
+SNRS = (5.0, 10.0, 30.0)
+TARGETS = {
+    "correct_at_snr_ge10": 0.95,
+    "null_false_attribution": 0.05,
+    "out_of_library_explained": 0.10,
+    "separable_pair_both_named": 0.8,
+    "median_heldout_shrink": 0.8,
+}
+PAIRS = (
+    "cross_coupling+index_harmonics",
+    "odd_quadratic+frequency_error",
+    "waveform_harmonics+bias_drift",
+    "mount_misalignment+lateral_resonance",
+    "readhead_latency+cross_coupling",
+    "parasitic_rotation+odd_quadratic",
+)
+
+
+def case_list(reps: int, nulls: int, seed0: int, pair_snr: float) -> list[dict]:
+    """Every case of the benchmark: (seed, kind, snr, family); seeds distinct per case."""
+    from indep.cases import FAMILIES, LIBRARY, OUT_OF_LIBRARY
+
+    out, seed = [], seed0
+    for family in FAMILIES:
+        for _ in range(nulls):
+            out.append({"seed": seed, "kind": "null", "snr": None, "family": family})
+            seed += 1
+        for _ in range(reps):
+            for eff in LIBRARY:
+                for snr in SNRS:
+                    out.append({"seed": seed, "kind": eff, "snr": snr, "family": family})
+                    seed += 1
+            for pair in PAIRS:
+                out.append({"seed": seed, "kind": f"pair:{pair}", "snr": pair_snr, "family": family})
+                seed += 1
+            for eff in OUT_OF_LIBRARY:
+                out.append({"seed": seed, "kind": f"ool:{eff}", "snr": 10.0, "family": family})
+                seed += 1
+    return out
+
+
+def run_case(case: dict) -> dict:
+    """Write the case's session, diagnose it blind, and return one JSON-able line."""
+    from indep.cases import make_case
+
+    from gap.api import diagnose
+    from models.config import default_twin
+    from station.interchange import read_session
+
+    row = dict(case)
+    with tempfile.TemporaryDirectory(prefix="gap_indep_") as tmp:
+        try:
+            t0 = time.perf_counter()
+            truth = make_case(case["seed"], case["kind"], Path(tmp) / "s", snr=case["snr"], family=case["family"])
+            row["generate_s"] = time.perf_counter() - t0
+            session = read_session(Path(tmp) / "s")
+        except Exception as exc:  # a generator failure is recorded, not scored
+            row["error"] = f"generator: {type(exc).__name__}: {exc}"
+            return row
+        try:
+            t0 = time.perf_counter()
+            rep = diagnose(session, default_twin(), suggest=False)
+            row["diagnose_s"] = time.perf_counter() - t0
+        except Exception as exc:
+            row["error"] = f"diagnose: {type(exc).__name__}: {exc}"
+            row["traceback"] = traceback.format_exc()[-2000:]
+            return row
+    j = rep.to_json()
+    truth_names = truth["effects"]
+    shrink = {c["name"]: c["heldout_shrink"] for c in j["candidates"]}
+    tests = j["where"]["structure_tests_after" if rep.effects or rep.verdict.partial else "structure_tests_before"]
+    row.update(
+        {
+            "truth": {k: truth[k] for k in ("effects", "in_library", "n_points", "raw", "channel", "separable")},
+            "stated_noise": truth["noise"]["stated"],
+            "verdict": rep.verdict.verdict,
+            "effects": rep.effects,
+            "ambiguous": rep.verdict.ambiguous,
+            "partial": rep.verdict.partial,
+            "text": rep.verdict.text[:400],
+            "rejecting_tests": [t["name"] for t in tests if t["p_value"] is not None and t["p_value"] < 1e-3],
+            "truth_shrink": shrink.get(truth_names[0]) if truth_names and truth["in_library"] else None,
+            "gap_before": j["gap_before"]["value"],
+            "gap_after": j["gap_after"]["value"],
+            "n_points": j["session"]["n_points"],
+        }
+    )
+    return row
+
+
+def _named(r: dict) -> list[str]:
+    return r["effects"] + r["ambiguous"] + r["partial"]
+
+
+def correct(r: dict) -> bool:
+    """The effect first (explained), or cannot_tell naming it."""
+    eff = r["truth"]["effects"][0]
+    return (r["verdict"] == "explained" and r["effects"][:1] == [eff]) or (
+        r["verdict"] == "cannot_tell" and eff in r["ambiguous"]
+    )
+
+
+def _rate(rows: list[dict], test) -> dict:
+    return {"rate": round(sum(map(test, rows)) / len(rows), 3) if rows else None, "n": len(rows)}
+
+
+def summarise(rows: list[dict]) -> dict:
+    ok = [r for r in rows if "error" not in r]
+    kind = {
+        "null": [r for r in ok if r["kind"] == "null"],
+        "single": [r for r in ok if r["kind"] in _library()],
+        "pair": [r for r in ok if r["kind"].startswith("pair:")],
+        "ool": [r for r in ok if r["kind"].startswith("ool:")],
+    }
+    single = kind["single"]
+    out: dict = {
+        "targets": TARGETS,
+        "cases": len(rows),
+        "errors": len(rows) - len(ok),
+        "correct_at_snr_ge10": _rate([r for r in single if r["snr"] >= 10], correct),
+        "correct_by_snr": {f"{s:g}": _rate([r for r in single if r["snr"] == s], correct) for s in SNRS},
+        "null_false_attribution": _rate(kind["null"], lambda r: r["verdict"] in ("explained", "cannot_tell")),
+        "null_any_gap": _rate(kind["null"], lambda r: r["verdict"] != "no_gap"),
+        "out_of_library_explained": _rate(kind["ool"], lambda r: r["verdict"] == "explained"),
+        "separable_pair_both_named": _rate(
+            [r for r in kind["pair"] if r["truth"]["separable"]],
+            lambda r: set(r["truth"]["effects"]) <= set(_named(r)),
+        ),
+        "any_pair_both_named": _rate(kind["pair"], lambda r: set(r["truth"]["effects"]) <= set(_named(r))),
+    }
+    shrinks = [r["truth_shrink"] for r in single if r["snr"] >= 10 and r["truth_shrink"] is not None]
+    out["median_heldout_shrink"] = {"value": statistics.median(shrinks) if shrinks else None, "n": len(shrinks)}
+    fam: dict = {}
+    for f in sorted({r["family"] for r in ok}):
+        rf = [r for r in single if r["family"] == f]
+        fam[f] = {
+            **{f"snr{s:g}": _rate([r for r in rf if r["snr"] == s], correct) for s in SNRS},
+            "null_false_attribution": _rate(
+                [r for r in kind["null"] if r["family"] == f], lambda r: r["verdict"] in ("explained", "cannot_tell")
+            ),
+            "out_of_library_explained": _rate(
+                [r for r in kind["ool"] if r["family"] == f], lambda r: r["verdict"] == "explained"
+            ),
+        }
+    out["by_family"] = fam
+    eff: dict = {}
+    for e in _library():
+        re_ = [r for r in single if r["kind"] == e]
+        eff[e] = {f"snr{s:g}": _rate([r for r in re_ if r["snr"] == s], correct) for s in SNRS}
+    out["by_effect"] = eff
+    out["ool_by_kind"] = {
+        k: {
+            "explained": sum(r["verdict"] == "explained" for r in kind["ool"] if r["kind"] == k),
+            "verdicts": [r["verdict"] for r in kind["ool"] if r["kind"] == k],
+        }
+        for k in sorted({r["kind"] for r in kind["ool"]})
+    }
+    times = [r["diagnose_s"] for r in ok]
+    out["median_diagnose_s"] = statistics.median(times) if times else None
+    out["median_points"] = statistics.median([r["n_points"] for r in ok]) if ok else None
+    return out
+
+
+def _library() -> tuple[str, ...]:
+    from indep.cases import LIBRARY
+
+    return tuple(LIBRARY)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--reps", type=int, default=1, help="repetitions of each library effect x SNR, pair, ool")
+    p.add_argument("--nulls", type=int, default=4, help="null cases per family")
+    p.add_argument("--seed", type=int, default=100_000)
+    p.add_argument("--pair-snr", type=float, default=30.0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--kinds", nargs="*", help="only these kinds (null, an effect, pair:A+B, ool:X)")
+    p.add_argument("--families", nargs="*", help="only these design families")
+    p.add_argument("--out", type=Path, required=True, help="JSON lines, one per case")
+    args = p.parse_args(argv)
+    todo = case_list(args.reps, args.nulls, args.seed, args.pair_snr)
+    if args.kinds:
+        todo = [c for c in todo if c["kind"] in args.kinds]
+    if args.families:
+        todo = [c for c in todo if c["family"] in args.families]
+    t0 = time.perf_counter()
+    rows = []
+    with args.out.open("w") as f, get_context("fork").Pool(args.workers) as pool:
+        for k, row in enumerate(pool.imap_unordered(run_case, todo, chunksize=1), start=1):
+            rows.append(row)
+            f.write(json.dumps(row) + "\n")
+            f.flush()
+            mark = "ok" if "error" not in row and row["kind"] != "null" and correct(row) else ""
+            print(f"[{k}/{len(todo)}] {row['family']} {row['kind']} snr {row['snr']}: "
+                  f"{row.get('verdict', row.get('error'))} {row.get('effects') or row.get('ambiguous') or ''} {mark}",
+                  file=sys.stderr)  # fmt: skip
+    summary = summarise(rows)
+    summary["wall_s"] = time.perf_counter() - t0
+    summary["command"] = " ".join(["bench/bench_gap_indep.py", *(argv if argv is not None else sys.argv[1:])])
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
