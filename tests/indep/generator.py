@@ -456,7 +456,8 @@ def write_session(
     draws = draws if draws is not None else draw_session(rng, len(plan), raw, plan)
     rows = simulate(design, truth, draws, plan, noise_rng=rng)
     out = Path(out_dir)
-    tmp = Path(tempfile.mkdtemp(prefix=".indep-", dir=out.parent if out.parent.exists() else None))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".indep-", dir=out.parent))  # same file system: the rename is atomic
     meta: dict = {
         "format": "piga-session/1",
         "station": {
