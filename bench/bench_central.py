@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import os
 import random
 import statistics
 import tempfile
@@ -134,10 +135,12 @@ def main() -> None:
         migrate(engine)
         t = time.perf_counter()
         bulk_load(engine, args.n)
-        print(f"{args.n} synthetic sessions bulk-loaded in {time.perf_counter() - t:.1f} s\n")
+        print(f"{args.n} synthetic sessions bulk-loaded in {time.perf_counter() - t:.1f} s; "
+              f"load average {os.getloadavg()[0]:.1f}\n")  # fmt: skip
         engine.dispose()
         time_queries(url)
         time_sync(url, args.sync_sessions)
+        print(f"\nload average after: {os.getloadavg()[0]:.1f}")
     finally:
         if server is not None:
             server.stop()
