@@ -473,6 +473,7 @@ class StationView {
       : notServed ? `not served: silent for ${duration(this.silentS)}` : silent ? `silent for ${duration(this.silentS)}` : "live";
     this.f.link.className = `link ${silent ? "bad" : "ok"}`;
     this.card.dataset.served = notServed ? "no" : "yes";
+    this.card.dataset.heard = this.heardReport && never ? "never" : "yes";
     this.notServed.hidden = !notServed;
     if (notServed && !this.notServed.dataset.shown) {
       this.notServed.dataset.shown = "1";
