@@ -458,44 +458,48 @@ def write_session(
     out = Path(out_dir)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".indep-", dir=out.parent))  # same file system: the rename is atomic
-    meta: dict = {
-        "format": "piga-session/1",
-        "station": {
-            "A0_m": A0_M,
-            "latitude_deg": LATITUDE_DEG,
-            "g_mps2": G_MPS2,
-            "earth_rate_radps": EARTH_RATE_RADPS,
-            "pulses_per_rev": PULSES_PER_REV,
-        },
-        "notes": notes,
-        "generator": "tests/indep",
-    }
-    if state_noise:
-        n = truth.noise
-        if n.rate_form == "per_window":
-            meta["instrument_repeatability_radps"] = n.rate_sigma_radps
-        meta["timing"] = {"timer_resolution_s": n.tick_s, "timing_sigma_s": n.timing_sigma_s}
-        if raw:
-            meta["grating"] = {"rate_hz": GRATING_HZ, "noise_m": n.grating_noise_m}
-        meta["settling_s"] = design.settle_index_s
-    (tmp / "session.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
-    header = "point_id,sequence,start_s,position_deg,freq_hz,kind,pulses,Tm_s,t1_s,t2_s,Np"
-    lines = [header]
-    for r in rows:
-        vals = [r.point_id, str(r.sequence), _fmt(r.start_s), _fmt(r.position_deg), _fmt(r.freq_hz)]
-        vals += ["vibration" if r.freq_hz else "static", str(r.pulses), _fmt(r.Tm_s)]
-        vals += [_fmt(r.t1_s), _fmt(r.t2_s), _fmt(r.Np)]
-        lines.append(",".join(vals))
-    (tmp / "points.csv").write_text("\n".join(lines) + "\n")
-    if raw and draws.raw_points:
-        (tmp / "raw").mkdir()
-        for k, i in enumerate(draws.raw_points):
-            rec = raw_record(rows[i], draws, k, truth, rng)
-            if not raw_optional[0]:
-                rec.pop("pulse_dir")
-            if not raw_optional[1]:
-                rec.pop("reference_t")
-            _save_npz(tmp / "raw" / f"{rows[i].point_id}.npz", rec)
+    try:
+        meta: dict = {
+            "format": "piga-session/1",
+            "station": {
+                "A0_m": A0_M,
+                "latitude_deg": LATITUDE_DEG,
+                "g_mps2": G_MPS2,
+                "earth_rate_radps": EARTH_RATE_RADPS,
+                "pulses_per_rev": PULSES_PER_REV,
+            },
+            "notes": notes,
+            "generator": "tests/indep",
+        }
+        if state_noise:
+            n = truth.noise
+            if n.rate_form == "per_window":
+                meta["instrument_repeatability_radps"] = n.rate_sigma_radps
+            meta["timing"] = {"timer_resolution_s": n.tick_s, "timing_sigma_s": n.timing_sigma_s}
+            if raw:
+                meta["grating"] = {"rate_hz": GRATING_HZ, "noise_m": n.grating_noise_m}
+            meta["settling_s"] = design.settle_index_s
+        (tmp / "session.json").write_text(json.dumps(meta, indent=1, sort_keys=True) + "\n")
+        header = "point_id,sequence,start_s,position_deg,freq_hz,kind,pulses,Tm_s,t1_s,t2_s,Np"
+        lines = [header]
+        for r in rows:
+            vals = [r.point_id, str(r.sequence), _fmt(r.start_s), _fmt(r.position_deg), _fmt(r.freq_hz)]
+            vals += ["vibration" if r.freq_hz else "static", str(r.pulses), _fmt(r.Tm_s)]
+            vals += [_fmt(r.t1_s), _fmt(r.t2_s), _fmt(r.Np)]
+            lines.append(",".join(vals))
+        (tmp / "points.csv").write_text("\n".join(lines) + "\n")
+        if raw and draws.raw_points:
+            (tmp / "raw").mkdir()
+            for k, i in enumerate(draws.raw_points):
+                rec = raw_record(rows[i], draws, k, truth, rng)
+                if not raw_optional[0]:
+                    rec.pop("pulse_dir")
+                if not raw_optional[1]:
+                    rec.pop("reference_t")
+                _save_npz(tmp / "raw" / f"{rows[i].point_id}.npz", rec)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     if out.exists():
         shutil.rmtree(out)
     os.replace(tmp, out)
