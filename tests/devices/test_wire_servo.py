@@ -93,6 +93,12 @@ def test_sdo_downloads_and_an_abort(drive: ServoEmulator, bus: can.BusABC) -> No
     # 0x6083 profile acceleration 0: below the EDS's low limit 1 -> abort 0x06090032 (value too low)
     assert _sdo(bus, H("23 83 60 00 00 00 00 00")) == H("80 83 60 00 32 00 09 06")
     assert _sdo(bus, H("23 83 60 00 40 42 0f 00")) == H("60 83 60 00 00 00 00 00")  # 1 rev/s^2
+    # 0x6007 abort connection option (i16): 7 is beyond the EDS's high limit 3 -> 0x06090031 (value too high);
+    # 1 (fault signal) is kept; 0x605A quick stop option reads 2 (the EDS default)
+    assert _sdo(bus, H("2b 07 60 00 07 00 00 00")) == H("80 07 60 00 31 00 09 06")
+    assert _sdo(bus, H("2b 07 60 00 01 00 00 00")) == H("60 07 60 00 00 00 00 00")
+    assert _sdo(bus, H("40 07 60 00 00 00 00 00")) == H("4b 07 60 00 01 00 00 00")
+    assert _sdo(bus, H("40 5a 60 00 00 00 00 00")) == H("4b 5a 60 00 02 00 00 00")
 
 
 def test_nmt_pdos_and_heartbeat(drive: ServoEmulator, bus: can.BusABC) -> None:
