@@ -20,7 +20,7 @@ coefficients, plausible (every parameter within its physical bound), seed, desig
 closest on all channels and whether it stays within plausible bounds (a case no diagnosis can
 tell from the library); it is slow, so make_case leaves it out.
 
-    python -m indep.cases OUT_DIR --n N [--seed S]   (PYTHONPATH=tests)
+    python -m indep.cases OUT_DIR --n N [--seed S] [--mimic]   (PYTHONPATH=tests)
 
 writes N cases (nulls, each library effect at SNR 5/10/30, pairs, out-of-library) as
 OUT_DIR/case_XXXX/ with one JSON line per case in OUT_DIR/truth.jsonl.
