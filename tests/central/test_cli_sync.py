@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sqlite3
 from pathlib import Path
 
@@ -61,11 +62,14 @@ def test_serve_takes_sync_options():
 
 
 def test_a_station_under_control_pushes_each_session_once_it_ended(tmp_path, central_url, arrays_dir):
-    sim = simulated_station(CONFIG, default_twin(), seed=1, speed=1000.0)
-    store = SessionStore(tmp_path / "station.sqlite")
-    try:
+    with contextlib.ExitStack() as stack:  # closed in reverse: sync, controller (aborts a run), store, station
+        sim = simulated_station(CONFIG, default_twin(), seed=1, speed=1000.0)
+        stack.callback(sim.close)
+        store = stack.enter_context(SessionStore(tmp_path / "station.sqlite"))
         controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=tmp_path)
+        stack.callback(controller.close)
         hook = SyncAfterRun(store, central_url, arrays_dir, "sim-1")
+        stack.callback(hook.close)
         controller.after_run.append(hook)
         outcome = controller.run("seed000.integral_precession", QUICK)
         assert outcome.state.name == "FINISHED", outcome.faults
@@ -75,13 +79,6 @@ def test_a_station_under_control_pushes_each_session_once_it_ended(tmp_path, cen
             named = (getattr(store.load_session(outcome.session_uid), "provenance", None) or {}).get("station_id")
             assert row["status"] == "finished" and row["station"] == (named or "sim-1") and row["n_points"] == 10
             assert central.results(outcome.session_uid) == store.results(outcome.session_uid) != []
-        hook.close()
-    finally:
-        if controller.busy:
-            controller.abort()
-            controller.wait(30)
-        sim.close()
-        store.close()
     engine = sa.create_engine(central_url)
     with engine.connect() as conn:
         assert conn.execute(sa.text("SELECT count(*) FROM points")).scalar() == 10
