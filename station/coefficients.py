@@ -82,8 +82,8 @@ def coefficient_rows(results: Mapping[str, Any]) -> list[CoefficientRow]:
 
 
 def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any]) -> Iterator[CoefficientRow]:
-    own_units = doc.get("units") if isinstance(doc.get("units"), Mapping) else {}
-    units = {**units, **own_units}
+    own_units = doc.get("units")
+    units = {**units, **own_units} if isinstance(own_units, Mapping) else dict(units)
     for key, item in doc.items():
         if key == "coefficients" and isinstance(item, Mapping):
             yield from _walk(item, where, units)
