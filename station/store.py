@@ -119,6 +119,7 @@ _V5 = """
 ALTER TABLE points ADD COLUMN raw_file TEXT;
 """
 _RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
+INFERRED = "inferred from records stored before records were declared: units unknown"
 
 
 class StoreError(StationFault):
@@ -175,7 +176,7 @@ def _merged_type(kind: str, records: list[tuple[dict, dict]]) -> RecordType:
             for f in fields.values()
         ],
         "arrays": [a.to_json() for a in {a.name: a for rt in types for a in rt.arrays}.values()],
-        "doc": "inferred from records stored before records were declared: units unknown",
+        "doc": INFERRED,
     }
     return RecordType.from_json(doc, f"record type {kind}")
 
@@ -423,12 +424,14 @@ class SessionStore:
             ) from exc
 
     def _record_type(self, db: sqlite3.Connection, sid: int, kind: str, given: RecordType | None) -> RecordType:
-        """The session's declaration of `kind`: stored with its first record, then the one every record uses."""
+        """The session's declaration of `kind`: stored with its first record, then the one every record uses. A
+        session recorded before declarations (an upgraded store) keeps the declaration inferred from its records,
+        so that it can be resumed by software that declares the kind; any other difference is refused."""
         row = db.execute("SELECT declaration_json FROM record_types WHERE session_id = ? AND kind = ?", (sid, kind))
         stored = row.fetchone()
         if stored is not None:
             rt = RecordType.from_json(json.loads(stored[0]), f"{self.path} record type")
-            if given is not None and given.to_json() != rt.to_json():
+            if given is not None and given.to_json() != rt.to_json() and rt.doc != INFERRED:
                 raise StoreError(
                     f"record type {kind!r}: this software declares it otherwise than the session holds it "
                     f"(stored {rt.to_json()}, declared {given.to_json()})"

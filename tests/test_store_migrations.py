@@ -57,7 +57,9 @@ def test_a_store_of_the_previous_release_is_upgraded_with_everything_kept(tmp_pa
         assert rt.field("setup").nullable and rt.field("setup").dtype == "str"
         assert [m.values["volts"] for m in t.measurements] == [0.5, 1.25]
         assert t.measurements[0].arrays["volts"].shape == (4,)
-        # and the upgraded store records new measurements through the inferred declaration
+        # and the upgraded store records new measurements through the inferred declaration, also where this
+        # software declares the kind otherwise (seed 001's tumble): a session recorded before can be resumed
+        import methods.seed001.analysis  # noqa: F401 - declares "tumble"
         store.add_measurement(tumble["uid"], Measurement("T1-J3", "tumble", {"J": 3, "volts": 2, "samples": 9,
                                                                               "setup": "B"}))  # fmt: skip
         with pytest.raises(StoreError, match=r"field 'J' = 3\.5"):
@@ -104,3 +106,18 @@ def test_a_failed_migration_leaves_the_store_as_it_was(tmp_path, monkeypatch):
     with SessionStore(db) as store:  # the real migration still applies afterwards
         assert store.schema_version == SCHEMA_VERSION
         assert np.isclose(store.load_session(store.sessions()[0]["uid"]).points[1].Tm_s, 560.7)
+
+
+def test_a_session_keeps_the_declaration_its_records_were_stored_with(tmp_path):
+    from station.records import Field, RecordType
+
+    v1 = RecordType("probe", (Field("level_v", "float64", "V"),))
+    v2 = RecordType("probe", (Field("level_v", "float64", "mV"),))  # the same name, another unit
+    with SessionStore(tmp_path / "db.sqlite") as store:
+        uid = store.create_session(StationInfo(), "test")
+        store.add_measurement(uid, Measurement("m1", "probe", {"level_v": 1}), v1)
+        with pytest.raises(StoreError, match="declares it otherwise than the session holds it"):
+            store.add_measurement(uid, Measurement("m2", "probe", {"level_v": 2.0}), v2)
+        (m1,) = store.measurements(uid)
+        assert m1.values == {"level_v": 1.0} and type(m1.values["level_v"]) is float  # typed by the declaration
+        assert store.record_types(uid) == [v1]
