@@ -6,13 +6,16 @@
     the twin carries the seed's AL-15 estimates. Each figure the seed quotes, the estimate with its
     sigma, and z = (estimate - twin) / sigma (the twin's k0 also holds the launch offset k0L it drew).
 (b) N sessions straight from the model (methods.seed001.tumble_session): mean and spread of z per coefficient.
+    Draw k has its own generator (seed [2, k]), so the figures are the same on every executor
+    (station/fanout.py: --executor local|dask, --scheduler, --workers, --results CASES.jsonl to resume).
 
-    .venv/bin/python bench/bench_seed001.py [N] [SPEED]
+    .venv/bin/python bench/bench_seed001.py [N] [SPEED] [--executor local|dask] [--scheduler ADDRESS] [--workers W]
+        [--results CASES.jsonl] [--no-session]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import tempfile
 import time
 from pathlib import Path
@@ -28,6 +31,7 @@ from methods.seed001.analysis import analyse_tumble
 from methods.seed001.tumble_session import tumble_session
 from models.config import default_twin
 from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
+from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -78,25 +82,31 @@ def station_session(seed: int, speed: float) -> None:
     print(f"| k1 (SF instability, 3σ of K1) | ppm | 15 | {k1} (T1..T4) | | |")
 
 
-def monte_carlo(n: int) -> None:
+def one_draw(k: int) -> dict[str, float]:
+    """z = (estimate - truth) / sigma of every figure of draw k (its own generator, seed [2, k])."""
     m = AccelerometerModel()
-    rng = np.random.default_rng(2)
-    z: dict[str, list[float]] = {}
+    session, truths = tumble_session(m, [20.0, 80.0, -40.0, 20.0], 3, sigma_g=8e-6, rng=np.random.default_rng([2, k]))
+    _, points, model = analyse_tumble(session, m.reference_c)
+    z = {}
+    for name in CF_NAMES:
+        value, sigma = points[0].coefficient(name)
+        z[f"{name} at T1"] = (value - truths[0][name]) / sigma
+    h = points[0].hysteresis_g
+    z["h at T1"] = (h[0] - m.hysteresis_g) / h[1]
+    for name, pair, truth in (("λT1", model.bias_g.above, m.lambda_above_g_per_c),
+                              ("λT2", model.bias_g.below, m.lambda_below_g_per_c),
+                              ("βT1", model.scale_factor.above, m.beta_above_per_c),
+                              ("βT2", model.scale_factor.below, m.beta_below_per_c),
+                              ("k0D", model.bias_g.drift_per_s, m.drift_g_per_s)):  # fmt: skip
+        z[name] = (pair[0] - truth) / pair[1]
+    return z
+
+
+def monte_carlo(n: int, spec: ExecutorSpec | None = None, results: str | None = None) -> None:
     wall0 = time.perf_counter()
-    for _ in range(n):
-        session, truths = tumble_session(m, [20.0, 80.0, -40.0, 20.0], 3, sigma_g=8e-6, rng=rng)
-        _, points, model = analyse_tumble(session, m.reference_c)
-        for name in CF_NAMES:
-            value, sigma = points[0].coefficient(name)
-            z.setdefault(f"{name} at T1", []).append((value - truths[0][name]) / sigma)
-        h = points[0].hysteresis_g
-        z.setdefault("h at T1", []).append((h[0] - m.hysteresis_g) / h[1])
-        for name, pair, truth in (("λT1", model.bias_g.above, m.lambda_above_g_per_c),
-                                  ("λT2", model.bias_g.below, m.lambda_below_g_per_c),
-                                  ("βT1", model.scale_factor.above, m.beta_above_per_c),
-                                  ("βT2", model.scale_factor.below, m.beta_below_per_c),
-                                  ("k0D", model.bias_g.drift_per_s, m.drift_g_per_s)):  # fmt: skip
-            z.setdefault(name, []).append((pair[0] - truth) / pair[1])
+    draws = run_cases(one_draw, list(range(n)), spec or ExecutorSpec(), results=results,
+                      settings={"bench": "seed001", "rng": [2]})  # fmt: skip
+    z = {name: [d[name] for d in draws] for name in draws[0]}
     print(f"\n(b) {n} sessions from the model (8 µg per reading) in {time.perf_counter() - wall0:.1f} s\n")
     print("| coefficient | mean z | std z |")
     print("|---|---|---|")
@@ -106,5 +116,12 @@ def monte_carlo(n: int) -> None:
 
 
 if __name__ == "__main__":
-    station_session(seed=1, speed=float(sys.argv[2]) if len(sys.argv) > 2 else 500.0)
-    monte_carlo(int(sys.argv[1]) if len(sys.argv) > 1 else 500)
+    cli = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    cli.add_argument("n", nargs="?", type=int, default=500, help="Monte Carlo draws (default 500)")
+    cli.add_argument("speed", nargs="?", type=float, default=500.0, help="station speed of (a) (default 500)")
+    cli.add_argument("--no-session", action="store_true", help="only (b), the Monte Carlo")
+    add_executor_options(cli)
+    args = cli.parse_args()
+    if not args.no_session:
+        station_session(seed=1, speed=args.speed)
+    monte_carlo(args.n, spec_from_args(args), args.results)
