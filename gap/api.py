@@ -90,7 +90,7 @@ class GapReport:
     def _repr_html_(self) -> str:
         """Rich display in a notebook: the HTML report's body (gap.report_html.render)."""
         from gap.report_html import render
-        from station.notebook import html_fragment
+        from station.htmlkit import html_fragment
 
         return html_fragment(render(self))
 

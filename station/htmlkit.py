@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import html
 import io
+import re
 from collections.abc import Iterable, Mapping
 
 import matplotlib
@@ -69,3 +70,9 @@ def with_provenance(html: str, provenance: Mapping[str, object]) -> str:
     if "</h1>" in html:
         return html.replace("</h1>", "</h1>\n" + section, 1)
     return html.replace("</body>", section + "\n</body>", 1) if "</body>" in html else html + section
+
+
+def html_fragment(document: str) -> str:
+    """The body of a self-contained HTML report (`document`), for a notebook's output cell."""
+    match = re.search(r"<body>(.*)</body>", document, re.S)
+    return match.group(1) if match else document

@@ -17,7 +17,6 @@ expanded one with its coverage factor k (station.coefficients says where each co
 from __future__ import annotations
 
 import html
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -41,12 +40,6 @@ def open_store(path: str | Path) -> Store:
         raise InputError(f"open_store: {path}: no session store there (a station run, `station import` or "
                          "`station serve` makes one)")  # fmt: skip
     return Store(SessionStore(path))
-
-
-def html_fragment(document: str) -> str:
-    """The body of a self-contained HTML report (station.htmlkit.document), for a notebook's output cell."""
-    match = re.search(r"<body>(.*)</body>", document, re.S)
-    return match.group(1) if match else document
 
 
 def _table_html(frame: pd.DataFrame) -> str:
