@@ -5,16 +5,20 @@ Two sessions of `seed003.gravity_field` on config/station-dual-sim.toml with con
 seed's PIGA, its head angle error and theta0): the seed's arrangement (setup 1 equal acceleration, setup 2
 equal angle) and the swapped one, each with both 22-position calibration sequences of A; and a Monte Carlo
 of noise draws on the pure functions (the fixture's physics, no station) for the honesty of the
-uncertainties. With `--rev` below 5 (the seed's 10 pi per window) the white rate noise is rescaled so that
-every window keeps the error of a 10 pi window at its position; only the station time shrinks.
+uncertainties (draw k with its own generator, seed [0, k]: the same figures on every executor of
+station/fanout.py, `--executor local|dask --scheduler ADDRESS --workers W --results CASES.jsonl`). With
+`--rev` below 5 (the seed's 10 pi per window) the white rate noise is rescaled so that every window keeps
+the error of a 10 pi window at its position; only the station time shrinks.
 
     .venv/bin/python bench/bench_seed003.py [--rev 0.125] [--speed 1000] [--seed 3] [--max-window-s 0] [--draws 1000]
+        [--executor local|dask] [--scheduler ADDRESS] [--workers W] [--results CASES.jsonl]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import tempfile
 import time
@@ -39,11 +43,13 @@ from methods.seed003.static_model import (
 )
 from models.config import TwinConfig
 from models.fixture import POSES_DEG, SETUPS
+from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.session import StationInfo
 from station.store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 TERMS = MODELS["seed003"]
+TWIN_FILE = ROOT / "config" / "twin-seed003.toml"
 SEED_REV = 5.0
 
 
@@ -71,9 +77,10 @@ def window_noise_radps(twin: TwinConfig, rates: np.ndarray) -> np.ndarray:
     return twin.noise.rate_noise_radps * np.sqrt(twin.noise.rate_noise_ref_s / tm_s)
 
 
-def monte_carlo(twin: TwinConfig, draws: int) -> None:
-    """Honesty of the uncertainties on the pure functions: spread of error/sigma over noise draws."""
-    st, rng = StationInfo(), np.random.default_rng(0)
+@functools.cache
+def _draw_setup() -> tuple:
+    """What every draw shares (the twin of TWIN_FILE): head angles, clean rates, calibration heads, truths."""
+    twin = TwinConfig.from_toml(TWIN_FILE)
     heads = {s: np.radians((np.array(sequence_deg(sch, 22)) - POSES_DEG[SETUPS[s][0]]) % 360)
              for s, sch in ((1, "equal_acceleration"), (2, "equal_angle"))}  # fmt: skip
     clean = {s: static_rates_radps(twin, s, heads[s]) for s in heads}
@@ -81,20 +88,31 @@ def monte_carlo(twin: TwinConfig, draws: int) -> None:
     cal_clean = static_rates_radps(twin, 1, cal_heads)["A"][1]
     truth_h = np.array([twin.effects["index_harmonics"][n] for n in harmonic_names(3)])
     truth_k = true_static_terms(twin.instrument, twin.param("odd_quadratic", "koq"))
-    z_h, z_49, z_total = [], [], []
-    for _ in range(draws):
-        windows = [PoseWindow(i, s, pose, h, r + rng.normal(0.0, n))
-                   for s, by_inst in clean.items() for i, (pose, rates) in by_inst.items()
-                   for h, r, n in zip(heads[s], rates, window_noise_radps(twin, rates), strict=True)]  # fmt: skip
-        fp = fit_four_pose(windows, TERMS, 3, st)
-        z_h.append((fp.harmonics_rad - truth_h) / fp.harmonic_sigmas_rad)
-        rates = cal_clean + rng.normal(0.0, window_noise_radps(twin, cal_clean))
-        angles = fp.instrument_angle_rad("A", 1, 1, cal_heads)
-        comp = fit_static(angles, rates, TERMS, st)
-        total = with_angle_uncertainty(comp, angles, fp.angle_derivatives(cal_heads), fp.angle_covariance("A", 1), st)
-        err = comp.values - np.array([truth_k[t] for t in TERMS])
-        z_49.append(err / comp.sigmas)
-        z_total.append(err / total.sigmas)
+    return twin, heads, clean, cal_heads, cal_clean, truth_h, truth_k
+
+
+def one_draw(k: int) -> dict[str, list[float]]:
+    """error/sigma of the harmonics and of A's compensated terms in noise draw k (generator seed [0, k])."""
+    twin, heads, clean, cal_heads, cal_clean, truth_h, truth_k = _draw_setup()
+    st, rng = StationInfo(), np.random.default_rng([0, k])
+    windows = [PoseWindow(i, s, pose, h, r + rng.normal(0.0, n))
+               for s, by_inst in clean.items() for i, (pose, rates) in by_inst.items()
+               for h, r, n in zip(heads[s], rates, window_noise_radps(twin, rates), strict=True)]  # fmt: skip
+    fp = fit_four_pose(windows, TERMS, 3, st)
+    rates = cal_clean + rng.normal(0.0, window_noise_radps(twin, cal_clean))
+    angles = fp.instrument_angle_rad("A", 1, 1, cal_heads)
+    comp = fit_static(angles, rates, TERMS, st)
+    total = with_angle_uncertainty(comp, angles, fp.angle_derivatives(cal_heads), fp.angle_covariance("A", 1), st)
+    err = comp.values - np.array([truth_k[t] for t in TERMS])
+    return {"h": list((fp.harmonics_rad - truth_h) / fp.harmonic_sigmas_rad), "eq49": list(err / comp.sigmas),
+            "total": list(err / total.sigmas)}  # fmt: skip
+
+
+def monte_carlo(draws: int, spec: ExecutorSpec | None = None, results: str | None = None) -> None:
+    """Honesty of the uncertainties on the pure functions: spread of error/sigma over noise draws."""
+    rows = run_cases(one_draw, list(range(draws)), spec or ExecutorSpec(), results=results,
+                     settings={"bench": "seed003", "twin": str(TWIN_FILE.name), "rng": [0]})  # fmt: skip
+    z_h, z_49, z_total = ([r[key] for r in rows] for key in ("h", "eq49", "total"))
     print(f"\nMonte Carlo, {draws} noise draws (four-pose sequences and the equal-acceleration calibration of A):")
     for label, names, z in (("harmonics", harmonic_names(3), z_h), ("compensated, eq. 49", TERMS, z_49),
                             ("compensated, harmonics propagated", TERMS, z_total)):  # fmt: skip
@@ -151,10 +169,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--draws", type=int, default=1000, help="Monte Carlo noise draws on the pure functions")
     ap.add_argument("--max-window-s", type=float, default=0.0, help="the procedure's max_window_s (0: off)")
+    add_executor_options(ap)
     args = ap.parse_args()
     design_figures()
-    twin = TwinConfig.from_toml(ROOT / "config" / "twin-seed003.toml")
-    monte_carlo(twin, args.draws)
+    twin = TwinConfig.from_toml(TWIN_FILE)
+    monte_carlo(args.draws, spec_from_args(args), args.results)
     noise = dataclasses.replace(twin.noise, rate_noise_ref_s=twin.noise.rate_noise_ref_s * args.rev / SEED_REV)
     twin = dataclasses.replace(twin, noise=noise)
     base = {"precession_rev": args.rev, "alignment_rev": min(args.rev / 2, 1.0), "settle_s": 1.0,
