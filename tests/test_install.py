@@ -41,7 +41,8 @@ def _requirement_names(reqs: list[str]) -> set[str]:
 
 def test_every_imported_package_is_declared():
     """Every third-party module the code imports belongs to a declared distribution: the main dependencies for
-    everything, plus the web extra for web/ and the notebook extra for station/notebook.py."""
+    everything, plus the web extra for the panel (web/, app/panel.py: `station panel`) and the notebook extra for
+    station/notebook.py."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     main_deps = _requirement_names(project["dependencies"])
     extras = {k: _requirement_names(v) for k, v in project["optional-dependencies"].items()}
@@ -52,7 +53,8 @@ def test_every_imported_package_is_declared():
         for path in sorted((ROOT / pkg).rglob("*.py")):
             if "node_modules" in path.parts:
                 continue
-            allowed = main_deps | (extras["web"] if pkg == "web" else set())
+            panel = pkg == "web" or path == ROOT / "app" / "panel.py"
+            allowed = main_deps | (extras["web"] if panel else set())
             if path == ROOT / "station" / "notebook.py":
                 allowed |= extras["notebook"]
             for name in sorted(_imports(path) - stdlib - set(PACKAGES)):
