@@ -5,15 +5,19 @@ precession; the best offset; eqs. 21-22; the operator's mass removal; K2 once mo
 config/station-electronics-sim.toml for N station seeds at SPEED x real time (the CLI's 1000 by default; 500
 keeps a loaded machine's late readers within half a time-stamp wrap), through the same CLI path an operator
 uses, and prints each session's headline, the mean and spread over the sessions, and the wall time per session.
+The sessions fan out (station/fanout.py): each in its own process with --workers 2 or on a dask cluster; on a
+loaded machine, sessions side by side make each one's virtual clock late more often (see its faults).
 
-    .venv/bin/python bench/bench_seed004.py [N] [SPEED]
+    .venv/bin/python bench/bench_seed004.py [N] [SPEED] [--executor local|dask] [--scheduler ADDRESS]
+        [--workers W] [--results CASES.jsonl]
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+import functools
 import io
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,6 +26,7 @@ import numpy as np
 
 from app.cli import main as station
 from methods.seed004.analysis import SEED_FIGURES
+from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.store import SessionStore
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -48,10 +53,12 @@ def run_session(seed: int, speed: float) -> tuple[dict | None, float, float]:
     return (results[0]["headline"] if code == 0 else None), station_h, wall_s
 
 
-def main(n: int, speed: float) -> None:
+def main(n: int, speed: float, spec: ExecutorSpec | None = None, results: str | None = None) -> None:
     rows = []
-    for seed in range(n):
-        headline, station_h, wall_s = run_session(seed, speed)
+    one = functools.partial(run_session, speed=speed)
+    spec = spec or ExecutorSpec("local", workers=1)
+    runs = run_cases(one, list(range(n)), spec, results=results, settings={"bench": "seed004", "speed": speed})
+    for seed, (headline, station_h, wall_s) in enumerate(runs):
         if headline is None:
             print(f"seed {seed}: did not finish, {station_h:.2f} h in {wall_s:.1f} s wall")
             continue
@@ -67,4 +74,11 @@ def main(n: int, speed: float) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 5, float(sys.argv[2]) if len(sys.argv) > 2 else 1000.0)
+    cli = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    cli.add_argument("n", nargs="?", type=int, default=5, help="sessions, seeds 0..N-1 (default 5)")
+    cli.add_argument("speed", nargs="?", type=float, default=1000.0, help="virtual clock speed (default 1000)")
+    add_executor_options(cli)
+    args = cli.parse_args()
+    if args.workers is None and args.executor == "local":
+        args.workers = 1  # one session at a time unless asked: each runs a whole simulated station
+    main(args.n, args.speed, spec_from_args(args), args.results)
