@@ -34,10 +34,11 @@ def previous_store_module():
     return module
 
 
-def main() -> None:
+def make(out: Path = OUT) -> Path:
+    """The fixture store, written by the previous release's store module."""
     old = previous_store_module()
-    OUT.unlink(missing_ok=True)
-    store = old.SessionStore(OUT)
+    out.unlink(missing_ok=True)
+    store = old.SessionStore(out)
     rng = np.random.default_rng(1)
     uid = store.create_session(StationInfo(latitude_deg=-33.92), "seed000.integral_precession",
                                instrument_serial="PIGA-0042", config={"procedure": "seed000.integral_precession",
@@ -52,8 +53,9 @@ def main() -> None:
         values = {"J": i + 1, "volts": level, "samples": samples, "setup": None if i else "A"}
         store.add_measurement(tumble, Measurement(f"T1-J{i + 1}", "tumble", values, {"volts": rng.random(4)}))
     store.close()
-    print(f"wrote {OUT} ({OUT.stat().st_size} bytes): sessions {uid}, {tumble}", file=sys.stderr)
+    print(f"wrote {out} ({out.stat().st_size} bytes): sessions {uid}, {tumble}", file=sys.stderr)
+    return out
 
 
 if __name__ == "__main__":
-    main()
+    make()
