@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 COVERAGE_K = 2.0  # expanded uncertainty U = k u, about 95 % for a normal error
@@ -76,9 +76,35 @@ def _is_quantity(doc: Any) -> bool:
     return isinstance(doc, Mapping) and "value" in doc and (doc["value"] is None or _number(doc["value"]) is not None)
 
 
+# The lab's names carry their unit as a suffix (`_s`, `_hz`, `_rad`, ...): the unit of a quantity whose
+# method states none, read from its own name or its parent's ("hysteresis_g", "harmonics_rad": {"c1": ...}).
+SUFFIX_UNITS = (("_g_per_s", "g/s"), ("_radps", "rad/s"), ("_mps2", "m/s^2"), ("_arcsec", "arcsec"),
+                ("_ppm", "ppm"), ("_rad", "rad"), ("_deg", "deg"), ("_hz", "Hz"), ("_m", "m"), ("_s", "s"),
+                ("_g", "g"), ("_v", "V"), ("_c", "°C"))  # fmt: skip
+
+
+def suffix_unit(*names: str) -> str:
+    """The unit named by the suffix of the first of `names` that has one of SUFFIX_UNITS, else ""; a name
+    ending in `_per_s` is a rate of the next name's unit ("drift_per_s" of "bias_g": g/s)."""
+    if names and names[0].lower().endswith("_per_s"):
+        return f"{suffix_unit(names[0][: -len('_per_s')], *names[1:]) or '1'}/s"
+    for name in names:
+        for suffix, unit in SUFFIX_UNITS:
+            if name.lower().endswith(suffix):
+                return unit
+    return ""
+
+
 def coefficient_rows(results: Mapping[str, Any]) -> list[CoefficientRow]:
-    """Every quantity with a value in the results (either shape of the module docstring), in order."""
-    return list(_walk(results, "", {}))
+    """Every quantity with a value in the results (either shape of the module docstring), in order; a quantity
+    stated twice in one result (plain, then with its GUM budget or unit) once, in its fullest form."""
+    best: dict[tuple[str, str], CoefficientRow] = {}
+    for row in _walk(results, "", {}):
+        key = (_block(row.result), row.name)
+        old = best.get(key)
+        if old is None or (row.budgeted, bool(row.unit)) > (old.budgeted, bool(old.unit)):
+            best[key] = row if old is None else replace(row, result=old.result)
+    return list(best.values())
 
 
 def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any]) -> Iterator[CoefficientRow]:
@@ -88,9 +114,21 @@ def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any]) -> Itera
         if key == "coefficients" and isinstance(item, Mapping):
             yield from _walk(item, where, units)
         elif _is_quantity(item):
-            yield _row(where or key, key, item, str(item.get("unit", units.get(key, ""))))
+            unit = str(item.get("unit") or units.get(key) or suffix_unit(key, where.rsplit(".", 1)[-1]))
+            yield _row(where or key, key, item, unit)
         elif isinstance(item, Mapping) and key != "units":
             yield from _walk(item, f"{where}.{key}" if where else key, units)
+        elif isinstance(item, list):  # per-block results (one per temperature, setup, ...)
+            for i, element in enumerate(item):
+                if isinstance(element, Mapping):
+                    yield from _walk(element, f"{where}.{key}[{i}]" if where else f"{key}[{i}]", units)
+
+
+def _block(path: str) -> str:
+    """The result a quantity belongs to: its path up to the last list index ("eight_point.temperatures[2]"),
+    else its first key ("integral")."""
+    cut = path.rfind("]")
+    return path[: cut + 1] if cut >= 0 else path.split(".")[0]
 
 
 def _row(result: str, name: str, item: Mapping[str, Any], unit: str) -> CoefficientRow:

@@ -77,3 +77,22 @@ def test_the_verdict_gives_its_reasons():
     aborted = verdict("aborted", None, ["DeviceTimeout: counter: no answer"])
     assert aborted == "verdict: NOT ACCEPTED: the run aborted; 1 fault: DeviceTimeout: counter: no answer"
     assert "reports no outlier test" in verdict("finished", {"tumble": {"K1": {"value": 1.0, "sigma": 0.1}}})
+
+
+def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():
+    """seed 001's results: per-temperature blocks in a list, each coefficient stated plainly and again in its
+    GUM block; the console shows each once per block, with its unit and the budget's k."""
+    import numpy as np
+
+    import methods.seed001.procedure  # noqa: F401 - registers the procedure
+    from engine.registry import get_procedure
+    from methods.seed001.tumble_session import tumble_session
+    from models.pendulous_accelerometer import AccelerometerModel
+
+    temperatures = [20, 80, -40, 20]
+    session, _ = tumble_session(AccelerometerModel(), temperatures, 3, 1e-5, np.random.default_rng(1))
+    rows = coefficient_rows(get_procedure("seed001.tumble").analyse(session).results)
+    k1 = [r for r in rows if r.name == "K1"]
+    assert len(k1) == len(temperatures) and all(r.unit == "V/g" and r.budgeted and r.k > 2 for r in k1)
+    assert all(r.unit for r in rows), [r.name for r in rows if not r.unit]
+    assert {r.unit for r in rows if r.name.startswith("drift")} == {"g/s"}

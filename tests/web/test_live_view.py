@@ -10,7 +10,10 @@ session shows a results card with units and uncertainties. Screenshots go to tes
 
 from __future__ import annotations
 
+import json
 import re
+import shutil
+import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -202,3 +205,41 @@ def test_a_session_watched_on_a_phone(browser, site, passwords, quick):
     shot(page, "5-finished-phone")
     assert not errors, errors
     page.context.close()
+
+
+NODE = shutil.which("node")
+
+
+@pytest.mark.skipif(NODE is None, reason="node is not installed")
+def test_the_panel_reads_results_as_the_console_does(tmp_path):
+    """web/static/common.js coefficientRows against station.coefficients.coefficient_rows on a seed-001 tumble's
+    results (lists of blocks, GUM blocks beside plain ones, units from names) and a seed-000 style result."""
+    import methods.seed001.procedure  # noqa: F401 - registers the procedure
+    from engine.registry import get_procedure
+    from methods.seed001.tumble_session import tumble_session
+    from models.pendulous_accelerometer import AccelerometerModel
+    from station.coefficients import coefficient_rows
+    from station.jsonsafe import json_safe
+
+    session, _ = tumble_session(AccelerometerModel(), [20, 80], 3, 1e-5, np.random.default_rng(3))
+    seed001 = json_safe(get_procedure("seed001.tumble").analyse(session).results)
+    seed000 = {"integral": {"coefficients": {"kz": {"value": 0.56, "sigma": 3e-4}, "ky": {"value": None,
+               "sigma": None, "note": "not identifiable"}}, "units": {"kz": "rad/s/g", "ky": "rad/s/g^2"}}}  # fmt: skip
+    module = tmp_path / "common.mjs"
+    shutil.copy(Path(__file__).resolve().parents[2] / "web" / "static" / "common.js", module)
+    script = "\n".join([
+        f"import {{ coefficientRows }} from {json.dumps(module.as_uri())};",
+        "const doc = JSON.parse((await import('node:fs')).readFileSync(0, 'utf8'));",
+        "const rows = coefficientRows(doc).map((r) => [r.result, r.name, r.value, r.u, r.k, r.expanded, r.unit]);",
+        "console.log(JSON.stringify(rows));",
+    ])  # fmt: skip
+    for results in (seed001, seed000):
+        done = subprocess.run([NODE, "--input-type=module", "-e", script], input=json.dumps(results),
+                              capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        js = json.loads(done.stdout)
+        py = [[r.result, r.name, r.value, r.u, r.k, r.expanded, r.unit] for r in coefficient_rows(results)]
+        assert [row[:2] + row[6:] for row in js] == [row[:2] + row[6:] for row in py]
+        for a, b in zip(js, py, strict=True):
+            for x, y in zip(a[2:6], b[2:6], strict=True):
+                assert (x is None and y is None) or x == pytest.approx(y, rel=1e-12), (a, b)

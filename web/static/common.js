@@ -100,24 +100,61 @@ export const UNCERTAINTY_NOTE = "u: standard uncertainty (k = 1, about 68 %), th
   `its coverage factor k (Student t from the budget, else k = ${COVERAGE_K}, about 95 %).`;
 
 // Every quantity with a value in a method's results, in either shape the methods write:
-// {coefficients: {name: {value, sigma, ...}}, units: {name: unit}} or {name: {value, sigma, unit}}.
-// The same reading as station/coefficients.py (coefficient_rows), for the browser.
-export function coefficientRows(results, where = "", units = {}) {
-  const rows = [];
-  const own = results && typeof results.units === "object" && !Array.isArray(results.units) ? results.units : {};
-  const u = { ...units, ...own };
+// {coefficients: {name: {value, sigma, ...}}, units: {name: unit}} or {name: {value, sigma, unit}}, at any depth
+// (lists of per-block results too); a quantity stated twice in one block (plain, then with its GUM budget) once.
+// The same reading as station/coefficients.py (coefficient_rows, suffix_unit), for the browser.
+const SUFFIX_UNITS = [["_g_per_s", "g/s"], ["_radps", "rad/s"], ["_mps2", "m/s^2"], ["_arcsec", "arcsec"],
+  ["_ppm", "ppm"], ["_rad", "rad"], ["_deg", "deg"], ["_hz", "Hz"], ["_m", "m"], ["_s", "s"], ["_g", "g"],
+  ["_v", "V"], ["_c", "°C"]];
+
+export function suffixUnit(...names) {
+  if (names.length && names[0].toLowerCase().endsWith("_per_s")) {
+    return `${suffixUnit(names[0].slice(0, -"_per_s".length), ...names.slice(1)) || "1"}/s`;
+  }
+  for (const name of names) {
+    const hit = SUFFIX_UNITS.find(([suffix]) => name.toLowerCase().endsWith(suffix));
+    if (hit) return hit[1];
+  }
+  return "";
+}
+
+function* walkQuantities(doc, where, units) {
   const isNumber = (x) => typeof x === "number" && Number.isFinite(x);
-  for (const [key, item] of Object.entries(results || {})) {
-    if (!item || typeof item !== "object" || Array.isArray(item) || key === "units") continue;
-    if (key === "coefficients") { rows.push(...coefficientRows(item, where, u)); continue; }
+  const own = doc && typeof doc.units === "object" && !Array.isArray(doc.units) ? doc.units : {};
+  const u = { ...units, ...own };
+  for (const [key, item] of Object.entries(doc || {})) {
+    if (Array.isArray(item)) {
+      for (const [i, element] of item.entries()) {
+        if (element && typeof element === "object" && !Array.isArray(element)) {
+          yield* walkQuantities(element, where ? `${where}.${key}[${i}]` : `${key}[${i}]`, u);
+        }
+      }
+      continue;
+    }
+    if (!item || typeof item !== "object" || key === "units") continue;
+    if (key === "coefficients") { yield* walkQuantities(item, where, u); continue; }
     if ("value" in item && (item.value === null || isNumber(item.value))) {
       const budget = isNumber(item.standard_uncertainty) && isNumber(item.expanded_uncertainty) && isNumber(item.coverage_factor);
       const sigma = isNumber(item.sigma) ? item.sigma : null;
       const std = budget ? item.standard_uncertainty : sigma;
       const k = budget ? item.coverage_factor : COVERAGE_K;
-      rows.push({ result: where || key, name: key, value: item.value, u: std, k, unit: item.unit ?? u[key] ?? "",
-        expanded: budget ? item.expanded_uncertainty : std === null ? null : k * std, note: item.note || "", budget });
-    } else rows.push(...coefficientRows(item, where ? `${where}.${key}` : key, u));
+      const unit = item.unit || u[key] || suffixUnit(key, where.split(".").at(-1) || "");
+      yield { result: where || key, name: key, value: item.value, u: std, k, unit,
+        expanded: budget ? item.expanded_uncertainty : std === null ? null : k * std, note: item.note || "", budget };
+    } else yield* walkQuantities(item, where ? `${where}.${key}` : key, u);
   }
-  return rows;
+}
+
+const blockOf = (path) => (path.lastIndexOf("]") >= 0 ? path.slice(0, path.lastIndexOf("]") + 1) : path.split(".")[0]);
+
+export function coefficientRows(results) {
+  const best = new Map();
+  for (const row of walkQuantities(results, "", {})) {
+    const key = `${blockOf(row.result)}\u0000${row.name}`;
+    const old = best.get(key);
+    const rank = (r) => 2 * Number(r.budget) + Number(Boolean(r.unit));
+    if (!old) best.set(key, row);
+    else if (rank(row) > rank(old)) best.set(key, { ...row, result: old.result });
+  }
+  return [...best.values()];
 }
