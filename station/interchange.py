@@ -315,6 +315,7 @@ def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
     if npz and h5.exists():
         raise SessionFormatError(RAW_FILE, "a session has raw/*.npz or raw.h5, not both")
     if h5.exists():
+        digests: dict[str, bytes] = {}
         try:
             with h5py.File(h5, "r", locking=False) as f:
                 for pid in f:
@@ -327,11 +328,15 @@ def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
                     for key in group:
                         if group[key].nbytes > MAX_ARRAY_BYTES:
                             raise SessionFormatError(name, f"array larger than {MAX_ARRAY_BYTES >> 20} MiB", column=key)
-                    _check_raw({k: group[k][()] for k in group}, name)
-                found = list(f)
+                    arrays = {k: group[k][()] for k in group}
+                    _check_raw(arrays, name)
+                    digests[pid] = raw_digest(RawStreams(**{k: arrays.get(k) for k in RAW_FIELDS}))
+                    del arrays  # one point's arrays in memory at a time
         except OSError as exc:
             raise SessionFormatError(RAW_FILE, f"not a readable HDF5 file ({exc})") from None
-        return LazyRaw.of_file(h5, found)
+        lazy = LazyRaw.of_file(h5, list(digests))
+        lazy.digests = digests
+        return lazy
     raws: dict[str, RawStreams] = {}
     for path in npz:
         name = f"raw/{path.name}"
@@ -470,11 +475,19 @@ def content_hash(session: Session) -> str:
     for m in session.measurements:
         for name in sorted(m.arrays):
             _digest_array(h, f"{m.key}/{name}", np.asarray(m.arrays[name]))
+    known = getattr(session.raw, "digests", {})  # raw.h5's points were digested as the import checked them
     for pid in sorted(session.raw):
-        r = session.raw[pid]
-        for name in ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t"):
-            _digest_array(h, f"{pid}/{name}", getattr(r, name))
+        h.update(pid.encode())
+        h.update(known.get(pid) or raw_digest(session.raw[pid]))
     return h.hexdigest()
+
+
+def raw_digest(raw: RawStreams) -> bytes:
+    """SHA-256 of one point's raw arrays (dtype, shape and bytes of each)."""
+    h = hashlib.sha256()
+    for name in RAW_FIELDS:
+        _digest_array(h, name, getattr(raw, name))
+    return h.digest()
 
 
 def _fmt(value) -> str:

@@ -91,6 +91,7 @@ class LazyRaw(Mapping[str, RawStreams]):
     def __init__(self, locations: Mapping[str, tuple[Path, str]], loaded: Mapping[str, RawStreams] = ()) -> None:
         self._where = dict(locations)  # point_id -> (file, group inside it; "/" for a file of its own)
         self._loaded = dict(loaded)  # points already in memory (raw streams of an older store's blobs)
+        self.digests: dict[str, bytes] = {}  # point_id -> SHA-256 of its arrays, where a reader computed it
 
     @classmethod
     def of_file(cls, path: Path, point_ids: Iterable[str]) -> LazyRaw:
