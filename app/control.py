@@ -50,11 +50,13 @@ from engine.context import ValidationError
 from engine.params import ParameterError
 from engine.registry import ProcedureError
 from station.jsonsafe import json_safe
+from station.provenance import ProvenanceError
 from station.store import StoreError
 
 log = logging.getLogger(__name__)
 REQUEST_ERRORS = (
     ControlError, ProcedureError, ParameterError, ValidationError, DriverError, StoreError, KeyError, TypeError,
+    ProvenanceError,
 )  # fmt: skip
 CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge", "reset")
 MAX_REQUEST_BYTES = 64 * 1024  # a start with a few hundred positions is under 10 kB

@@ -68,9 +68,8 @@ def test_a_session_without_provenance_exports_without_inventing_one(tmp_path):
     assert "provenance" not in json.loads((d / "session.json").read_text())
 
 
-def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
-    """A run started over the control channel on behalf of a logged-in user records that user; the station file's
-    id, the simulated station's seed and the serial given go with it."""
+def _control_rig(tmp_path, seed: int):
+    """A simulated station under a controller and its control channel (closed by the caller's ExitStack)."""
     from app.control import ControlClient, ControlServer
     from app.controller import StationController
     from devices.config import load_station_config
@@ -78,18 +77,46 @@ def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
     from models.config import default_twin
 
     config = load_station_config(CONFIG / "station-sim.toml")
-    quick = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 5, "settle_s": 0}
-    with simulated_station(config, default_twin(), seed=23, speed=1000.0) as sim, SessionStore(tmp_path / "s.db") as db:
-        controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)
-        server = ControlServer(controller, "tcp://127.0.0.1:*", token="t" * 32).start()
-        try:
-            client = ControlClient(server.endpoint, token="t" * 32, timeout_s=20)
-            args = {"procedure": "seed000.integral_precession", "params": quick, "instrument_serial": "PIGA-7"}
-            uid = client.request("start", args, user="alice")["result"]["session_uid"]
-            controller.wait(120)
-        finally:
-            server.close()
+    sim = simulated_station(config, default_twin(), seed=seed, speed=1000.0)
+    db = SessionStore(tmp_path / "s.db")
+    controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)
+    server = ControlServer(controller, "tcp://127.0.0.1:*", token="t" * 32).start()
+    client = ControlClient(server.endpoint, token="t" * 32, timeout_s=20)
+    return sim, db, controller, server, client
+
+
+QUICK = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 5, "settle_s": 0}
+
+
+def test_a_real_station_refuses_a_start_from_the_panel_without_a_serial(tmp_path):
+    import dataclasses
+
+    sim, db, controller, server, client = _control_rig(tmp_path, seed=1)
+    try:
+        sim.devices.config = dataclasses.replace(sim.devices.config, simulated=False, station_id="lab-2")
+        reply = client.request("start", {"procedure": "seed000.integral_precession", "params": QUICK}, user="bob")
+        assert not reply["ok"] and reply["error"]["type"] == "ProvenanceError"
+        assert "'lab-2' is a real station" in reply["error"]["message"]
+        assert db.sessions() == [] and not controller.busy  # nothing started, nothing stored
+    finally:
+        server.close()
+        sim.close()
+        db.close()
+
+
+def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
+    """A run started over the control channel on behalf of a logged-in user records that user; the station file's
+    id, the simulated station's seed and the serial given go with it."""
+    sim, db, controller, server, client = _control_rig(tmp_path, seed=23)
+    try:
+        args = {"procedure": "seed000.integral_precession", "params": QUICK, "instrument_serial": "PIGA-7"}
+        uid = client.request("start", args, user="alice")["result"]["session_uid"]
+        controller.wait(120)
         prov = db.provenance(uid)
+    finally:
+        server.close()
+        sim.close()
+        db.close()
     assert (prov["operator"], prov["station_id"], prov["seed"], prov["simulated"]) == ("alice", "station-sim", 23, True)
     assert prov["instrument_serial"] == "PIGA-7"
 
