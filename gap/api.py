@@ -427,7 +427,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="EFFECT",
         help="leave an effect out of the candidate library (repeatable)",
     )
-    p.add_argument("--max-effects", type=int, default=MAX_EFFECTS)
+    p.add_argument("--max-effects", type=int, default=MAX_EFFECTS,
+                   help=f"at most this many effects added to the twin (default {MAX_EFFECTS})")  # fmt: skip
     p.add_argument("--no-suggest", action="store_true", help="skip the search for separating test points")
     return p
 

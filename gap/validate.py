@@ -463,16 +463,35 @@ def run(
     }
 
 
+def _positive(kind: type, zero: bool = False):
+    """argparse type: a number of `kind` > 0 (>= 0 with zero=True), else a clear error naming what is allowed."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a{'n integer' if kind is int else ' number'}") from None
+        if not (value >= 0 if zero else value > 0) or value != value:
+            raise argparse.ArgumentTypeError(f"{text} is not allowed: {'>= 0' if zero else '> 0'} expected")
+        return value
+
+    return parse
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="station gap-validate", description=__doc__.split("\n\n")[0])
-    p.add_argument("--design", choices=[*DESIGNS, "both"], default="both")
-    p.add_argument("--snr", type=float, nargs="+", default=[5.0, 10.0, 20.0])
-    p.add_argument("--reps", type=int, default=3, help="sessions per effect and SNR")
-    p.add_argument("--nulls", type=int, default=20, help="null sessions per design")
-    p.add_argument("--effects", nargs="*", choices=list(INJECTIONS), default=list(INJECTIONS), metavar="EFFECT")
-    p.add_argument("--out-of-library", nargs="*", choices=OUT_OF_LIBRARY, default=list(OUT_OF_LIBRARY))
+    p.add_argument("--design", choices=[*DESIGNS, "both"], default="both",
+                   help="the session design the effects are injected into (default: both)")  # fmt: skip
+    p.add_argument("--snr", type=_positive(float), nargs="+", default=[5.0, 10.0, 20.0],
+                   help="signal-to-noise ratios of the injected effects, each > 0 (default: 5 10 20)")  # fmt: skip
+    p.add_argument("--reps", type=_positive(int), default=3, help="sessions per effect and SNR, >= 1")
+    p.add_argument("--nulls", type=_positive(int, zero=True), default=20, help="null sessions per design, >= 0")
+    p.add_argument("--effects", nargs="*", choices=list(INJECTIONS), default=list(INJECTIONS), metavar="EFFECT",
+                   help=f"effects of the library to inject (default: all: {', '.join(INJECTIONS)})")  # fmt: skip
+    p.add_argument("--out-of-library", nargs="*", choices=OUT_OF_LIBRARY, default=list(OUT_OF_LIBRARY),
+                   help="effects outside the library, which must not be explained (default: all)")  # fmt: skip
     p.add_argument("--leave-one-out", action="store_true", help="also inject each effect left out of the library")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=int, default=1, help="random seed of the simulated sessions (default 1)")
     add_executor_options(p)  # --executor local|dask, --scheduler, --results CASES.jsonl (resumed), --workers
     p.add_argument("--json", metavar="OUT.json", help="write every case and the scores here")
     p.add_argument("--quiet", action="store_true", help="no line per case on standard error")

@@ -9,6 +9,7 @@ replacing a password and requires --role.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -68,7 +69,9 @@ CASES = [
     ("import {d} --db {d}/x.sqlite", "session.json"),
     ("gap {d}/nope --json {d}/g.json", "not a directory"),
     ("gap --bogus", "required"),
-    ("gap-validate --snr abc", "--snr: invalid float value"),
+    ("gap-validate --snr abc", "--snr: 'abc' is not a number"),
+    ("gap-validate --snr 0", "--snr: 0 is not allowed: > 0 expected"),
+    ("gap-validate --reps -1", "--reps: -1 is not allowed: > 0 expected"),
     ("sync {d}/nope.sqlite --to postgresql://station@127.0.0.1:1/db --arrays {d}/arrays", "no session store there"),
     ("sync", "the following arguments are required"),
     ("panel --config {d}/nope.toml", "no such file"),
@@ -119,12 +122,31 @@ def test_every_subcommand_is_covered_and_every_option_has_help():
     sub = next(a for a in parser._actions if a.dest == "command")
     covered = {c[0].split()[0] for c in CASES}
     assert set(sub.choices) <= covered, set(sub.choices) - covered
-    for name, p in sub.choices.items():
-        if name in ("gap", "gap-validate"):  # they parse their own arguments (gap/api.py, gap/validate.py)
+    from gap.api import build_parser as gap_parser
+
+    parsers = {**sub.choices, "gap": gap_parser()}  # `station gap` parses its own arguments (gap/api.py)
+    for name, p in parsers.items():
+        if name == "gap-validate":  # its parser lives inside gap.validate.main: its --help is checked below
             continue
         for action in p._actions:
             if action.dest != "help":
                 assert action.help, f"station {name}: {action.option_strings or action.dest} has no help text"
+
+
+def test_gap_validate_explains_every_option(capsys):
+    """Its parser lives in gap.validate.main: every option in its --help has text, on its line or the next."""
+    from gap.validate import main as validate_main
+
+    with pytest.raises(SystemExit):
+        validate_main(["--help"])
+    text = capsys.readouterr().out
+    lines = text[text.index("options:") :].splitlines()[1:]
+    for i, line in enumerate(lines):
+        option = re.match(r"^  (-\S.*?)(?:\s{2,}(\S.*))?$", line)
+        if option:
+            following = lines[i + 1] if i + 1 < len(lines) else ""
+            explained = option.group(2) or re.match(r"^ {10,}\S", following)
+            assert explained, f"station gap-validate {option.group(1)} has no help text"
 
 
 def test_panel_user_asks_before_replacing_a_password(tmp_path):
