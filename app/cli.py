@@ -260,8 +260,11 @@ def build_parser() -> argparse.ArgumentParser:
             help=f"simulated station seconds per wall second, > 0 (default {DEFAULT_SPEED:g}; ignored by a real "
             "station)",
         )
-        p.add_argument("--serial", help="instrument serial number (default: the procedure file's instrument_serial; "
-                       "required on a real station, SIM-PIGA-0001 on a simulated one)")
+        p.add_argument(
+            "--serial",
+            help="instrument serial number (default: the procedure file's instrument_serial; "
+            "required on a real station, SIM-PIGA-0001 on a simulated one)",
+        )
         p.add_argument("--telemetry", metavar="ENDPOINT", help="publish telemetry on this zmq endpoint")
         p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
 
@@ -354,10 +357,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"station {args.command}: error: {exc} (an endpoint is tcp://HOST:PORT, ipc://PATH or inproc://NAME,"
               f" and its port must be free)", file=sys.stderr)  # fmt: skip
         return 2
-
-
-if __name__ == "__main__":
     except KeyboardInterrupt:  # Ctrl-C before a run started or after it ended: nothing is moving
         print(f"station {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+if __name__ == "__main__":
     sys.exit(main())

@@ -109,9 +109,9 @@ class Progress:
 
 
 Publisher = Callable[[str, dict], None]
-WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second
 POINT_REPEATS = 2  # a point that meets a transient fault is measured again at most this many times
 log = logging.getLogger(__name__)
+WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second
 TRACE_POINTS = 250  # samples per trace message, at most
 
 
@@ -126,8 +126,8 @@ class Engine:
         supervisor: MotionSupervisor | None = None,
     ) -> None:
         self.hw = hardware
-        self.clock = hardware.clock
         self.supervisor = supervisor or MotionSupervisor(hardware)
+        self.clock = hardware.clock
         self.store = store
         self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user
         self.publish: Publisher = publish or (lambda topic, msg: None)
@@ -146,8 +146,8 @@ class Engine:
         self._session_uid = ""
         self._estimates: dict[str, float] = {}
         self._step_started_s = 0.0
-
         self._session_lock: SessionLock | None = None
+
     # ---- control, from any thread ---------------------------------------------------------
 
     def pause(self) -> None:
@@ -345,7 +345,6 @@ class Engine:
         self._publish_progress()
         return result
 
-    def provenance(self, instrument_serial: str) -> dict[str, Any]:
     def _measure(self, step: Step) -> Any:
         """One measuring step; a transient fault repeats it (the policy in the module docstring)."""
         for attempt in range(POINT_REPEATS + 1):
@@ -359,6 +358,7 @@ class Engine:
                 self.publish("fault", {"kind": "repeat", "message": msg})
         raise AssertionError("unreachable")
 
+    def provenance(self, instrument_serial: str) -> dict[str, Any]:
         """Where a new session comes from (station.provenance): the station file's id, simulated or real, the
         seed, the operator; ProvenanceError on a real station without an instrument serial number."""
         cfg = getattr(self.hw, "config", None)
@@ -377,8 +377,8 @@ class Engine:
                 self._session_lock = SessionLock(self.store.path, self._session_uid)
             self.sequence = 0
             return {}
-        self._session_uid = resume_uid
         self._session_lock = SessionLock(self.store.path, resume_uid)  # SessionLocked for a second process
+        self._session_uid = resume_uid
         session = self.store.load_session(resume_uid, with_raw=False)
         done: dict[str, Any] = {p.point_id: p for p in session.points}
         done |= {m.key: m for m in session.measurements}
