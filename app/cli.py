@@ -7,6 +7,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -60,6 +61,17 @@ def positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text} is not allowed: station seconds per wall second must be a finite "
                                          "number > 0, e.g. 1 (real time) or 1000")  # fmt: skip
     return value
+
+
+ENDPOINT = re.compile(r"^(tcp://([^:/\s\[\]]+|\[[0-9A-Fa-f:.]+\]):(\d{1,5}|\*)|ipc://\S+|inproc://\S+)$")
+
+
+def zmq_endpoint(text: str) -> str:
+    """argparse type of --control and --telemetry: a zmq endpoint tcp://HOST:PORT, ipc://PATH or inproc://NAME."""
+    if not ENDPOINT.match(text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not an endpoint: allowed tcp://HOST:PORT (e.g. "
+                                         "tcp://127.0.0.1:5561), ipc://PATH or inproc://NAME")  # fmt: skip
+    return text
 
 
 def existing_store(path: str | Path) -> Path:
@@ -265,7 +277,8 @@ def build_parser() -> argparse.ArgumentParser:
             help="instrument serial number (default: the procedure file's instrument_serial; "
             "required on a real station, SIM-PIGA-0001 on a simulated one)",
         )
-        p.add_argument("--telemetry", metavar="ENDPOINT", help="publish telemetry on this zmq endpoint")
+        p.add_argument("--telemetry", metavar="ENDPOINT", type=zmq_endpoint,
+                       help="publish telemetry on this zmq endpoint (tcp://HOST:PORT)")  # fmt: skip
         p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
 
     p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
@@ -286,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("serve", help="keep a station under remote control (for the web panel)")
     station_options(p)
     p.add_argument("--name", default="station", help="station id in telemetry topics (default: station)")
-    p.add_argument("--control", default="tcp://127.0.0.1:5560",
+    p.add_argument("--control", default="tcp://127.0.0.1:5560", type=zmq_endpoint,
                    help="control endpoint (zmq REP) to bind (default tcp://127.0.0.1:5560)")  # fmt: skip
     p.add_argument("--token-env", metavar="VAR", help="require the control token held in this environment variable")
     add_serve_options(p)  # --sync-to URL --sync-arrays DIR

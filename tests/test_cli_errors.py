@@ -58,6 +58,8 @@ CASES = [
     ("serve --speed 0 --out {d}/o", "--speed: 0 is not allowed"),
     ("serve --token-env STATION_TEST_UNSET_VAR --out {d}/o", "STATION_TEST_UNSET_VAR"),
     ("serve --station {d}/nope.toml --out {d}/o", "nope.toml"),
+    ("serve --control garbage --out {d}/o", "--control: 'garbage' is not an endpoint: allowed tcp://HOST:PORT"),
+    ("calibrate --telemetry 127.0.0.1:5561 --out {d}/o", "--telemetry: '127.0.0.1:5561' is not an endpoint"),
     ("identify {d}/nope", "not a directory"),
     ("identify {d}", "session.json"),
     ("identify {d} --method nope", "invalid choice: 'nope'"),
