@@ -50,6 +50,11 @@ class ChecksumError(FrameError):
     """A reply's checksum or CRC did not match."""
 
 
+class ReplyLost(DeviceTimeout, TransientFault):
+    """A command's reply never arrived (dropped or garbled beyond recognition) on a link that otherwise works:
+    transient where the command can be undone (the counter's ARM: abort, then arm again)."""
+
+
 class LostSamples(DriverError, TransientFault):  # noqa: N818
     """A stream lost samples (a FIFO overflow, a host stall): transient, the stretch or point may be repeated."""
 

@@ -78,7 +78,7 @@ from devices.counter_timer.protocol import (
     STATUS_PAYLOAD,
     STATUS_Q,
 )
-from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
+from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError, ReplyLost
 from devices.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from engine.protocols import Event, WindowResult
 from station.clock import Clock
@@ -159,7 +159,10 @@ class CounterTimer(FramedDevice):
         self._next_edge = self._next_ref = 0
         self._opened = self._closed = False
         self._unwrap.reset()
-        self._command(ARM, ARM_PAYLOAD.pack(preset_pulses, flags), retries=0, what="ARM")
+        try:
+            self._command(ARM, ARM_PAYLOAD.pack(preset_pulses, flags), retries=0, what="ARM")
+        except DeviceTimeout as exc:  # a lost reply (a garbled frame): undone by abort(), so the point may repeat
+            raise ReplyLost(DEVICE, f"{exc}; the board may be armed: abort() before arming again") from exc
 
     def abort(self) -> None:
         """Abort any window (idempotent, retried)."""

@@ -103,9 +103,9 @@ def _target_reached(statusword: int) -> bool:
     return bool(statusword & SW_TARGET_REACHED)
 
 
-def _quick_stop_done(statusword: int) -> bool:
-    """Quick stop option 2 ends in SWITCH ON DISABLED once the crank is at rest."""
-    return state_of(statusword) == "SWITCH ON DISABLED"
+def _at_rest_stopped(statusword: int) -> bool:
+    """After a quick stop with option QUICK_STOP_OPTION (2): SWITCH ON DISABLED, or FAULT if the drive faulted."""
+    return state_of(statusword) in ("SWITCH ON DISABLED", "FAULT")
 
 
 @dataclass(frozen=True)
@@ -509,11 +509,13 @@ class VibrationTableServo:
         return self._command(0.0, ramp, wait=True)
 
     def quick_stop(self) -> ServoReading:
-        """Emergency stop: quick stop (0x6085 deceleration), sent without precondition."""
+        """Emergency stop: quick stop (0x6085 deceleration), sent without precondition, and waited for until the
+        crank reads zero, whatever error is latched (a lost heartbeat, a fault: the TPDOs still tell the speed);
+        DeviceTimeout only if the speed cannot be seen reaching zero within the quick-stop ramp + RAMP_MARGIN_S."""
         seq = self._tpdo.seq(0x606C)
         self._send_controlword(CW_QUICK_STOP)
         timeout_s = abs(self._actual_hz()) / self._qs_decel_hz_per_s + RAMP_MARGIN_S
-        return self._wait_speed(0.0, seq, timeout_s, _quick_stop_done)
+        return self._wait_speed(0.0, seq, timeout_s, _at_rest_stopped, supervised=False)
 
     def reset_fault(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> None:
         """Fault reset (rising edge of controlword bit 7), confirmed by the statusword.
@@ -631,14 +633,18 @@ class VibrationTableServo:
         timeout_s = abs(freq_hz - from_hz) / ramp_hz_per_s + RAMP_MARGIN_S
         return self._wait_speed(freq_hz, seq, timeout_s, _target_reached)
 
-    def _wait_speed(self, freq_hz: float, seq: int, timeout_s: float, done: Callable[[int], bool]) -> ServoReading:
-        """Wait for a velocity TPDO within AT_SPEED_TOL_HZ of freq_hz with done(statusword)."""
+    def _wait_speed(
+        self, freq_hz: float, seq: int, timeout_s: float, done: Callable[[int], bool], *, supervised: bool = True
+    ) -> ServoReading:
+        """Wait for a velocity TPDO within AT_SPEED_TOL_HZ of freq_hz with done(statusword); supervised: a latched
+        error ends the wait at once."""
         deadline = time.monotonic() + timeout_s
         actual_hz = None
         while True:
             remaining_s = deadline - time.monotonic()
             got = self._tpdo.wait(0x606C, seq, max(remaining_s, 0.0))
-            self.check()
+            if supervised:
+                self.check()
             if got is not None:
                 counts, seq, t_s = got
                 actual_hz = counts * VELOCITY_UNIT_HZ

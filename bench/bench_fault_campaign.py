@@ -1,0 +1,43 @@
+"""The fault campaign's table: every emulator fault, during a window and between windows, through the real drivers,
+emulators, engine, supervisor and store; time to the typed error, time to a safe state, outcome.
+
+    .venv/bin/python bench/bench_fault_campaign.py
+
+Runs the cases of tests/test_fault_campaign.py (the same code: `run_case`) and prints a markdown table for
+BENCHMARKS.md. Times are wall seconds from the injection; the simulated station runs at the case's speed.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from test_fault_campaign import CASES, PHASES, run_case  # noqa: E402
+
+
+def main() -> None:
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
+    print("| fault | injected | typed error (first fault reported) | error after, s | safe state after, s | outcome |")
+    print("|---|---|---|---:|---:|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in CASES:
+            for phase in PHASES:
+                r = run_case(case, phase, Path(tmp))
+                kind = r.fault.split(":")[0] if not r.fault.startswith("repeat") else r.fault.split(": ")[2]
+                safe = "point repeated" if r.safe_s is None else f"{r.safe_s:.3f}"
+                where = "during a window" if phase == "window" else "between windows"
+                print(
+                    f"| {case.name} | {where} | {kind} | {r.detect_s:.3f} | {safe} | {r.state.split('/')[1]}, "
+                    f"{r.points} points kept |",
+                    flush=True,
+                )
+
+
+if __name__ == "__main__":
+    main()
