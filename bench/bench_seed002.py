@@ -8,14 +8,18 @@ session: `seed002.g_sensitive_misalignment` with config/procedures/seed002_g_sen
 table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 0.5 g 20 Hz x6, 1 g 20 Hz
     x6, 2 g 20 Hz x3, random 0.7 g RMS 10-60 Hz x3, along the SINS's diagonal, 15-minute alignment,
     10-minute vibration) made off line from the twin (methods.seed002.vibration_run), compensated with the
-    estimate of an off-line calibration of the same lengths: the percentage decrease of each.
+    estimate of an off-line calibration of the same lengths: the percentage decrease of each. Run i has its
+    own generator (seed [SEED, i]), so the 27 runs fan out with the same figures on every executor
+    (station/fanout.py).
 
-    .venv/bin/python bench/bench_seed002.py [session|table2|all] [--seed N]
+    .venv/bin/python bench/bench_seed002.py [session|table2|all] [--seed N] [--executor local|dask]
+        [--scheduler ADDRESS] [--workers W] [--results CASES.jsonl]
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import tempfile
 import time
@@ -35,6 +39,7 @@ from models.fixture_poses import CALIBRATION_POSES, POSES
 from models.shaker_motion import random_drive, sine_drive
 from models.strapdown_imu import ARCSEC_PER_G, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
 from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -94,21 +99,29 @@ def offline_calibration(twin: StrapdownImuTwin, rng: np.random.Generator) -> np.
     return fit.values
 
 
-def table2(seed: int) -> None:
+def table2_run(case: tuple[int, float, float], seed: int, tau_hat: list[float]) -> float:
+    """Decrease of the velocity error (%) of verification run `case` = (i, level g, frequency Hz; 0: random)."""
+    i, level, freq = case
+    twin, rng = StrapdownImuTwin(), np.random.default_rng([seed, i])
+    drive = random_drive(level, 10.0, 60.0, G_MPS2, rng) if freq == 0 else sine_drive(freq, level, G_MPS2)
+    run = simulate_run(twin, SITE, POSES[10], drive, rate_hz=RATE_HZ, align_s=ALIGN_S, vibrate_s=VIBRATE_S,
+                       ramp_s=2.0, rng=rng)  # fmt: skip
+    return navigate(record(run), SITE, np.asarray(tau_hat), round(VELOCITY_BLOCK_S * RATE_HZ)).decrease
+
+
+def table2(seed: int, spec: ExecutorSpec | None = None, results: str | None = None) -> None:
     twin, rng = StrapdownImuTwin(), np.random.default_rng(seed)
     wall = time.perf_counter()
     tau_hat = offline_calibration(twin, rng)
     print("\n| vibration | decrease of the velocity error, % (27 runs along the SINS's diagonal) |")
     print("|---|---|")
-    decreases = []
-    for label, level, freq, count in TABLE2:
-        row = []
-        for _ in range(count):
-            drive = random_drive(level, 10.0, 60.0, G_MPS2, rng) if freq == 0 else sine_drive(freq, level, G_MPS2)
-            run = simulate_run(twin, SITE, POSES[10], drive, rate_hz=RATE_HZ, align_s=ALIGN_S, vibrate_s=VIBRATE_S,
-                               ramp_s=2.0, rng=rng)  # fmt: skip
-            row.append(navigate(record(run), SITE, tau_hat, round(VELOCITY_BLOCK_S * RATE_HZ)).decrease)
-        decreases += row
+    labels = [label for label, _, _, count in TABLE2 for _ in range(count)]
+    runs = [(i, level, freq) for i, (level, freq) in enumerate((lv, f) for _, lv, f, n in TABLE2 for _ in range(n))]
+    one = functools.partial(table2_run, seed=seed, tau_hat=[float(x) for x in tau_hat])
+    spec = spec or ExecutorSpec("local", workers=1)
+    decreases = run_cases(one, runs, spec, results=results, settings={"bench": "seed002.table2", "seed": seed})
+    for label, *_ in TABLE2:
+        row = [d for name, d in zip(labels, decreases, strict=True) if name == label]
         print(f"| {label} | {', '.join(f'{d:.1f}' for d in row)} |")
     d = np.array(decreases)
     print(f"\nabove 30 %: {np.mean(d > 30) * 100:.0f} % of the runs (seed: about 82 %); median {np.median(d):.1f} %; "
@@ -119,11 +132,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("part", nargs="?", default="all", choices=("session", "table2", "all"))
     parser.add_argument("--seed", type=int, default=2)
+    add_executor_options(parser)
     args = parser.parse_args()
     if args.part in ("session", "all"):
         session(args.seed)
     if args.part in ("table2", "all"):
-        table2(args.seed)
+        table2(args.seed, spec_from_args(args), args.results)
 
 
 if __name__ == "__main__":
