@@ -123,6 +123,8 @@ class History:
         if isinstance(s.store, CentralStore):
             return self._central_row(s.store.row(uid))
         row = next(r for r in s.store.sessions() if r["uid"] == uid)
+        if row["status"] == "running" and uid in recover_interrupted(s.store):  # crashed since the panel started
+            row = next(r for r in s.store.sessions() if r["uid"] == uid)
         return row | {"stations": [e.name for e in s.stations]}
 
     def record(self, uid: str) -> dict:

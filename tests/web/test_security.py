@@ -211,3 +211,24 @@ def test_request_bodies_over_the_limit_get_413_declared_or_streamed() -> None:
             yield b"x" * 300
 
     assert client.post("/", content=chunks()).status_code == 413
+
+
+def test_a_session_left_running_by_a_dead_process_is_interrupted_reportable_and_diagnosable(panel, log_in) -> None:
+    from models.config import default_twin
+    from models.plan import seed000_plan
+    from models.session_sim import simulate_session
+    from station.store import SessionStore
+
+    client, config = panel
+    session = simulate_session(seed000_plan(), default_twin(), 5, raw=False, notes="crashed")
+    with SessionStore(config.stations[0].store) as store:  # as a killed station leaves it: running, no lock
+        uid = store.create_session(session.station, "seed000.integral_precession", config={"params": {}})
+        for p in session.points:
+            store.add_point(uid, p)
+    olga = log_in(client, "olga")
+    assert olga.get(f"/api/sessions/{uid}").json()["session"]["status"] == "interrupted"
+    assert olga.get(f"/api/sessions/{uid}/report").status_code == 200
+    gap = olga.get(f"/api/sessions/{uid}/gap")
+    assert gap.status_code == 200, gap.text
+    resume = olga.post("/api/stations/sim/resume-session", json={"uid": uid})
+    assert resume.status_code == 502  # allowed (not 409): the placeholder station is not served
