@@ -1,4 +1,5 @@
-"""Gap-diagnosis speed: a 40-point seed-000 session diagnosed on one core (goal: under 10 s, issue 3 point 7).
+"""Gap-diagnosis speed on one core: 40-point seed-000 sessions, and sessions of 40, 160 and 640 points
+(goal: a 640-point session under 10 s, issue 10 point 7; cost linear in points).
 
 Null, in-library (cross_coupling) and out-of-library (bias_step) sessions at SNR 10,
 each diagnosed as `station gap` does (with the search for separating test
@@ -6,7 +7,11 @@ points) and without that search; median of REPEATS runs after a warm-up. BLAS
 threads are pinned to one before numpy loads, and the process to one core
 where the OS allows it.
 
-    .venv/bin/python bench/bench_gap.py
+Sizes: 16 equal-angle positions x (9 frequencies in 2-10 Hz + static), 60 s windows = 160 points,
+repeated 4 times = 640 points; and the 40-point seed-000 design. CPU seconds are the figure to quote
+on a shared machine (wall time includes other processes' load).
+
+    .venv/bin/python bench/bench_gap.py [--sizes-only]
 """
 
 from __future__ import annotations
@@ -37,7 +42,22 @@ def _time(session, twin, suggest: bool) -> tuple[float, float, str]:
     return statistics.median(walls), statistics.median(cpus), report.verdict.verdict
 
 
+SIZE_FREQS_HZ = (2.0, 3.5, 5.0, 6.0, 7.0, 8.0, 8.5, 9.0, 10.0)
+
+
+def size_sessions(twin):
+    """(points, session) of 40, 160 and 640 points (module docstring)."""
+    from models.plan import equal_angle_positions_deg, multiposition_plan, seed000_plan
+    from models.session_sim import simulate_session
+
+    plan160 = multiposition_plan(equal_angle_positions_deg(16), SIZE_FREQS_HZ, window_s=60.0)
+    for plan in (seed000_plan(), plan160, plan160 * 4):
+        yield len(plan), simulate_session(plan, twin, 5)
+
+
 def main() -> None:
+    import sys
+
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     from gap.api import diagnose
@@ -46,6 +66,15 @@ def main() -> None:
 
     twin = default_twin()
     rows = []
+    for n, session in size_sessions(twin):
+        for suggest in (False, True):
+            w, c = time.perf_counter(), time.process_time()
+            report = diagnose(session, twin, suggest=suggest)
+            row = {"points": n, "separating_search": suggest, "verdict": report.verdict.verdict}
+            row |= {"wall_s": round(time.perf_counter() - w, 2), "cpu_s": round(time.process_time() - c, 2)}
+            print(json.dumps(row), flush=True)
+    if "--sizes-only" in sys.argv:
+        return
     for kind, effect in CASES:
         session, _ = make_session(Case("seed000", kind, effect, 10.0, 7), twin)
         diagnose(session, twin)  # warm-up

@@ -238,6 +238,12 @@ def _candidate_table(
             # A chosen effect's parameters come from the final joint fit.
             fit = selection.final if name in chosen else s.fit
             entry["parameters"], entry["uncertainty"] = fit.effect_parameters(name)
+            if s.profiled:
+                entry["profiled_parameters"] = {
+                    **s.profiled,
+                    "method": "set by profile on a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50): the grid "
+                    "point whose kx column removes the most chi^2",
+                }
             G, entry["heldout_shrink"] = shrinks.get(name, (math.nan, None))
             entry["evidence"] = {
                 "delta_bic": s.dbic,
@@ -490,6 +496,8 @@ def summary_text(report: GapReport) -> str:
             f"{k} = {_value(val, entry['uncertainty'][k], entry['units'].get(k, ''))}"
             for k, val in entry["parameters"].items()
         )
+        prof = {k: v for k, v in entry.get("profiled_parameters", {}).items() if k != "method"}
+        params += "".join(f", {k} = {val:.3g} (profiled)" for k, val in prof.items())
         sh = entry["heldout_shrink"]
         lines.append(f"  {entry['name']}: {params}" + (f" (held-out shrink alone {sh:.2f})" if sh is not None else ""))
     sh = shrink(report.gap_before, report.gap_after)

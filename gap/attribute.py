@@ -23,7 +23,7 @@ further effect would still have been accepted.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +53,7 @@ class Scored:
     dchi2_tau: float  # of the other channels (period identities and grating)
     rivals: list[str] = field(default_factory=list)  # reproduce the winner (REPRODUCE_CHI2) when chosen
     beyond_bounds: list[str] = field(default_factory=list)  # parameters fitted beyond their plausible bound
+    profiled: dict[str, float] = field(default_factory=dict)  # set parameters chosen by profile (fr, Q)
 
     @property
     def plausible(self) -> bool:
@@ -117,20 +118,68 @@ class Selection:
         return [s.name for s in self.chosen]
 
 
+# Grid of the lateral resonance's frequency and quality factor profiled before kx is fitted (seed 000 6.1.4).
+LATERAL_FR_HZ = tuple(float(x) for x in np.geomspace(0.5, 100.0, 41))
+LATERAL_Q = (0.7, 1.5, 3.0, 6.0, 12.0, 25.0, 50.0)
+
+
+def _gain2(f_hz: np.ndarray, fr_hz: float, q: float) -> np.ndarray:
+    """(L(f) / L0)^2 = 1 / ((1 - (f / fr)^2)^2 + (f / (Q fr))^2) (physics.md, lateral_resonance)."""
+    r = f_hz / fr_hz
+    return 1.0 / ((1.0 - r * r) ** 2 + (r / q) ** 2)
+
+
+def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] | None:
+    """fr and Q of a lateral resonance by profile: kx aO^2 has window mean kx L(f)^2 a^2 <sin^2>, so its
+    column at (fr, Q) is the linearisation's kx column with each vibration row scaled by L(f)^2 / L(f; twin)^2.
+    The (fr, Q) whose column, off the current model, removes the most chi^2 is returned (None without one)."""
+    key = "lateral_resonance.kx"
+    if key not in lin.columns:
+        return None
+    d, ch = lin.ch.design, lin.ch
+    fr0, q0 = lin.base_cfg.param("lateral_resonance", "fr"), lin.base_cfg.param("lateral_resonance", "Q")
+    f = np.concatenate([d.freq_hz, np.zeros(ch.n_other)])
+    col0 = lin.columns[key]
+    J = current.J[:, np.linalg.norm(current.J, axis=0) > 0]
+    Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
+    r = current.r_white
+    best, best_gain = None, 0.0
+    for fr in LATERAL_FR_HZ:
+        for q in LATERAL_Q:
+            c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
+            c = c - Q @ (Q.T @ c)
+            cc = float(c @ c)
+            gain = float(c @ r) ** 2 / cc if cc > 0 else 0.0
+            if gain > best_gain:
+                best, best_gain = {"fr": fr, "Q": q}, gain
+    return best
+
+
 def _step(
     lin: Linearisation,
     current: ModelFit,
     chosen: Sequence[str],
     names: Sequence[str],
     drop: frozenset[str],
+    profiled: Mapping[str, Mapping[str, float]] | None = None,
 ) -> tuple[list[Scored], Scored | None]:
-    """Score every candidate of `names` on top of `current`; the accepted one, if any."""
+    """Score every candidate of `names` on top of `current`; the accepted one, if any.
+
+    profiled: the profiled set parameters of candidates already chosen (kept in later steps)."""
+    profiled = dict(profiled or {})
     n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
     scored = []
     for name in names:
-        fit = fit_model(lin, [*chosen, name], drop=drop)
+        override = profiled.get(name)
+        if name == "lateral_resonance" and override is None:
+            override = lateral_profile(lin, current)
+        over = {name: override} if override else {}
+        over |= {n: v for n, v in profiled.items() if n in chosen}
+        fit = fit_model(lin, [*chosen, name], drop=drop, fixed_override=over)
         if fit.dof_rate > 0:
-            scored.append(score(current, fit, name, n_rate, n_other))
+            sc = score(current, fit, name, n_rate, n_other)
+            sc.profiled = dict(override or {})
+            scored.append(sc)
     scored.sort(key=lambda s: s.bic)
     limit = ALPHA / max(len(scored), 1)
     ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
@@ -156,7 +205,8 @@ def forward_select(
     current, chosen, steps = base, [], []
     remaining = list(names)
     while remaining:
-        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop)
+        profiled = {s.name: s.profiled for s in chosen if s.profiled}
+        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop, profiled)
         if len(chosen) == max_effects:
             return Selection(chosen, steps, current, capped=best is not None)
         steps.append(scored)

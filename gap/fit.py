@@ -20,7 +20,7 @@ scipy.optimize.least_squares (Levenberg-Marquardt) takes over.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -226,6 +226,7 @@ def fit_model(
     lin: Linearisation,
     names: Sequence[str],
     drop: frozenset[str] = frozenset(),
+    fixed_override: Mapping[str, Mapping[str, float]] | None = None,
 ) -> ModelFit:
     """Fit the twin with candidates `names` switched on; parameters in `drop` stay at the twin's value.
 
@@ -239,7 +240,8 @@ def fit_model(
     ch = lin.ch
     cands = [lin.cands[n] for n in names]
     free = tuple(fp for c in cands for fp in c.free if fp.key not in drop)
-    fixed = {c.name: lin.fixed[c.name] for c in cands}
+    override = fixed_override or {}
+    fixed = {c.name: {**lin.fixed[c.name], **override.get(c.name, {})} for c in cands}
     p0 = np.array([lin.p0[fp.key] for fp in free])
     scale = np.array([fp.scale for fp in free])
     u0 = np.zeros(len(free))
@@ -259,7 +261,7 @@ def fit_model(
     def columns_at(u: np.ndarray) -> np.ndarray:
         """Whitened model columns per unit of u (at the twin's own values: from the linearisation)."""
         if u.tobytes() not in columns:
-            if np.any(u):
+            if np.any(u) or any(fp.effect in override for fp in free):
                 columns[u.tobytes()] = _columns_at(ch, state_at(u), cfg_at, u, free, scale)
             else:
                 columns[u.tobytes()] = np.column_stack([lin.columns[fp.key] for fp in free]) * scale

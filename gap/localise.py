@@ -12,7 +12,7 @@ Rate blocks: one offset per position (what a free static level would absorb:
 index and mount angle errors, a bias step between positions); static position
 harmonics {cos k theta, sin k theta}, k = 1..4 (static points); one offset per
 frequency (vibration points); position harmonics a^2 {cos k theta, sin k theta}
-(vibration points); a cubic trend in session time (every point); one offset per
+(vibration points); a cubic trend in session time and its quadratic part alone (every point); one offset per
 run-order block; one point off by itself (the largest studentised deleted
 residual, Bonferroni over the points: seed 000's reliability test, eq. 28, made
 exact). Timing blocks (the period identities t1 + Np T - Tm - t2): a slope in
@@ -106,6 +106,9 @@ def _blocks(ch: Channels) -> dict[str, tuple[np.ndarray, str]]:
             np.column_stack([legendre.legval(x, np.eye(4)[k]) for k in (1, 2, 3)]),
             "cubic trend in session time",
         )
+        # One dof for the commonest smooth drift left after a linear one (a quadratic, a run-in):
+        # more power than the 3-dof cubic block for it.
+        out["time_curvature"] = (legendre.legval(x, np.eye(3)[2])[:, None], "quadratic curvature in session time")
     vidx = np.flatnonzero(d.vib)
     if vidx.size >= 2 * BLOCKS:
         order = vidx[np.argsort(d.sequence[vidx], kind="stable")]

@@ -74,9 +74,20 @@ def family_level(n_tests: int) -> float:
     return ALPHA * n_tests / (n_tests + 1)
 
 
+# Exact aliases of physics.md: a constant parasitic rotation ax0 enters theta_e exactly as dtheta_mount.
+ALIASES = {"mount_misalignment": ("parasitic_rotation",)}
+
+
 def _look_alikes(selection: Selection) -> dict[str, list[str]]:
-    """For each chosen effect, the candidates that reproduce its fit within their bounds on every channel."""
-    return {s.name: list(s.rivals) for s in selection.chosen if s.rivals}
+    """For each chosen effect, the candidates that reproduce its fit within their bounds on every channel,
+    and its exact aliases (ALIASES) unless chosen too."""
+    chosen = {s.name for s in selection.chosen}
+    out = {}
+    for s in selection.chosen:
+        alike = list(s.rivals) + [a for a in ALIASES.get(s.name, ()) if a not in s.rivals and a not in chosen]
+        if alike:
+            out[s.name] = alike
+    return out
 
 
 def _implausible(selection: Selection) -> list[str]:
