@@ -49,6 +49,7 @@ from station.provenance import make_provenance
 from station.session import Session
 from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
+from station.telemetry import ensure_telemetry_keys
 
 
 def positive_float(text: str) -> float:
@@ -158,7 +159,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     with (
         SessionStore(args.db or out / "station.sqlite") as store,
         open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
-        controller_for(config, hw, store, out, telemetry, args.name) as controller,
+        controller_for(
+            config, hw, store, out, telemetry, args.name, ensure_telemetry_keys(out / "telemetry-keys")
+        ) as controller,
     ):
         if args.sync_to:  # each session to the central history once it has ended and its analysis is stored
             controller.after_run.append(SyncAfterRun(store, args.sync_to, args.sync_arrays, args.name))

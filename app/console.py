@@ -191,8 +191,11 @@ def controller_for(
     out_dir: Path,
     telemetry: str | None = None,
     station_id: str = "station",
+    telemetry_keys: Path | None = None,
 ) -> Iterator[StationController]:
-    pub = TelemetryPublisher(telemetry, station_id, hardware.clock) if telemetry else None
+    """The controller of a station, publishing telemetry on `telemetry` (CURVE-encrypted for the holders of
+    `telemetry_keys`' allowed keys only, when given) with its status beacon; closed on exit."""
+    pub = TelemetryPublisher(telemetry, station_id, hardware.clock, keys_dir=telemetry_keys) if telemetry else None
     controller = StationController(hardware, store, config.station_model(), reports_dir=out_dir,
                                    publish=pub.publish if pub else None)  # fmt: skip
     beacon = controller.beacon() if pub else None

@@ -38,8 +38,14 @@ class StationEntry(BaseModel):
     token_file: Path | None = Field(None, description="its control token file (default: control.token beside its "
                                     "store, where `station serve --out DIR` creates it)")  # fmt: skip
 
+    telemetry_keys: Path | None = Field(None, description="its telemetry CURVE keys (default: telemetry-keys "
+                                        "beside its store, where `station serve --out DIR` makes them)")  # fmt: skip
+
     def control_token_file(self) -> Path:
         return self.token_file or self.store.parent / "control.token"
+
+    def telemetry_keys_dir(self) -> Path:
+        return self.telemetry_keys or self.store.parent / "telemetry-keys"
 
 
 class CentralEntry(BaseModel):

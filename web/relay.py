@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import zmq
 import zmq.asyncio
 
+from station.telemetry import CLIENT_CERT, curve_client
 from web.config import StationEntry
 
 QUEUE_SIZE = 256  # messages per browser: about 5 s of a station's telemetry
@@ -201,6 +202,9 @@ class TelemetryRelay:
         assert self._ctx is not None
         sock = self._ctx.socket(zmq.SUB)
         sock.setsockopt(zmq.LINGER, 0)
+        keys = feed.station.telemetry_keys_dir()
+        if (keys / f"{CLIENT_CERT}.key_secret").is_file():  # the station's telemetry is for its keys' holders only
+            curve_client(sock, keys)
         sock.connect(feed.station.telemetry)
         sock.subscribe(f"{feed.station.name}.".encode())
         name = feed.station.name

@@ -24,7 +24,9 @@ from app.controller import ControlError, StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
 from models.config import default_twin
+from station.clock import VirtualClock
 from station.store import SessionStore
+from station.telemetry import TelemetryPublisher, curve_client, ensure_telemetry_keys
 
 pytestmark = pytest.mark.timeout(60)
 CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
@@ -134,3 +136,38 @@ def test_depth_scan_is_fast_on_the_largest_message() -> None:
     assert nesting_depth(body, MAX_DEPTH) == 4
     assert nesting_depth(b'{"a": "[[[[[[[["}', MAX_DEPTH) == 1  # brackets in strings do not count
     assert time.perf_counter() - t0 < 1.0
+
+
+def _sub(endpoint: str, keys: Path | None = None, name: str = "panel") -> zmq.Socket:
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.subscribe(b"")
+    if keys is not None:
+        curve_client(sub, keys, name)
+    sub.connect(endpoint)
+    return sub
+
+
+def test_telemetry_is_readable_only_with_allowed_keys(tmp_path) -> None:
+    import zmq.auth
+
+    keys = ensure_telemetry_keys(tmp_path / "telemetry-keys")
+    assert oct((keys / "station.key_secret").stat().st_mode & 0o777) == "0o600"
+    zmq.auth.create_certificates(keys, "mallory")  # a key pair the station does not allow
+    pub = TelemetryPublisher("tcp://127.0.0.1:*", "sim", VirtualClock(1.0), keys_dir=keys)
+    allowed, plain, stranger = _sub(pub.endpoint, keys), _sub(pub.endpoint), _sub(pub.endpoint, keys, "mallory")
+    try:
+        got: dict[str, int] = {"allowed": 0, "plain": 0, "stranger": 0}
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 3.0:  # 3 s of publishing: past the slow joiner and the CURVE handshake
+            pub.publish("status", {"state": "idle"})
+            for label, sock in (("allowed", allowed), ("plain", plain), ("stranger", stranger)):
+                while sock.poll(0):
+                    sock.recv_multipart()
+                    got[label] += 1
+            time.sleep(0.01)
+    finally:
+        for sock in (allowed, plain, stranger):
+            sock.close()
+        pub.close()
+    assert got["allowed"] > 50 and got["plain"] == 0 and got["stranger"] == 0, got
