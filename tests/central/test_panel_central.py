@@ -9,12 +9,15 @@ from pathlib import Path
 
 import pytest
 from fastapi import HTTPException
+from fastapi.testclient import TestClient
 from pydantic import ValidationError
 
 from station.central.sync import open_central, sync_store
 from station.store import SessionStore
+from web.app import create_app
 from web.config import CentralEntry, PanelConfig, StationEntry
 from web.history import History, SessionFilter
+from web.users import UserBook
 
 STATUSES = ("finished", "aborted", "finished", "imported", "running", "finished")
 DAYS = ("2026-03-01", "2026-03-02", "2026-03-02", "2026-04-10", "2026-05-01", "2026-05-03")
@@ -39,10 +42,17 @@ def two_histories(tmp_path_factory, database, fill):
         engine.dispose()
     entry = StationEntry(name="sim", control="tcp://127.0.0.1:1", telemetry="tcp://127.0.0.1:2", store=db,
                          reports=tmp_path / "reports")  # fmt: skip
-    local, central = History([entry]), History([entry], CentralEntry(url=central_url, arrays=arrays_dir))
-    yield local, central, uids
+    where = CentralEntry(url=central_url, arrays=arrays_dir)
+    local, central = History([entry]), History([entry], where)
+    yield local, central, uids, PanelConfig(users=users(tmp_path / "users.json"), audit_log=tmp_path / "audit.jsonl",
+                                            stations=(entry,), central=where)  # fmt: skip
     local.close()
     central.close()
+
+
+def users(path: Path) -> Path:
+    UserBook(path).add("victor", "viewer", "viewer-pass-1")
+    return path
 
 
 FILTERS = [
@@ -60,7 +70,7 @@ FILTERS = [
 
 @pytest.mark.parametrize("where", FILTERS, ids=[repr(f) for f in FILTERS])
 def test_the_listing_is_the_same_from_either(two_histories, where):
-    local, central, uids = two_histories
+    local, central, uids, _ = two_histories
     ended = {u for u, s in zip(uids, STATUSES, strict=True) if s != "running"}  # a running one is not synced
     expected = [r for r in local.sessions(where, 100) if r["uid"] in ended]
     assert central.sessions(where, 100) == expected
@@ -68,7 +78,7 @@ def test_the_listing_is_the_same_from_either(two_histories, where):
 
 
 def test_session_page_report_and_gap_inputs_are_the_same_from_either(two_histories):
-    local, central, uids = two_histories
+    local, central, uids, _ = two_histories
     uid = uids[0]
     assert central.row(uid) == local.row(uid)
     assert central.record(uid) == local.record(uid)
@@ -91,3 +101,18 @@ def test_the_panel_file_names_the_central_database_without_its_password(tmp_path
         CentralEntry(url="postgresql://panel:secret@db.lab/history", arrays=Path("/lab/arrays"))
     with pytest.raises(ValidationError, match="postgresql"):
         CentralEntry(url="sqlite:///history.db", arrays=Path("/lab/arrays"))
+
+
+def test_the_panel_serves_the_central_history(two_histories):
+    local, _, uids, config = two_histories
+    with TestClient(create_app(config), base_url="http://127.0.0.1") as client:
+        reply = client.post("/api/login", json={"username": "victor", "password": "viewer-pass-1"})
+        assert reply.status_code == 200, reply.text
+        listing = client.get("/api/sessions", params={"outcome": "finished", "since": "2026-03-02"})
+        assert listing.status_code == 200, listing.text
+        assert [r["uid"] for r in listing.json()] == [uids[5], uids[2]]  # newest first, from the database
+        page = client.get(f"/api/sessions/{uids[2]}")
+        assert page.status_code == 200 and page.json()["points"] == local.record(uids[2])["points"]
+        assert client.get(f"/api/sessions/{uids[4]}").status_code == 404  # running: not synced yet
+        export = client.get(f"/api/sessions/{uids[0]}/export")
+        assert export.status_code == 200 and export.headers["content-type"] == "application/zip"
