@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import signal
 import sqlite3
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -199,3 +203,30 @@ def test_a_machine_without_postgresql_is_told_how_to_install_it(tmp_path):
     with pytest.raises(ServerError, match=r"no .*/\*/bin/initdb.*apt-get install -y postgresql"):
         pg_bin_dir(tmp_path)
     assert (pg_bin_dir() / "pg_ctl").is_file()  # the server these tests run on
+
+
+def test_a_sync_killed_mid_way_leaves_whole_sessions_and_the_next_one_completes(tmp_path, central_url, arrays_dir,
+                                                                                 fill):  # fmt: skip
+    db = tmp_path / "s.sqlite"
+    with SessionStore(db) as store:
+        uids = fill(store, ("finished",) * 6, n_points=40)
+    engine = open_central(central_url)
+    migrate(engine)
+    cmd = [sys.executable, "-m", "app.cli", "sync", str(db), "--to", central_url, "--arrays", str(arrays_dir)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120.0
+    while time.monotonic() < deadline and proc.poll() is None and counts(engine)["sessions"] == 0:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)  # kill -9 after the first session is committed (or later)
+    proc.wait()
+    pushed = counts(engine)
+    # polled every 20 ms while one 40-point session takes about 50 ms to push: the kill lands mid-way
+    assert 1 <= pushed["sessions"] < 6 and pushed["points"] == 40 * pushed["sessions"]  # each session whole
+    with SessionStore(db) as store:
+        report = sync_store(store, engine, arrays_dir, "sim")
+        assert len(report.unchanged) == pushed["sessions"] and len(report.added) == 6 - pushed["sessions"]
+        assert counts(engine)["sessions"] == 6
+        with CentralStore(central_url, arrays_dir) as central:
+            for uid in uids:
+                assert_same_session(store, central, uid)
+    engine.dispose()
