@@ -207,6 +207,35 @@ def test_a_session_watched_on_a_phone(browser, site, passwords, quick):
     page.context.close()
 
 
+def test_a_paused_vibrating_table_is_brought_to_rest_from_the_pause_card(browser, site, passwords, quick):
+    """Pause while the table vibrates; the card offers to bring it to rest; that aborts the run (the session
+    keeps its points) and the table comes to rest."""
+    page = phone_page(browser, site["url"], "olga", passwords["olga"])
+    page.on("dialog", lambda d: d.accept())
+    card = page.locator("article.station[data-station=sim]")
+    expect(card.locator(".link")).to_have_text("live")
+    site["station"].wait_until_idle()
+    params = quick | {"window_s": 60}  # vibration windows long enough to pause in
+    assert post(page, "/api/stations/sim/start", {"procedure": "seed000.integral_precession", "params": params,
+                                                  "instrument_serial": "LIVE-REST"}) == 200  # fmt: skip
+    box = card.locator(".pause-box")
+    for _ in range(6):  # a pause lands at the next safe point: vibrating, or at rest before a static window
+        expect(card).to_have_attribute("data-state", "running")
+        card.locator("button[data-action=pause]").click()
+        expect(card).to_have_attribute("data-state", "paused")
+        expect(box).to_have_attribute("data-table", re.compile("^(vibrating|at rest)$"))
+        if box.get_attribute("data-table") == "vibrating":
+            break
+        card.locator("button[data-action=resume]").click()
+    assert box.get_attribute("data-table") == "vibrating", "never paused with the table vibrating"
+    shot(page, "6-paused-vibrating-phone")
+    box.locator("button[data-action=rest]").click()
+    expect(card).to_have_attribute("data-state", "aborted")
+    expect(card.locator(".freq")).to_have_text("at rest")
+    expect(box).to_be_hidden()
+    page.context.close()
+
+
 NODE = shutil.which("node")
 
 

@@ -456,13 +456,15 @@ class StationView {
     this.renderControls(state, p);
   }
 
-  // The table's frequency: the drive's measured one (motion) or the engine's commanded one (status), Hz.
+  // The table's frequency, Hz: at rest once the engine says so (status: it sets 0 when the table has stopped,
+  // after a ramp down or an abort's safe stop), else the drive's measured one (motion), else the commanded one.
   tableHz() {
     const m = this.last.motion;
     const p = this.last.progress;
+    const commanded = p && p.freq_hz !== undefined && p.freq_hz !== null ? p.freq_hz : null;
+    if (commanded === 0) return 0;
     if (m && m.freq_hz !== undefined) return m.freq_hz;
-    if (p && p.freq_hz !== undefined && p.freq_hz !== null) return p.freq_hz;
-    return null;
+    return commanded;
   }
 
   renderLink() {
