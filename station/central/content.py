@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,11 +38,20 @@ def sha256_text(text: str) -> str:
 
 @dataclass(frozen=True)
 class ArrayFile:
-    """One array as the bytes of an .npy file and their SHA-256 (the file's name in the array root)."""
+    """One array as the bytes of an .npy file and their SHA-256 (the file's name in the array root); once
+    written, `released()` keeps the checksum and size without the bytes."""
 
     name: str
     data: bytes
     sha256: str
+    n_bytes: int = -1  # len(data), kept when the data is released
+
+    def __post_init__(self) -> None:
+        if self.n_bytes < 0:
+            object.__setattr__(self, "n_bytes", len(self.data))
+
+    def released(self) -> ArrayFile:
+        return ArrayFile(self.name, b"", self.sha256, self.n_bytes)
 
     @classmethod
     def of(cls, name: str, a: np.ndarray) -> ArrayFile:
@@ -138,8 +148,20 @@ def record_types_of(session: Session) -> dict[str, dict]:
     return {rt.kind: rt.to_json() for rt in getattr(session, "record_types", [])}
 
 
-def read_session(store: SessionStore, row: dict, station: str, *, with_raw: bool) -> SessionContent:
-    """The central form of the store's session `row` (an element of store.sessions())."""
+def read_session(
+    store: SessionStore, row: dict, station: str, *, with_raw: bool, sink: Callable[[ArrayFile], None] | None = None
+) -> SessionContent:
+    """The central form of the store's session `row` (an element of store.sessions()).
+
+    With `sink`, every array is handed to it (to be written) and kept as its checksum and size only: the
+    store reads raw streams point by point, so one point's arrays are in memory at a time."""
+
+    def taken(a: ArrayFile) -> ArrayFile:
+        if sink is None:
+            return a
+        sink(a)
+        return a.released()
+
     uid = row["uid"]
     session = store.load_session(uid, with_raw=with_raw)
     prov = provenance_of(store, session)
@@ -158,7 +180,9 @@ def read_session(store: SessionStore, row: dict, station: str, *, with_raw: bool
         cols = asdict(p)
         cols["extra_json"] = canonical(cols.pop("extra"))
         raw = session.raw.get(p.point_id) if with_raw else None
-        arrays = [ArrayFile.of(n, a) for n in RAW_FIELDS if raw is not None and (a := getattr(raw, n)) is not None]
+        arrays = [
+            taken(ArrayFile.of(n, a)) for n in RAW_FIELDS if raw is not None and (a := getattr(raw, n)) is not None
+        ]
         points.append(Row(p.point_id, cols, raw=arrays))
     types = record_types_of(session)
     measurements = [
@@ -170,7 +194,7 @@ def read_session(store: SessionStore, row: dict, station: str, *, with_raw: bool
                 "values_json": canonical(m.values),
                 "record_type_json": canonical(types[m.kind]) if m.kind in types else None,
             },
-            [ArrayFile.of(n, np.asarray(a)) for n, a in sorted(m.arrays.items())],
+            [taken(ArrayFile.of(n, np.asarray(a))) for n, a in sorted(m.arrays.items())],
         )
         for m in session.measurements
     ]

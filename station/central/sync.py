@@ -166,7 +166,7 @@ def _insert_logs(conn: sa.Connection, sid: int, s: SessionContent, start: dict[s
     if arrays:
         _insert(conn, "arrays", [
             {"session_id": sid, "owner": owner, "owner_key": key, "name": a.name, "path": paths[a.sha256],
-             "sha256": a.sha256, "n_bytes": len(a.data)}
+             "sha256": a.sha256, "n_bytes": a.n_bytes}
             for owner, key, a in arrays
         ])  # fmt: skip
 
@@ -174,13 +174,10 @@ def _insert_logs(conn: sa.Connection, sid: int, s: SessionContent, start: dict[s
 _CENTRAL_ROW = "SELECT id, status, head_sha256, catalog_sha256 FROM sessions WHERE uid = :uid"
 
 
-def _push(engine: sa.Engine, s: SessionContent, root: ArrayRoot, report: SyncReport) -> str:
-    """Write the arrays, then the session (or what it adds) in one transaction; "added" or "extended"."""
-    paths = {}
-    for a in [a for r in s.points for a in r.raw] + [a for r in s.measurements for a in r.arrays]:
-        paths[a.sha256], written = root.put(a)
-        report.files_written += written
-        report.bytes_written += len(a.data) if written else 0
+def _push(engine: sa.Engine, s: SessionContent) -> str:
+    """The session (or what it adds) in one transaction, its array files already written; "added",
+    "extended" or "unchanged" (another sync pushed the same content meanwhile)."""
+    paths = {a.sha256: ArrayRoot.relative(a.sha256) for r in s.points + s.measurements for a in r.raw + r.arrays}
     state = {"status": s.status, "n_points": s.n_points, "n_measurements": s.n_measurements,
              "catalog_sha256": s.catalog_sha256, "content_sha256": s.content_sha256}  # fmt: skip
     with engine.begin() as conn:
@@ -201,6 +198,12 @@ def _push(engine: sa.Engine, s: SessionContent, root: ArrayRoot, report: SyncRep
             sa.text(f"UPDATE sessions SET {columns}, synced_utc = now() WHERE id = :id"), state | {"id": central.id}
         )
         return "extended"
+
+
+def _write(root: ArrayRoot, a: ArrayFile, report: SyncReport) -> None:
+    written = root.put(a)[1]
+    report.files_written += written
+    report.bytes_written += a.n_bytes if written else 0
 
 
 class _RetryError(Exception):
@@ -231,7 +234,7 @@ def sync_store(
         central = {
             r.uid: r
             for r in conn.execute(
-                sa.text("SELECT uid, status, head_sha256, catalog_sha256 FROM sessions WHERE uid = ANY(:u)"),
+                sa.text("SELECT id, uid, status, head_sha256, catalog_sha256 FROM sessions WHERE uid = ANY(:u)"),
                 {"u": [r["uid"] for r in rows]},
             )
         }
@@ -246,11 +249,14 @@ def sync_store(
             outcome = "unchanged"
         else:
             try:
-                full = read_session(store, row, station, with_raw=True)
+                if known is not None:  # refused before any raw stream is read or written
+                    with engine.connect() as conn:
+                        extension_start(conn, known, light)
+                full = read_session(store, row, station, with_raw=True, sink=lambda a: _write(root, a, report))
                 try:
-                    outcome = _push(engine, full, root, report)
+                    outcome = _push(engine, full)
                 except _RetryError:
-                    outcome = _push(engine, full, root, report)
+                    outcome = _push(engine, full)
             except SyncConflict as exc:
                 report.conflicts.append(str(exc))
                 outcome = "refused"
