@@ -32,6 +32,7 @@ from station.central.migrations import migrate
 from station.errors import InputError, StationFault
 from station.store import SessionStore
 
+CONNECT_TIMEOUT_S = 10  # a station whose network is down waits this long, then carries on (its store is the journal)
 LOG_ORDER = {"points": "sequence", "measurements": "ordinal", "events": "ordinal", "results": "ordinal"}
 
 
@@ -50,7 +51,9 @@ def open_central(url: str) -> sa.Engine:
     if url.startswith("postgresql://"):
         url = "postgresql+psycopg://" + url.removeprefix("postgresql://")
     try:
-        return sa.create_engine(url, pool_pre_ping=True, connect_args={"options": "-c timezone=UTC"})
+        return sa.create_engine(
+            url, pool_pre_ping=True, connect_args={"options": "-c timezone=UTC", "connect_timeout": CONNECT_TIMEOUT_S}
+        )
     except sa.exc.ArgumentError as exc:
         raise CentralError(f"central database {url!r}: {exc}") from None
 

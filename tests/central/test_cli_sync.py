@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import sqlite3
 from pathlib import Path
+from types import SimpleNamespace
 
 import sqlalchemy as sa
 
@@ -83,3 +84,17 @@ def test_a_station_under_control_pushes_each_session_once_it_ended(tmp_path, cen
     with engine.connect() as conn:
         assert conn.execute(sa.text("SELECT count(*) FROM points")).scalar() == 10
     engine.dispose()
+
+
+def test_a_sync_after_run_that_cannot_reach_the_database_lets_the_station_carry_on(tmp_path, central_url, arrays_dir,
+                                                                                   fill, capsys):  # fmt: skip
+    with SessionStore(tmp_path / "station.sqlite") as store:
+        first, second = fill(store, ("finished", "aborted"))
+        down = SyncAfterRun(store, f"postgresql://x@/y?host={tmp_path / 'no-server'}", arrays_dir, "sim")
+        down(SimpleNamespace(session_uid=first))  # logged, not raised: the engine thread goes on
+        assert down.last is None and f"sync of {first} failed" in capsys.readouterr().err
+        down.close()
+        up = SyncAfterRun(store, central_url, arrays_dir, "sim")
+        up(SimpleNamespace(session_uid=second))  # this session, and the one the first sync could not push
+        assert sorted(up.last.added) == sorted([first, second])
+        up.close()
