@@ -16,21 +16,23 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path[:0] = [str(ROOT)]  # the project first: tests/devices (a namespace) must not shadow devices
+sys.path.append(str(ROOT / "tests"))
 
 from test_fault_campaign import CASES, PHASES, run_case  # noqa: E402
 
 
 def main() -> None:
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
-    print("| fault | injected | typed error (first fault reported) | error after, s | safe state after, s | outcome |")
+    print("| fault | injected | typed error (first reported) | error after, wall s | safe state after, station s "
+          "(wall s) | outcome |")  # fmt: skip
     print("|---|---|---|---:|---:|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for case in CASES:
             for phase in PHASES:
                 r = run_case(case, phase, Path(tmp))
                 kind = r.fault.split(":")[0] if not r.fault.startswith("repeat") else r.fault.split(": ")[2]
-                safe = "point repeated" if r.safe_s is None else f"{r.safe_s:.3f}"
+                safe = "point repeated" if r.safe_s is None else f"{r.safe_station_s:.2f} ({r.safe_s:.3f})"
                 where = "during a window" if phase == "window" else "between windows"
                 print(
                     f"| {case.name} | {where} | {kind} | {r.detect_s:.3f} | {safe} | {r.state.split('/')[1]}, "

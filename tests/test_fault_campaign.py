@@ -54,6 +54,7 @@ class Run:
     controller: StationController
     messages: list[tuple[float, str, dict]] = field(default_factory=list)
     injected_at: float | None = None
+    injected_station_s: float = math.nan
     blocker: sqlite3.Connection | None = None
 
     def crank_hz(self) -> float:
@@ -108,7 +109,8 @@ class Result:
     phase: str
     state: str
     detect_s: float
-    safe_s: float | None  # injection to crank at rest and drive not enabled; None: the session went on
+    safe_s: float | None  # injection to crank at rest and drive not enabled (wall s); None: the session went on
+    safe_station_s: float | None  # the same in station seconds (what a real station, at 1x, would take)
     points: int
     fault: str
 
@@ -130,6 +132,7 @@ def run_case(case: Case, phase: str, tmp: Path) -> Result:
         )
         if trigger and not injected.is_set():
             run.injected_at = time.monotonic()
+            run.injected_station_s = sim.world.clock.now_s()
             case.inject(run)  # in the engine's own thread: the fault is in place before the window goes on
             injected.set()
         if topic == "fault" and run.blocker is not None:  # the store's refusal is seen: the lock is let go
@@ -142,12 +145,12 @@ def run_case(case: Case, phase: str, tmp: Path) -> Result:
     try:
         controller.start(PROCEDURE, PARAMS)
         assert injected.wait(60), f"{case.name}/{phase}: the fault was never injected"
-        safe_at = None
+        safe_at = safe_station_s = None
         while (outcome := controller.wait(0.005)) is None:
             if safe_at is None and run.crank_hz() == 0.0 and sim.emulators["servo"].state != "OPERATION ENABLED":
-                safe_at = time.monotonic()
+                safe_at, safe_station_s = time.monotonic(), sim.world.clock.now_s()
         if safe_at is None and outcome.state != State.FINISHED:
-            safe_at = time.monotonic()
+            safe_at, safe_station_s = time.monotonic(), sim.world.clock.now_s()
         faults = [(t, f"{m['kind']}: {m['message']}") for t, topic, m in run.messages
                   if topic == "fault" and t >= run.injected_at]  # fmt: skip
         assert faults, f"{case.name}/{phase}: no fault reported"
@@ -159,8 +162,10 @@ def run_case(case: Case, phase: str, tmp: Path) -> Result:
         # devices safe at the end
         assert run.crank_hz() == 0.0 and sim.emulators["servo"].state != "OPERATION ENABLED"
         assert not sim.world.index_busy(sim.world.clock.now_s())
+        went_on = case.policy == "repeat"
         return Result(case.name, phase, f"{outcome.state}/{status}", faults[0][0] - run.injected_at,
-                      None if case.policy == "repeat" else safe_at - run.injected_at, len(points),
+                      None if went_on else safe_at - run.injected_at,
+                      None if went_on else safe_station_s - run.injected_station_s, len(points),
                       faults[0][1])  # fmt: skip
     finally:
         if controller.busy:

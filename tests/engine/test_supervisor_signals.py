@@ -21,16 +21,10 @@ import pytest
 
 from engine.supervisor import ABORT_GRACE_S
 
+from .test_crash_resume import PROCEDURE  # the same quick session
+
 pytestmark = pytest.mark.timeout(180)
 
-PROCEDURE = """\
-procedure = "seed000.integral_precession"
-[params]
-positions_deg = [0, 72, 144, 216, 288]
-freqs_hz = [10]
-window_s = 30
-settle_s = 2
-"""
 PAUSE_BOUND_S = 5.0
 
 
