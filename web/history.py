@@ -158,6 +158,16 @@ class History:
                            "proportional_residuals": r.proportional_residuals.tolist()}  # fmt: skip
         return out
 
+    def certificate(self, uid: str, suffix: str = ".html") -> Path:
+        """The calibration certificate that the station's analysis wrote beside the report (certificate-UID.html
+        and .pdf, methods.common.certificate); 404 when there is none."""
+        for entry in self._find(uid).stations:
+            path = entry.reports / f"certificate-{uid}{suffix}"
+            if path.is_file():
+                return path
+        raise HTTPException(404, f"session {uid}: no certificate{suffix} (its procedure issues none, or its "
+                            "analysis has not written one)")  # fmt: skip
+
     def report_html(self, uid: str) -> str:
         """The report the station wrote, else the procedure's analysis of the stored session (kept for a while)."""
         s = self._find(uid)

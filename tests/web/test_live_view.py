@@ -111,6 +111,7 @@ def test_a_station_nobody_serves_says_so_with_the_command_to_serve_it(browser, s
     command = ghost.locator(".not-served code").inner_text()
     assert command.startswith("station serve --name ghost") and site["ghost"].telemetry in command
     expect(page.locator("article.station[data-station=sim] .link")).to_have_text("live")
+    assert page.request.get(f"{site['url']}/api/sessions/no-such-session/certificate").status == 404
     fits_the_screen(page)
     shot(page, "1-not-served-phone")
     page.context.close()
@@ -197,6 +198,12 @@ def test_a_session_watched_on_a_phone(browser, site, passwords, quick):
     uid = href.split("/")[3]
     report = page.request.get(f"{site['url']}{href}")
     assert report.status == 200 and "Coefficients" in report.text()
+    certificate = results.locator("a.certificate-link")  # seed 000's analysis issues one (methods.common.certificate)
+    expect(certificate).to_have_attribute("href", f"/api/sessions/{uid}/certificate")
+    cert = page.request.get(f"{site['url']}/api/sessions/{uid}/certificate")
+    assert cert.status == 200 and "SIMULATED" in cert.text()
+    pdf = page.request.get(f"{site['url']}{results.locator('a.certificate-pdf').get_attribute('href')}")
+    assert pdf.status == 200 and pdf.body()[:5] == b"%PDF-"
     with SessionStore(site["station"].out / "station.sqlite") as store:  # what the analysis stored
         stored = {r["method"]: r["result"] for r in store.results(uid)}
     value = float(kz.locator("td").nth(1).inner_text())

@@ -66,6 +66,19 @@ def report(request: Request, uid: Uid) -> HTMLResponse:
     return HTMLResponse(panel(request).history.report_html(uid))
 
 
+@router.get("/{uid}/certificate", response_class=FileResponse, responses=errors(401, 404, 422))
+def certificate(request: Request, uid: Uid) -> FileResponse:
+    """The session's calibration certificate as HTML, as its analysis wrote it."""
+    return FileResponse(panel(request).history.certificate(uid, ".html"), media_type="text/html")
+
+
+@router.get("/{uid}/certificate.pdf", response_class=FileResponse, responses=errors(401, 404, 422))
+def certificate_pdf(request: Request, uid: Uid) -> FileResponse:
+    """The session's calibration certificate as PDF."""
+    return FileResponse(panel(request).history.certificate(uid, ".pdf"), media_type="application/pdf",
+                        filename=f"certificate-{uid}.pdf")  # fmt: skip
+
+
 @router.get("/{uid}/export", response_class=FileResponse, responses=errors(401, 404, 422))
 def export(request: Request, uid: Uid) -> FileResponse:
     """The session as a piga-session/1 directory in a zip archive."""

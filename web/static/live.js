@@ -410,7 +410,9 @@ class StationView {
       el("a", { href: `${base}/report`, target: "_blank", class: "report-link" }, "HTML report"),
       el("a", { href: `/sessions/${encodeURIComponent(uid)}` }, "session page"));
     fetch(`${base}/certificate`, { credentials: "same-origin" }).then((r) => {
-      if (r.ok) links.append(el("a", { href: `${base}/certificate`, target: "_blank", class: "certificate-link" }, "certificate"));
+      if (!r.ok) return; // the procedure issues no certificate
+      links.append(el("a", { href: `${base}/certificate`, target: "_blank", class: "certificate-link" }, "certificate"),
+        el("a", { href: `${base}/certificate.pdf`, class: "certificate-pdf" }, "certificate (PDF)"));
     }).catch(() => {});
     this.results.replaceChildren(el("h3", {}, `Results of session ${uid}`),
       ...(tables.length ? tables : [el("pre", {}, a.summary)]),
