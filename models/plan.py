@@ -71,5 +71,5 @@ def point_id(index: int, spec: PointSpec) -> str:
 
 
 def seed000_plan() -> list[PointSpec]:
-    """The embedded default: 10 positions x (8, 9, 10 Hz + static), 40 points, about 7 h."""
+    """The embedded default: 10 positions x (8, 9, 10 Hz + static), 40 points, about 6.1 h of windows."""
     return multiposition_plan(equal_angle_positions_deg(10))
