@@ -23,6 +23,7 @@ import logging
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,7 +148,12 @@ class StationController:
         """The outcome once the run has ended (None while it runs); never None once its worker is gone."""
         worker = self._worker
         if worker is not None:
-            worker.join(timeout_s)
+            deadline = None if timeout_s is None else time.monotonic() + timeout_s
+            while worker.is_alive() and self._outcome is None:  # a stuck worker's outcome may come from the supervisor
+                left = 0.05 if deadline is None else min(0.05, deadline - time.monotonic())
+                if left <= 0:
+                    break
+                worker.join(left)
             if not worker.is_alive() and self._outcome is None:  # lost: the supervisor's on_lost writes the outcome
                 bound_s = self.supervisor.bound_s + QUICK_STOP_BOUND_S + 1.0
                 self.supervisor.wait_lost(bound_s if timeout_s is None else min(timeout_s, bound_s))

@@ -20,6 +20,7 @@ import sqlite3
 import threading
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -28,7 +29,9 @@ from app.controller import StationController
 from devices.errors import DeviceFault
 from devices.servo.driver import ABORT_CONNECTION_OPTION, QUICK_STOP_OPTION, ServoLimits, VibrationTableServo
 from devices.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
+from engine.registry import procedure
 from engine.runner import State
+from engine.steps import Step
 from engine.supervisor import QUICK_STOP_BOUND_S, STALE_S, TICK_S
 from station.clock import WallClock
 from station.session_lock import SessionLock, SessionLocked, recover_interrupted
@@ -210,3 +213,39 @@ def test_store_path_locks_live_next_to_the_store(tmp_path: Path) -> None:
     with SessionLock(tmp_path / "s.sqlite", "X") as lock:
         assert lock.path == tmp_path / "s.sqlite.locks" / "X.lock"
         assert oct(lock.path.stat().st_mode & 0o777) == "0o600"
+
+
+@dataclass(frozen=True)
+class UncooperativeStep(Step):
+    """A lab's own step that sets the table going, then blocks in a call that never looks at an abort."""
+
+    freq_hz: float
+    block_s: float
+
+    def plan(self, ctx) -> tuple[float, None]:
+        return self.block_s, None
+
+    def run(self, ctx) -> None:
+        ctx.set_table(self.freq_hz)
+        time.sleep(self.block_s)  # wall time: a driver call that hangs, from the engine's point of view
+
+
+@procedure("test.uncooperative", "a step that ignores aborts", [])
+def _uncooperative(params: dict):
+    yield UncooperativeStep(8.0, 6.0)
+
+
+def test_an_engine_that_ignores_an_abort_is_stopped_by_the_supervisor_within_its_grace(make_rig) -> None:
+    rig = make_rig()
+    controller = rig.controller
+    controller.supervisor.abort_grace_s = 1.0  # the same rule as ABORT_GRACE_S, at a test's scale
+    controller.start("test.uncooperative", {})
+    wait_until(lambda: crank_hz(rig.sim) == pytest.approx(8.0, abs=1e-3), 20)
+    t0 = time.monotonic()
+    controller.abort()
+    outcome = controller.wait(1.0 + QUICK_STOP_BOUND_S + TICK_S + 2.0)
+    took_s = time.monotonic() - t0
+    assert outcome is not None and outcome.state == State.FAILED, outcome
+    assert any("did not end within 1 s of an abort" in f for f in outcome.faults)
+    assert 1.0 <= took_s < 1.0 + QUICK_STOP_BOUND_S + TICK_S + 2.0
+    assert crank_hz(rig.sim) == 0.0 and rig.sim.devices.head.held  # quick-stopped and held by the supervisor
