@@ -8,7 +8,8 @@ threads are pinned to one before numpy loads, and the process to one core
 where the OS allows it.
 
 Sizes: 16 equal-angle positions x (9 frequencies in 2-10 Hz + static), 60 s windows = 160 points,
-repeated 4 times = 640 points; and the 40-point seed-000 design. CPU seconds are the figure to quote
+repeated 4 times = 640 points (160 distinct position x frequency cases), 64 positions x the same =
+640 points all distinct; and the 40-point seed-000 design. CPU seconds are the figure to quote
 on a shared machine (wall time includes other processes' load).
 
     .venv/bin/python bench/bench_gap.py [--sizes-only]
@@ -46,13 +47,14 @@ SIZE_FREQS_HZ = (2.0, 3.5, 5.0, 6.0, 7.0, 8.0, 8.5, 9.0, 10.0)
 
 
 def size_sessions(twin):
-    """(points, session) of 40, 160 and 640 points (module docstring)."""
+    """(label, session) of 40, 160 and 640 points (module docstring)."""
     from models.plan import equal_angle_positions_deg, multiposition_plan, seed000_plan
     from models.session_sim import simulate_session
 
     plan160 = multiposition_plan(equal_angle_positions_deg(16), SIZE_FREQS_HZ, window_s=60.0)
-    for plan in (seed000_plan(), plan160, plan160 * 4):
-        yield len(plan), simulate_session(plan, twin, 5)
+    plan640 = multiposition_plan(equal_angle_positions_deg(64), SIZE_FREQS_HZ, window_s=60.0)
+    for label, plan in (("40", seed000_plan()), ("160", plan160), ("640 (160 x 4)", plan160 * 4), ("640", plan640)):
+        yield label, simulate_session(plan, twin, 5)
 
 
 def main() -> None:
@@ -71,6 +73,7 @@ def main() -> None:
             w, c = time.perf_counter(), time.process_time()
             report = diagnose(session, twin, suggest=suggest)
             row = {"points": n, "separating_search": suggest, "verdict": report.verdict.verdict}
+            row["distinct_cases"] = len({(p.position_deg, p.freq_hz) for p in session.points})
             row |= {"wall_s": round(time.perf_counter() - w, 2), "cpu_s": round(time.process_time() - c, 2)}
             print(json.dumps(row), flush=True)
     if "--sizes-only" in sys.argv:

@@ -358,7 +358,9 @@ def diagnose(
         h = ho(s.fit)
         shrinks[s.name] = (h.G, shrink(h_base, h))
     checks = (_noise_check(base, pe, ch), _noise_check(final, pe, ch))
-    verdict = decide(dof0, selection, ident, dets_before, dets_after, *checks, shrink(h_base, h_final))
+    verdict = decide(
+        dof0, selection, ident, dets_before, dets_after, *checks, shrink(h_base, h_final), (h_final.G, h_final.se)
+    )
 
     z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s
     z_after, tau_z_after = z_before, tau_z_before  # the same arrays when no effect was added

@@ -30,6 +30,10 @@ from gap.localise import Detector, significant
 
 MIN_SHRINK = 0.5
 MIN_DOF = 4
+# Held-out rows of a right model are chi-square_1 (se of their mean sqrt(2 / rows)). The limit is loose:
+# a nonlinear effect fitted on a grid (lateral fr, Q) leaves up to ~6 se at SNR 30 on tests/indep sessions,
+# while an overfitted one (8 index harmonics on few positions) predicts held-out positions at 1000 se.
+HELDOUT_AFTER_SE = 20.0
 
 
 @dataclass(frozen=True)
@@ -111,7 +115,9 @@ def decide(
     noise_before: NoiseCheck,
     noise_after: NoiseCheck,
     shrink: float | None,
+    heldout_after: tuple[float, float] | None = None,
 ) -> Verdict:
+    """The verdict; heldout_after = (G, se) of the held-out gap with the chosen effects (gap.heldout)."""
     if dof < MIN_DOF:
         return Verdict(
             "cannot_tell",
@@ -136,6 +142,9 @@ def decide(
         remaining.append("further library effects still significant beyond the maximum number added")
     if effects and shrink is not None and shrink < MIN_SHRINK:
         remaining.append(f"held-out gap shrink only {shrink:.2f} (< {MIN_SHRINK})")
+    if effects and heldout_after is not None and heldout_after[0] > HELDOUT_AFTER_SE * heldout_after[1]:
+        g, se = heldout_after
+        remaining.append(f"held-out gap with the effects {g:.3g} = {g / se:.1f} se (> {HELDOUT_AFTER_SE:g} se)")
     if effects and not remaining:
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
         alike = _look_alikes(selection)

@@ -75,3 +75,19 @@ def test_an_effect_this_design_cannot_separate_gives_cannot_tell_with_the_points
     assert rep.verdict.verdict == "cannot_tell", rep.verdict.text
     assert {"mount_misalignment", "index_harmonics"} <= set(rep.verdict.ambiguous)
     assert rep.effects == []
+
+
+def test_an_effect_whose_model_fails_out_of_sample_is_not_explained():
+    """In-sample tests all pass, but the held-out gap left is 30 se: the effect does not generalise."""
+    from gap.attribute import Scored, Selection
+    from gap.identifiability import IdentifiabilityReport
+    from gap.verdict import HELDOUT_AFTER_SE, NoiseCheck, decide
+
+    chosen = Scored("index_harmonics", None, 50.0, 1e-20, 0.0, -80.0, 400.0, 0.0)
+    selection = Selection([chosen], [[chosen]], None)
+    none = NoiseCheck("none", None, None)
+    args = (10, selection, IdentifiabilityReport({}), [], [], none, none, 0.9)
+    assert decide(*args, (0.1, 0.1)).verdict == "explained"
+    v = decide(*args, (3.0 * HELDOUT_AFTER_SE * 0.1 / 2, 0.1))
+    assert v.verdict == "unexplained" and v.partial == ["index_harmonics"]
+    assert "held-out gap with the effects" in v.text
