@@ -203,10 +203,11 @@ def test_eq28_is_the_seeds_on_the_residuals_of_y() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # about 1 s a session on a loaded 2-core machine
 def test_multi_frequency_t_based_expanded_uncertainty_covers_95_percent() -> None:
-    """300 twin sessions of the 12-point multi-frequency design (dof 5): |k_hat - k| <= U = t_95(5) u.
+    """200 twin sessions of the 12-point multi-frequency design (dof 5): |k_hat - k| <= U = t_95(5) u.
 
-    Binomial sd of a 0.95 coverage over 300 sessions is 0.0126: 0.91-0.99 is about 3 sd. The normal
+    Binomial sd of a 0.95 coverage over 200 sessions is 0.0154: 0.905-0.99 is about 3 sd. The normal
     k = 1.96 on the same sessions covers markedly less (t_5 has P(|t| > 1.96) = 0.107).
     """
     cfg = default_twin()
@@ -214,14 +215,15 @@ def test_multi_frequency_t_based_expanded_uncertainty_covers_95_percent() -> Non
     plan = multiposition_plan([0.0, 45.0, 180.0], [8.0, 9.0, 10.0], 560.0)
     refs = load_references()
     cover, cover_normal = [], []
-    for i in range(300):
+    for i in range(200):
         s = simulate_session(plan, cfg, seed=90_000 + i)
         r = identify(s)
         b = seed000_budget(s, r, {}, refs, timer_rows=False)
         err = np.abs(r.values - truth)
         cover.append(err <= b.expanded_uncertainty())
         cover_normal.append(err <= 1.96 * b.standard_uncertainty())
-        assert b.few_dof() == list(r.names)
+        # Type A dominates kz, kzz and ky (nu_eff about 5); k3's Type B share (the second harmonic) can lift it
+        assert {"kz", "kzz", "ky"} <= set(b.few_dof())
     cover, cover_normal = np.mean(cover, axis=0), np.mean(cover_normal, axis=0)
-    assert np.all((cover >= 0.91) & (cover <= 0.99)), cover
+    assert np.all((cover >= 0.905) & (cover <= 0.99)), cover
     assert np.all(cover_normal < cover), (cover_normal, cover)
