@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 
 from app.controller import StationController
-from devices.errors import DeviceFault
+from devices.errors import DeviceFault, DriverError
 from devices.servo.driver import ABORT_CONNECTION_OPTION, QUICK_STOP_OPTION, ServoLimits, VibrationTableServo
 from devices.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
 from engine.registry import procedure
@@ -249,3 +249,21 @@ def test_an_engine_that_ignores_an_abort_is_stopped_by_the_supervisor_within_its
     assert any("did not end within 1 s of an abort" in f for f in outcome.faults)
     assert 1.0 <= took_s < 1.0 + QUICK_STOP_BOUND_S + TICK_S + 2.0
     assert crank_hz(rig.sim) == 0.0 and rig.sim.devices.head.held  # quick-stopped and held by the supervisor
+
+
+def test_after_a_bus_off_a_failed_reset_then_a_run_fail_with_typed_errors_not_a_dead_thread(make_rig) -> None:
+    """Once a KeyError in the engine thread: the drive's link gone for good, reset cannot reopen it."""
+    rig = make_rig()
+    rig.sim.emulators["servo"].go_bus_off()  # permanent: the drive never answers again
+    with pytest.raises(DriverError):  # DeviceTimeout: no SDO answer to the reopen (typed, not a KeyError)
+        wait_until(lambda: rig.sim.devices.status()["drive_fault"] is not None, 5)
+        rig.controller.reset()
+    assert rig.sim.devices.servo.state == "UNKNOWN"
+    rig.controller.start(PROCEDURE, QUICK)
+    outcome = rig.controller.wait(30)
+    assert outcome is not None and outcome.state == State.FAILED
+    # typed: the head refuses to move while the crank's state is unknown, or the drive's link is named gone
+    typed = ("InterlockError: indexing head", "Disconnected: vibration table servo", "DeviceTimeout")
+    assert outcome.faults and outcome.faults[0].startswith(typed), outcome.faults
+    assert not any("KeyError" in f or "unexpected" in f for f in outcome.faults)
+    assert crank_hz(rig.sim) == 0.0
