@@ -229,7 +229,7 @@ def budget_section(results: Mapping[str, Identification]) -> str:
     return "".join(parts)
 
 
-def _environment(session: Session) -> list[tuple[str, str]]:
+def environment_conditions(session: Session) -> list[tuple[str, str]]:
     """Temperature from the points' temperature_c column or the measurements' arrays, else not measured."""
     temps = [float(p.extra["temperature_c"]) for p in session.points if p.extra.get("temperature_c") not in (None, "")]
     for m in session.measurements:
@@ -331,7 +331,7 @@ def certificate(
         laboratory=load_laboratory(),
         identification=ident,
         dates=dates,
-        environment=_environment(session),
+        environment=environment_conditions(session),
         results=rows,
         decision_rule=f"{spec.decision_rule_name}: {spec.decision_rule}",
         traceability=traceability(refs),

@@ -166,3 +166,15 @@ def test_self_alignment_report_has_no_nan(positions) -> None:
         assert k0["sigma"] is None and "not estimable" in k0["note"]
     else:
         assert k0["sigma"] > 0
+
+
+def test_environment_comes_from_the_stations_sensors_where_it_has_them() -> None:
+    from dataclasses import replace
+
+    from methods.seed000.report import environment_conditions
+
+    s = simulate_session(multiposition_plan([0.0, 180.0], [10.0], 560.0), default_twin(), seed=2)
+    assert "not measured" in dict(environment_conditions(s))["temperature"]
+    pts = [replace(p, extra={"temperature_c": f"{20.0 + 0.1 * i:.1f}"}) for i, p in enumerate(s.points)]
+    env = dict(environment_conditions(replace(s, points=pts)))
+    assert env["temperature"].startswith("20.00 to 20.30 °C (4 readings")
