@@ -257,9 +257,13 @@ class StationController:
             log.exception("analysis of %s failed", uid)
             faults.append(f"analysis: {type(exc).__name__}: {exc}")
         finally:
-            self._outcome = RunOutcome(uid, state, analysis, report, faults)
-        for hook in self.after_run:  # `station serve --sync-to`: the session to the central history
-            hook(self._outcome)
+            outcome = RunOutcome(uid, state, analysis, report, faults)
+            for hook in self.after_run:  # `station serve --sync-to`: the session to the central history
+                try:
+                    hook(outcome)
+                except Exception:  # a hook never keeps the outcome from whoever waits
+                    log.exception("after-run hook %r failed for %s", hook, uid)
+            self._outcome = outcome  # last: wait() returns once the hooks are done
 
     def _analyse(self, spec: ProcedureSpec, uid: str) -> tuple[Analysis, Path]:
         """The procedure's analysis in a child process (app.analysis_job), results into the store."""

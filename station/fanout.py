@@ -142,7 +142,8 @@ def run_pinned(fn: Callable[[Any], Any], case: Any) -> Any:
 
 def case_key(case: Any) -> str:
     """A case's key in the results file: its JSON (a dataclass by its fields)."""
-    return json.dumps(asdict(case) if is_dataclass(case) else case, sort_keys=True, default=str)
+    doc = asdict(case) if is_dataclass(case) and not isinstance(case, type) else case
+    return json.dumps(doc, sort_keys=True, default=str)
 
 
 @contextlib.contextmanager

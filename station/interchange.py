@@ -34,9 +34,9 @@ import numpy as np
 from station import constants
 from station.errors import InputError
 from station.provenance import ProvenanceError, check_provenance
-from station.rawfile import RAW_FIELDS, LazyRaw, RawWriter
+from station.rawfile import LazyRaw, RawWriter
 from station.records import Field, RecordError, RecordType, declared
-from station.session import STATION_FIELDS, Measurement, PointRecord, RawStreams, Session, StationInfo
+from station.session import RAW_FIELDS, STATION_FIELDS, Measurement, PointRecord, RawStreams, Session, StationInfo
 
 FORMAT = "piga-session/1"
 COLUMNS = ("point_id", "sequence", "start_s", "position_deg", "freq_hz", "kind", "pulses", "Tm_s", "t1_s", "t2_s", "Np")
@@ -173,11 +173,11 @@ def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
     kind = row["kind"].strip()
     if kind not in ("static", "vibration"):
         raise SessionFormatError(file, "kind must be 'static' or 'vibration'", n, "kind", row["kind"])
-    sequence = _ranged(row["sequence"], file, n, "sequence")
+    sequence = int(_ranged(row["sequence"], file, n, "sequence"))
     start = _ranged(row["start_s"], file, n, "start_s")
     position = _ranged(row["position_deg"], file, n, "position_deg")
     freq = _ranged(row["freq_hz"], file, n, "freq_hz")
-    pulses = _ranged(row["pulses"], file, n, "pulses")
+    pulses = int(_ranged(row["pulses"], file, n, "pulses"))
     if pulses == 0:
         raise SessionFormatError(file, "pulses must be a non-zero signed count", n, "pulses", row["pulses"])
     tm = _ranged(row["Tm_s"], file, n, "Tm_s")
@@ -194,7 +194,7 @@ def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
     period = 1.0 / freq
     t1 = _number(row["t1_s"], file, n, "t1_s")
     t2 = _number(row["t2_s"], file, n, "t2_s")
-    n_periods = _ranged(row["Np"], file, n, "Np")
+    n_periods = int(_ranged(row["Np"], file, n, "Np"))
     slack = period * MAX_PERIOD_MISMATCH
     if not 0 < t1 <= period + slack:
         raise SessionFormatError(file, f"t1_s must lie in (0, T], T = {period:.6g} s", n, "t1_s", row["t1_s"])
@@ -330,7 +330,7 @@ def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
                             raise SessionFormatError(name, f"array larger than {MAX_ARRAY_BYTES >> 20} MiB", column=key)
                     arrays = {k: group[k][()] for k in group}
                     _check_raw(arrays, name)
-                    digests[pid] = raw_digest(RawStreams(**{k: arrays.get(k) for k in RAW_FIELDS}))
+                    digests[pid] = raw_digest(RawStreams.from_arrays(arrays))
                     del arrays  # one point's arrays in memory at a time
         except OSError as exc:
             raise SessionFormatError(RAW_FILE, f"not a readable HDF5 file ({exc})") from None
@@ -459,7 +459,7 @@ def _digest_array(h: Any, name: str, a: np.ndarray | None) -> None:
         return
     a = np.ascontiguousarray(a)
     h.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
-    h.update(memoryview(a).cast("B"))
+    h.update(a.tobytes())
 
 
 def content_hash(session: Session) -> str:
@@ -537,7 +537,9 @@ def _write_measurements(session: Session, tmp: Path) -> list[dict]:
                     ref = ""
                     if m.arrays:
                         ref = f"{MEASUREMENTS_DIR}/arrays/{seq}.npz"
-                        np.savez_compressed(tmp / ref, **rt.check_arrays(m.arrays, f"measurement {m.key!r}"))
+                        np.savez_compressed(
+                            tmp / ref, allow_pickle=False, **rt.check_arrays(m.arrays, f"measurement {m.key!r}")
+                        )
                     row.append(ref)
                 w.writerow(row)
     return [rt.to_json() | {"file": f"{MEASUREMENTS_DIR}/{rt.kind}.csv"} for rt in types]

@@ -16,9 +16,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from station.session import RawStreams
+from station.session import RAW_FIELDS, RawStreams
 
-RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 REQUIRED = ("grating_t", "grating_z", "pulse_t")
 CHUNK = 1 << 16  # elements per chunk: 512 KiB of float64
 COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}  # shuffle: times compress ~3x
@@ -43,7 +42,7 @@ def write_arrays(group: h5py.Group, raw: RawStreams) -> None:
 
 
 def read_arrays(group: h5py.Group) -> RawStreams:
-    return RawStreams(**{name: (group[name][()] if name in group else None) for name in RAW_FIELDS})
+    return RawStreams.from_arrays({name: group[name][()] for name in RAW_FIELDS if name in group})
 
 
 class RawWriter:
@@ -88,9 +87,11 @@ def read_point_file(path: str | os.PathLike) -> RawStreams:
 class LazyRaw(Mapping[str, RawStreams]):
     """point_id -> RawStreams, each read from its HDF5 location only when asked (and not kept)."""
 
-    def __init__(self, locations: Mapping[str, tuple[Path, str]], loaded: Mapping[str, RawStreams] = ()) -> None:
+    def __init__(
+        self, locations: Mapping[str, tuple[Path, str]], loaded: Mapping[str, RawStreams] | None = None
+    ) -> None:
         self._where = dict(locations)  # point_id -> (file, group inside it; "/" for a file of its own)
-        self._loaded = dict(loaded)  # points already in memory (raw streams of an older store's blobs)
+        self._loaded = dict(loaded or {})  # points already in memory (raw streams of an older store's blobs)
         self.digests: dict[str, bytes] = {}  # point_id -> SHA-256 of its arrays, where a reader computed it
 
     @classmethod

@@ -249,7 +249,7 @@ def declared_types() -> dict[str, RecordType]:
     return dict(_DECLARED)
 
 
-def infer_record_type(kind: str, values: Mapping[str, Any], arrays: Mapping[str, Any] = ()) -> RecordType:
+def infer_record_type(kind: str, values: Mapping[str, Any], arrays: Mapping[str, Any] | None = None) -> RecordType:
     """A declaration read off one record (for sessions stored before records were declared; units unknown)."""
 
     def dtype_of(v: Any) -> tuple[str, int]:
@@ -270,7 +270,7 @@ def infer_record_type(kind: str, values: Mapping[str, Any], arrays: Mapping[str,
         dt, nd = dtype_of(v)
         fields.append(Field(name, dt, ndim=nd, nullable=v is None))  # type: ignore[arg-type]
     arr = []
-    for name, a in dict(arrays).items():
+    for name, a in dict(arrays or {}).items():
         a = np.asarray(a)
         dt = (
             "float64"

@@ -8,8 +8,8 @@ is session time when the window opened.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from typing import Any, Literal
 
 import numpy as np
@@ -93,6 +93,19 @@ class RawStreams:
     pulse_dir: np.ndarray | None = None
     reference_t: np.ndarray | None = None
 
+    @classmethod
+    def from_arrays(cls, arrays: Mapping[str, np.ndarray | None]) -> RawStreams:
+        """The streams of one point from its named arrays (the optional ones may be missing)."""
+        t, z, pulses = (arrays.get(n) for n in RAW_REQUIRED)
+        if t is None or z is None or pulses is None:
+            missing = [n for n in RAW_REQUIRED if arrays.get(n) is None]
+            raise ValueError(f"raw streams without {', '.join(missing)} (required: {', '.join(RAW_REQUIRED)})")
+        return cls(t, z, pulses, arrays.get("pulse_dir"), arrays.get("reference_t"))
+
+
+RAW_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(RawStreams))
+RAW_REQUIRED: tuple[str, ...] = ("grating_t", "grating_z", "pulse_t")  # physics.md raw/; the rest optional
+
 
 @dataclass
 class Measurement:
@@ -123,7 +136,7 @@ class Session:
     station: StationInfo
     points: list[PointRecord]
     notes: str = ""
-    raw: dict[str, RawStreams] = field(default_factory=dict)
+    raw: Mapping[str, RawStreams] = field(default_factory=dict)  # point_id -> streams (read lazily from a store)
     meta: dict = field(default_factory=dict)
     measurements: list[Measurement] = field(default_factory=list)
     provenance: dict[str, Any] = field(default_factory=dict)  # station.provenance.PROVENANCE_KEYS

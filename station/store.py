@@ -118,7 +118,6 @@ CREATE TABLE record_types (
 _V5 = """
 ALTER TABLE points ADD COLUMN raw_file TEXT;
 """
-_RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 INFERRED = "inferred from records stored before records were declared: units unknown"
 
 
@@ -346,7 +345,8 @@ class SessionStore:
                 content_hash,
             ),
         )
-        return uid, int(cur.lastrowid)
+        assert cur.lastrowid is not None  # an INSERT
+        return uid, cur.lastrowid
 
     def create_session(
         self,
@@ -612,7 +612,7 @@ class SessionStore:
                     n: _from_blob(b) for n, b in self._query("SELECT name, data FROM raw WHERE point_row = ?", (r[0],))
                 }
                 if arrays:
-                    raws[r[1]] = RawStreams(**{n: arrays.get(n) for n in _RAW_FIELDS})
+                    raws[r[1]] = RawStreams.from_arrays(arrays)
         return Session(
             StationInfo(**json.loads(station_json)),
             points,

@@ -19,12 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from station.session import Session
+from station.session import RAW_FIELDS, Session
 from station.store import SessionStore
 
 SYNCED_STATUSES = ("finished", "aborted", "failed", "interrupted", "imported")  # not while running
 FINAL_STATUSES = ("finished", "imported")  # a central copy in one of these cannot grow any more
-RAW_FIELDS = ("grating_t", "grating_z", "pulse_t", "pulse_dir", "reference_t")
 
 
 def canonical(obj: Any) -> str:

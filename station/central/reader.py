@@ -11,6 +11,7 @@ import json
 from dataclasses import dataclass
 from datetime import UTC, date, datetime, time, timedelta
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import sqlalchemy as sa
@@ -83,7 +84,8 @@ class CentralStore:
 
     def history(self, q: HistoryQuery, limit: int) -> list[dict]:
         """Sessions matching `q`, newest first, at most `limit`."""
-        where, args = [], {"limit": int(limit)}
+        where: list[str] = []
+        args: dict[str, Any] = {"limit": int(limit)}
         if q.serial:
             where.append("lower(instrument_serial) LIKE :serial")
             args["serial"] = _like_part(q.serial)
@@ -172,11 +174,11 @@ class CentralStore:
             " extra_json FROM points WHERE session_id = :sid ORDER BY sequence",
             {"sid": sid},
         )
-        points = [PointRecord(*r[:11], json.loads(r.extra_json)) for r in rows]
+        points = [PointRecord(*r[:11], json.loads(r.extra_json)) for r in rows]  # type: ignore[call-arg]
         raws = {}
         if with_raw:
             for key, arrays in self._arrays(sid, "point").items():
-                raws[key] = RawStreams(**{n: arrays.get(n) for n in RawStreams.__dataclass_fields__})
+                raws[key] = RawStreams.from_arrays(arrays)
         config = json.loads(head.config_json)
         meta = {
             "store_uid": uid,

@@ -158,7 +158,7 @@ def _insert_logs(conn: sa.Connection, sid: int, s: SessionContent, start: dict[s
     new = {table: s.logs[table][start[table] :] for table in LOG_ORDER}
     for table, rows in new.items():
         if rows:
-            ordinal = {} if table == "points" else None
+            ordinal: dict[str, int] | None = {} if table == "points" else None
             _insert(conn, table, [
                 r.columns | {"session_id": sid, "row_sha256": r.sha256}
                 | (ordinal if ordinal is not None else {"ordinal": start[table] + i})
