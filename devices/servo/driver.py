@@ -37,7 +37,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import can
 import canopen
@@ -184,7 +184,7 @@ class _TpdoCache:
         t_s = self._clock.now_s()
         with self._cond:
             for var in pdo_map:
-                self._values[var.index] = var.raw
+                self._values[var.index] = int(var.raw)
                 self._seq[var.index] = self._seq.get(var.index, 0) + 1
                 self._t_s[var.index] = t_s
             self.last_rx_mono_s = time.monotonic()
@@ -236,6 +236,19 @@ class VibrationTableServo:
 
     # ---- life cycle -------------------------------------------------------------------
 
+    @property
+    def node(self) -> BaseNode402:
+        """The drive's node while the driver is open (Disconnected otherwise)."""
+        if self._node is None:
+            raise Disconnected(self.DEVICE, "the drive is not open")
+        return self._node
+
+    @property
+    def network(self) -> canopen.Network:
+        if self._network is None:
+            raise Disconnected(self.DEVICE, "the CAN network is not open")
+        return self._network
+
     def open(self) -> None:
         """Connect, set up heartbeats and PDOs, go NMT OPERATIONAL, select and verify PV mode."""
         cfg = self._cfg
@@ -251,9 +264,9 @@ class VibrationTableServo:
             where = f"{cfg.interface}:{cfg.channel}"
             raise Disconnected(self.DEVICE, f"cannot open CAN {where}: {e}") from e
         self._network = canopen.Network(bus)
-        self._network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         try:
-            self._network.connect()
+            self.network.connect()
             self._setup()
         except BaseException:
             self._disconnect()
@@ -262,7 +275,7 @@ class VibrationTableServo:
     def _setup(self) -> None:
         node = BaseNode402(self._cfg.node_id, str(self._cfg.eds))
         self._node = node
-        self._network.add_node(node)
+        self.network.add_node(node)
         node.sdo.RESPONSE_TIMEOUT = self._cfg.timeout_s
         node.sdo.MAX_RETRIES = 1  # one attempt per request; reads retry in _sdo_read
         node.emcy.add_callback(self._on_emcy)
@@ -331,7 +344,7 @@ class VibrationTableServo:
             self._hb_thread.join(timeout=1.0)
             self._hb_thread = None
         if self._network is not None:
-            self._network.disconnect()
+            self.network.disconnect()
             self._network = None
 
     def __enter__(self) -> VibrationTableServo:
@@ -393,7 +406,7 @@ class VibrationTableServo:
         while True:
             try:
                 if self.master_alive():
-                    self._network.send_message(0x700 + MASTER_NODE_ID, bytes([0x05]))
+                    self.network.send_message(0x700 + MASTER_NODE_ID, bytes([0x05]))
             except (can.CanError, RuntimeError, AttributeError) as e:  # bus gone or network closed
                 log.warning("%s: master heartbeat not sent: %s", self.DEVICE, e)
             if self._hb_stop.wait(self._hb_period_s):
@@ -506,7 +519,9 @@ class VibrationTableServo:
         """Ramp the crank to rest (profile deceleration) and wait until it is there."""
         ramp = self._limits.ramp_max_hz_per_s if ramp_hz_per_s is None else ramp_hz_per_s
         self._limits.check_ramp(self.DEVICE, ramp)
-        return self._command(0.0, ramp, wait=True)
+        at_rest = self._command(0.0, ramp, wait=True)
+        assert at_rest is not None  # wait=True
+        return at_rest
 
     def quick_stop(self) -> ServoReading:
         """Emergency stop: quick stop (0x6085 deceleration), sent without precondition, and waited for until the
@@ -552,7 +567,7 @@ class VibrationTableServo:
             self._fault = None
             if self._link_error is None:
                 self._error_event.clear()
-        self._node.emcy.reset()
+        self.node.emcy.reset()
 
     def read(self) -> ServoReading:
         """The next TPDO sample of velocity and position (waits at most one TPDO timeout)."""
@@ -577,7 +592,7 @@ class VibrationTableServo:
                 allowed="bit 2 set",
             )
         seq = self._tpdo.seq(0x6061)
-        mode_var = self._node.rpdo_pointers[0x6060]
+        mode_var = cast(Any, self.node.rpdo_pointers[0x6060])  # a PDO variable (canopen types it as the map)
         with self._cw_lock:
             mode_var.raw = MODE_PROFILE_VELOCITY
             self._transmit(mode_var.pdo_parent)
@@ -600,8 +615,8 @@ class VibrationTableServo:
             )
 
     def _check_pdo_mapping(self) -> None:
-        missing = [i for i in TPDO_OBJECTS if i not in self._node.tpdo_pointers]
-        missing += [i for i in RPDO_OBJECTS if i not in self._node.rpdo_pointers]
+        missing = [i for i in TPDO_OBJECTS if i not in self.node.tpdo_pointers]
+        missing += [i for i in RPDO_OBJECTS if i not in self.node.rpdo_pointers]
         if missing:
             raise DriverError(
                 self.DEVICE,
@@ -717,7 +732,7 @@ class VibrationTableServo:
     def _send_controlword(self, cw: int) -> None:
         if self._network is None or self._node is None:
             raise Disconnected(self.DEVICE, f"controlword 0x{cw:04X} not sent: not connected")
-        var = self._node.rpdo_pointers[0x6040]
+        var = cast(Any, self.node.rpdo_pointers[0x6040])  # a PDO variable (canopen types it as the map)
         with self._cw_lock:
             var.raw = cw
             self._transmit(var.pdo_parent)
@@ -729,7 +744,7 @@ class VibrationTableServo:
             raise Disconnected(self.DEVICE, f"CAN send of {pdo_map.name} failed: {e}") from e
 
     def _sdo_read(self, index: int, subindex: int | None = None) -> Any:
-        var = self._node.sdo[index] if subindex is None else self._node.sdo[index][subindex]
+        var = self.node.sdo[index] if subindex is None else self.node.sdo[index][subindex]
         for attempt in range(1, READ_ATTEMPTS + 1):
             try:
                 return var.raw
@@ -751,7 +766,7 @@ class VibrationTableServo:
 
     def _sdo_write(self, index: int, value: int, subindex: int | None = None) -> None:
         """One confirmed SDO download; never retried (it may be a motion command)."""
-        var = self._node.sdo[index] if subindex is None else self._node.sdo[index][subindex]
+        var = self.node.sdo[index] if subindex is None else self.node.sdo[index][subindex]
         try:
             var.raw = value
         except SdoAbortedError as e:

@@ -37,6 +37,7 @@ import logging
 import math
 import threading
 from pathlib import Path
+from typing import Any, cast
 
 import can
 import canopen
@@ -163,19 +164,32 @@ class ServoEmulator:
 
     # ---- life cycle -------------------------------------------------------------------
 
+    @property
+    def node(self) -> canopen.LocalNode:
+        """The emulated drive's node, while the emulator runs."""
+        if self._node is None:
+            raise RuntimeError("servo emulator: not started")
+        return self._node
+
+    @property
+    def network(self) -> canopen.Network:
+        if self._network is None:
+            raise RuntimeError("servo emulator: not started")
+        return self._network
+
     def start(self) -> None:
         bus = can.Bus(interface=self.interface, channel=self.channel)
         self._network = canopen.Network(bus)
-        self._network.NOTIFIER_CYCLE = 0.05  # a prompt stop()
-        self._network.connect()
-        node = self._network.create_node(self.node_id, str(self._eds_path))
+        self.network.NOTIFIER_CYCLE = 0.05  # a prompt stop()
+        self.network.connect()
+        node = self.network.create_node(self.node_id, str(self._eds_path))
         self._node = node
         node.add_read_callback(self._on_read)
         node.add_write_callback(self._on_write)
         for index in (0x60FF, 0x607F, 0x6083, 0x6084, 0x6085, 0x6007, 0x605A):
-            self._params[index] = node.sdo[index].raw
+            self._params[index] = int(cast(Any, node.sdo[index]).raw)
         with self._lock:
-            self._configure_consumer(node.sdo[0x1016][1].raw)
+            self._configure_consumer(int(cast(Any, node.sdo)[0x1016][1].raw))
             self._load_pdo_config()
         node.nmt.state = "INITIALISING"  # boot-up message
         node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat producer (0x1017)
@@ -189,8 +203,8 @@ class ServoEmulator:
             self._thread.join(timeout=2.0)
             self._thread = None
         if self._network is not None:
-            self._node.nmt.stop_heartbeat()
-            self._network.disconnect()
+            self.node.nmt.stop_heartbeat()
+            self.network.disconnect()
             self._network = None
 
     def __enter__(self) -> ServoEmulator:
@@ -210,7 +224,7 @@ class ServoEmulator:
 
     @property
     def nmt_state(self) -> str:
-        return self._node.nmt.state
+        return self.node.nmt.state
 
     # ---- fault injection --------------------------------------------------------------
 
@@ -228,11 +242,11 @@ class ServoEmulator:
         with self._lock:
             if not self._sdo_silent:
                 self._sdo_silent = True
-                self._network.unsubscribe(self._node.sdo.rx_cobid, self._node.sdo.on_request)
+                self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
 
     def silence_heartbeat(self) -> None:
         """Stop producing the heartbeat (everything else goes on)."""
-        self._node.nmt.stop_heartbeat()
+        self.node.nmt.stop_heartbeat()
 
     def ignore_master_heartbeat(self) -> None:
         """Stop hearing the master's heartbeat, as if its frames were lost on the way."""
@@ -292,15 +306,16 @@ class ServoEmulator:
         """Validate and apply a write (SDO download or copied RPDO) before LocalNode stores it."""
         if 0x1400 <= index < 0x1C00:
             with self._lock:
-                self._node.data_store.setdefault(index, {})[subindex] = bytes(data)
+                self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
                 self._pdo_config_dirty = True
             return
         value = od.decode_raw(data)
-        if isinstance(value, int):
-            if od.min is not None and value < od.min:
-                raise SdoAbortedError(SDO_ABORT_VALUE_TOO_LOW)
-            if od.max is not None and value > od.max:
-                raise SdoAbortedError(SDO_ABORT_VALUE_TOO_HIGH)
+        if not isinstance(value, int):
+            return  # every object this drive acts on is an integer (the EDS); others are only stored
+        if od.min is not None and value < od.min:
+            raise SdoAbortedError(SDO_ABORT_VALUE_TOO_LOW)
+        if od.max is not None and value > od.max:
+            raise SdoAbortedError(SDO_ABORT_VALUE_TOO_HIGH)
         with self._lock:
             t_s = self._clock.now_s()
             if index == 0x6040:
@@ -325,11 +340,11 @@ class ServoEmulator:
 
     def _on_rpdo(self, pdo_map: PdoMap) -> None:
         with self._lock:
-            if self._bus_off or self._node.nmt.state != "OPERATIONAL":
+            if self._bus_off or self.node.nmt.state != "OPERATIONAL":
                 return
             for var in pdo_map:
                 try:
-                    self._node.set_data(var.index, var.subindex, var.get_data())
+                    self.node.set_data(var.index, var.subindex, var.get_data())
                 except SdoAbortedError as e:
                     log.warning("servo emulator: RPDO value for 0x%04X refused: %s", var.index, e)
 
@@ -357,7 +372,7 @@ class ServoEmulator:
         if self._state == FAULT:
             self._error_code = self._error_register = 0
             if not self._bus_off:
-                self._node.emcy.reset()
+                self.node.emcy.reset()
         self._state = new
         self._command_velocity(t_s)
 
@@ -387,22 +402,22 @@ class ServoEmulator:
         self._state = FAULT
         self._command_velocity(self._clock.now_s())
         if not self._bus_off:
-            self._node.emcy.send(code, self._error_register)
+            self.node.emcy.send(code, self._error_register)
 
     def _configure_consumer(self, value: int) -> None:
         """0x1016 sub 1: master node id in bits 16-23, time in ms in bits 0-15."""
         if self._hb_master_id:
-            self._network.unsubscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
+            self.network.unsubscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
         master_id, time_ms = (value >> 16) & 0x7F, value & 0xFFFF
         self._hb_master_id = master_id if time_ms else 0
         self._hb_timeout_s = time_ms / 1000.0
         self._hb_last_s = None  # monitoring starts with the first heartbeat heard
         if self._hb_master_id:
-            self._network.subscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
+            self.network.subscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
 
     def _load_pdo_config(self) -> None:
         """(Re)read PDO parameters and mappings from the local object dictionary."""
-        node = self._node
+        node = cast(Any, self.node)  # canopen types the PDO maps as optional
         node.tpdo.read()
         node.rpdo.read()
         for rpdo in node.rpdo.map.values():
@@ -436,7 +451,7 @@ class ServoEmulator:
             if self._state == QSA and self._params[0x605A] in (1, 2) and self.crank.at_speed(t_s):
                 self._state = SOD  # quick stop option 1 or 2: at rest -> SWITCH ON DISABLED
             self._check_master_heartbeat(now_s)
-            if self._bus_off or self._node.nmt.state != "OPERATIONAL":
+            if self._bus_off or self.node.nmt.state != "OPERATIONAL":
                 return self._tick_s
             wait_s = self._tick_s
             for n, period_s in self._event_timer_s.items():
@@ -444,7 +459,7 @@ class ServoEmulator:
                     continue
                 due_s = self._tpdo_due_s.get(n, now_s)
                 if now_s >= due_s:
-                    self._transmit_tpdo(self._node.tpdo.map[n])
+                    self._transmit_tpdo(cast(Any, self.node.tpdo).map[n])
                     due_s += period_s
                     if due_s <= now_s:  # fell behind: no burst, restart the cycle
                         due_s = now_s + period_s
@@ -454,7 +469,7 @@ class ServoEmulator:
 
     def _transmit_tpdo(self, tpdo: PdoMap) -> None:
         for var in tpdo:
-            var.set_data(self._node.get_data(var.index, var.subindex))
+            var.set_data(self.node.get_data(var.index, var.subindex))
         tpdo.transmit()
 
     def _check_master_heartbeat(self, now_s: float) -> None:
