@@ -111,7 +111,7 @@ class State:
 
 
 def evaluate(ch: Channels, cfg: TwinConfig) -> State:
-    """Predict, refit static levels and K (fit_joint), and whiten the residuals."""
+    """Predict, refit the bias k0 and K (fit_joint), and whiten the residuals."""
     d = ch.design
     pred = predict(d, cfg)
     lin = fit_joint(d.rate_radps - pred.base_radps, d.level_index, pred.units_radps, CALIBRATED, ch.weights)
@@ -121,7 +121,7 @@ def evaluate(ch: Channels, cfg: TwinConfig) -> State:
 
 
 def linear_design(ch: Channels, pred: Prediction) -> np.ndarray:
-    """Whitened columns of the static levels and K: rate rows, then zero timing rows."""
+    """Whitened columns of the bias k0 and K: rate rows, then zero timing rows."""
     d = ch.design
     X = np.hstack([np.eye(d.n_levels)[d.level_index], pred.units_radps])
     return np.vstack([ch.white_rate(X), np.zeros((ch.n_other, X.shape[1]))])
@@ -182,11 +182,11 @@ class Linearisation:
         return next(fp for fp in self.params if fp.key == key)
 
     def project(self, M: np.ndarray) -> np.ndarray:
-        """Remove the part of the columns that the static levels and calibrated terms absorb."""
+        """Remove the part of the columns that the bias k0 and calibrated terms absorb."""
         return M - self.Q @ (self.Q.T @ M)
 
     def project_levels(self, M: np.ndarray) -> np.ndarray:
-        """Remove only the per-position constants (what every static level absorbs)."""
+        """Remove only the constant (what the bias k0 absorbs)."""
         return M - self.Q_levels @ (self.Q_levels.T @ M)
 
 
@@ -233,7 +233,7 @@ def fit_model(
     From the twin's own values, one linear least-squares step on the linearisation's columns; if
     the exact model then meets its linear prediction (within _LINEAR_RTOL of one residual
     variance), the model is linear there and that step is the solution. Otherwise
-    scipy.optimize.least_squares (Levenberg-Marquardt) on the residual with the static levels and K
+    scipy.optimize.least_squares (Levenberg-Marquardt) on the residual with the bias k0 and K
     refitted at every point (variable projection); its Jacobian is the model columns projected off
     the levels and K (Kaufman's approximation).
     """

@@ -2,10 +2,10 @@
 
 For every candidate parameter, its whitened column J_p (gap.fit.Linearisation)
 is projected onto the orthogonal complement of the calibrated terms' columns
-(static levels and kz, kzz, ky, k3): r_p = P_perp J_p. Then
+(the bias k0 and kz, kzz, ky, k3): r_p = P_perp J_p. Then
 - rho = |r_p| / |J_p'| is the fraction of its signature that the calibrated
-  coefficients do not absorb (J_p' = J_p without its per-position constant,
-  which the static levels always absorb); rho < ABSORBED_RHO: "absorbed" (the
+  coefficients do not absorb (J_p' = J_p without its constant part,
+  which the bias k0 always absorbs); rho < ABSORBED_RHO: "absorbed" (the
   parameter is not fitted, it stays at the twin's value);
 - |r_p| * scale is the signal-to-noise ratio after projection of an effect of
   typical size, and DETECT_SIGMA / |r_p| the smallest value detectable;
@@ -200,7 +200,7 @@ class IdentifiabilityReport:
 
     def to_json(self) -> dict:
         return {
-            "method": "columns of each parameter projected off the calibrated terms (static levels, kz, kzz, "
+            "method": "columns of each parameter projected off the calibrated terms (bias k0, kz, kzz, "
             f"ky, k3); absorbed if the fraction kept < {ABSORBED_RHO}; collinear if the cosine of the smallest "
             f"principal angle between two candidates' projected columns >= {COLLINEAR_COS}",
             "candidates": [c.to_json(self.noise_ratio) for c in self.candidates.values()],

@@ -9,7 +9,7 @@ signal-to-noise ratio is |P_perp s|: s the effect's change of every
 observable of the session (rates and period identities, exact forward model
 at fixed calibrated coefficients) divided by its noise (the twin's
 NoiseModel, which generated the session), P_perp the projection off the
-calibrated terms (static levels, kz, kzz, ky, k3); the injected parameters are
+calibrated terms (bias k0, kz, kzz, ky, k3); the injected parameters are
 scaled until it equals the target.
 
 Out of library (OUT_OF_LIBRARY), a term added to the rate the twin simulates
@@ -196,7 +196,7 @@ def _whitening(d: PointDesign, twin: TwinConfig) -> np.ndarray:
 
 
 def _projected(d: PointDesign, twin: TwinConfig, d_rate: np.ndarray) -> np.ndarray:
-    """Whitened rate signal with the calibrated terms (static levels, kz, kzz, ky, k3) projected out."""
+    """Whitened rate signal with the calibrated terms (bias k0, kz, kzz, ky, k3) projected out."""
     sr = _whitening(d, twin)
     X = np.hstack([np.eye(d.n_levels)[d.level_index], predict(d, twin).units_radps]) * sr[:, None]
     Q, _ = np.linalg.qr(X / np.linalg.norm(X, axis=0))

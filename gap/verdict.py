@@ -123,7 +123,7 @@ def decide(
             "cannot_tell",
             [],
             f"cannot tell with this design: only {dof} residual degrees of freedom "
-            f"remain after the static levels and the calibrated coefficients (need >= {MIN_DOF}); "
+            f"remain after the bias k0 and the calibrated coefficients (need >= {MIN_DOF}); "
             "add positions or frequencies",
         )
     effects = selection.effects
