@@ -37,7 +37,7 @@ SESSION_COOKIE = "panel_session"
 CSRF_HEADER = "X-CSRF-Token"
 IDLE_LIMIT_S = 12 * 3600.0  # a 7-hour session watched from one login
 REVOCATION_CHECK_S = 0.5  # how often an open WebSocket's login is checked again
-MAX_FAILURES = 5  # wrong passwords per user name, and per address, within the window
+MAX_FAILURES = 5  # wrong passwords per user name, and per address, within the window (default)
 FAILURE_WINDOW_S = 15 * 60.0
 THROTTLE_KEYS = 10_000  # names and addresses remembered at most (the oldest forgotten first)
 

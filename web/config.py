@@ -15,6 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from station.errors import InputError
 from station.tomlfile import read_toml
+from web.auth import MAX_FAILURES
 
 NAME_PATTERN = r"^[A-Za-z0-9_-]{1,40}$"
 
@@ -81,6 +82,9 @@ class PanelConfig(BaseModel):
     websocket_compression: bool = Field(False, description="permessage-deflate for remote browsers on slow links")
     stations: tuple[StationEntry, ...] = Field(min_length=1)
     central: CentralEntry | None = Field(None, description="read the history from the central database (issue 16)")
+    login_failures_max: int = Field(
+        MAX_FAILURES, ge=1, le=1000, description="wrong passwords per name and per address in 15 min before 429"
+    )
 
     @field_validator("stations")
     @classmethod

@@ -38,7 +38,7 @@ class Panel:
             links={s.name: StationLink(s) for s in config.stations},
             history=History(config.stations, config.central),
             gaps=GapDiagnoses(config.twin),
-            throttle=LoginThrottle(),
+            throttle=LoginThrottle(max_failures=config.login_failures_max),
         )
 
     def close(self) -> None:

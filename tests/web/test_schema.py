@@ -47,6 +47,13 @@ schema = schemathesis.openapi.from_dict(openapi_document())
 
 
 @pytest.fixture(scope="module")
+def panel_config(panel_config):
+    """The module's panel, with room for the failed logins that schemathesis generates from one address (the
+    throttle itself: tests/web/test_security.py)."""
+    return panel_config.model_copy(update={"login_failures_max": 1000})
+
+
+@pytest.fixture(scope="module")
 def login_headers(served_panel, passwords) -> Callable[[], dict]:
     """Headers of a new operator login, as a browser sends them."""
 

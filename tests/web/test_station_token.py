@@ -47,7 +47,9 @@ def test_the_panel_sends_the_token_from_its_environment(token_station, tmp_path,
         assert reply.json()["detail"] == "station sim: bad or missing control token"
 
 
-def test_a_token_variable_that_is_not_set_stops_the_panel_at_start(token_station, tmp_path, monkeypatch, capsys):
+def test_a_token_variable_that_is_not_set_stops_the_panel_at_start(
+    token_station, tmp_path, monkeypatch, capsys, tools
+):
     monkeypatch.delenv(TOKEN_VAR, raising=False)
     config = tmp_path / "panel.toml"
     e = token_station
@@ -56,6 +58,6 @@ def test_a_token_variable_that_is_not_set_stops_the_panel_at_start(token_station
         f'store = "{e.store}"\nreports = "{e.reports}"\ntoken_env = "{TOKEN_VAR}"\n'
     )
     t0 = time.monotonic()
-    assert main(["panel", "--config", str(config), "--port", "0"]) == 2
+    assert main(["panel", "--config", str(config), "--port", str(tools.free_port())]) == 2
     assert f"token_env {TOKEN_VAR}: that variable is not set" in capsys.readouterr().err
     assert time.monotonic() - t0 < 10
