@@ -127,15 +127,13 @@ def test_a_server_without_a_token_is_refused() -> None:
         ControlServer(None, "tcp://127.0.0.1:*", token="")  # type: ignore[arg-type]
 
 
-def test_depth_scan_is_fast_on_the_largest_message() -> None:
+def test_depth_scan_reads_the_largest_message_and_skips_brackets_in_strings() -> None:
     from app.control import nesting_depth
 
     body = json.dumps({"cmd": "start", "args": {"params": {"positions_deg": list(range(9000))}}}).encode()
     assert len(body) < MAX_REQUEST_BYTES
-    t0 = time.perf_counter()
     assert nesting_depth(body, MAX_DEPTH) == 4
     assert nesting_depth(b'{"a": "[[[[[[[["}', MAX_DEPTH) == 1  # brackets in strings do not count
-    assert time.perf_counter() - t0 < 1.0
 
 
 def _sub(endpoint: str, keys: Path | None = None, name: str = "panel") -> zmq.Socket:
