@@ -159,7 +159,7 @@ def _test_block(name, D, what, Q, r, rows: slice, rss: float, dof: int, channel:
     return Detector(name, F, (k, dof2), float(stats.f.sf(F, k, dof2)), what, U, channel=channel)
 
 
-def _gof(name: str, chi2: float, dof: int, what: str, channel: str) -> Detector | None:
+def goodness_of_fit(name: str, chi2: float, dof: int, what: str, channel: str) -> Detector | None:
     """Goodness of fit of a channel with known noise: chi-square of its whitened residual."""
     if dof <= 0:
         return None
@@ -183,7 +183,7 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
         out.append(_single_point(d, Q, r, rss_rate, fit.dof_rate))
     if ch.rate_sigma_known:
         what = "chi-square of the rate residuals against the stated instrument repeatability"
-        out.append(_gof("rate_goodness_of_fit", rss_rate, fit.dof_rate, what, "rate"))
+        out.append(goodness_of_fit("rate_goodness_of_fit", rss_rate, fit.dof_rate, what, "rate"))
     dof_tau = nt - _free_on(fit, tau)
     if nt >= 3:
         rss_tau = float(r[tau] @ r[tau])
@@ -192,11 +192,13 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
         out.append(_single_identity(d, Q, r, tau, rss_tau, dof_tau))
         if ch.tau_sigma_known:
             what = "chi-square of the period identities against the stated timing noise"
-            out.append(_gof("timing_goodness_of_fit", rss_tau, dof_tau, what, "timing"))
+            out.append(goodness_of_fit("timing_goodness_of_fit", rss_tau, dof_tau, what, "timing"))
     if ch.n_grating:
         chi2 = float(r[grating] @ r[grating])
-        what = "chi-square of the grating harmonics (Zs1..Zc3 at each raw record) against the twin's table motion"
-        out.append(_gof("grating_goodness_of_fit", chi2, ch.n_grating - _free_on(fit, grating), what, "grating"))
+        what = "chi-square of the grating rows (harmonics and own frequency of each raw record) against the model"
+        out.append(
+            goodness_of_fit("grating_goodness_of_fit", chi2, ch.n_grating - _free_on(fit, grating), what, "grating")
+        )
     return [x for x in out if x is not None]
 
 

@@ -244,11 +244,14 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
             rows_w.append(w)
             rows_d.append(diff)
             rows_s.append(se)
-        if raw.pulse_t.size > 20 and raw.pulse_dir is None:
-            entry["pulse_rate_harmonics"] = "no pulse directions (pulse_dir): the up/down count cannot be rebuilt"
-        elif raw.pulse_t.size > 20:
+        dirs = _pulse_directions(raw, design, i, cfg) if raw.pulse_t.size > 20 else None
+        if raw.pulse_t.size > 20 and dirs is None:
+            entry["pulse_rate_harmonics"] = (
+                "no pulse directions (pulse_dir) and a rate that reverses: the up/down count cannot be rebuilt"
+            )
+        elif dirs is not None:
             entry["pulse_rate_harmonics"] = _pulse_harmonics(
-                raw, w, t1, session.station.pulses_per_rev, i, design, cfg, sd_stamp_s
+                raw, dirs, w, t1, session.station.pulses_per_rev, i, design, cfg, sd_stamp_s
             )
         points.append(entry)
     out: dict = {"points": points, "n_points": len(points)}
@@ -257,14 +260,29 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
     return out
 
 
-def _pulse_harmonics(
-    raw, w: float, t1: float, pulses_per_rev: int, i: int, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float
-) -> list[dict]:
-    """Rate harmonics from the precession angle at every pulse edge, against the twin's periodic_rate."""
+def _pulse_directions(raw, design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray | None:
+    """+1/-1 per edge: pulse_dir when recorded, else the precession's sign where the twin's rate never
+    reverses over a crank turn (every edge then counts one way); None when it reverses (a > 1 near IA)."""
+    if raw.pulse_dir is not None:
+        return np.asarray(raw.pulse_dir)
+    f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+    pr = periodic_rate(float(design.theta_rad[i]), float(f_true), cfg)
+    psi = 2 * math.pi * np.arange(N_PHASES) / N_PHASES
+    rate = pr.c0_radps + sum(
+        a * np.cos(k * psi) + b * np.sin(k * psi) for k, a, b in zip(pr.k, pr.alpha, pr.beta, strict=True)
+    )
+    sign = np.sign(design.rate_radps[i])
+    if np.min(sign * rate) <= 0:
+        return None
+    return np.full(raw.pulse_t.size, int(sign))
+
+
+def _pulse_fit(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, sd_stamp_s: float):
+    """Rate harmonics (sin, cos per j) and their se from the precession angle at every pulse edge."""
     # The level an edge crosses: the up/down count after it, plus one after a down edge (a
     # down-crossing of level k leaves the count at k - 1); the count alone would add a
     # half-pulse square wave in step with the rate's sign, i.e. spurious odd harmonics.
-    levels = np.cumsum(raw.pulse_dir) + (raw.pulse_dir < 0)
+    levels = np.cumsum(dirs) + (dirs < 0)
     s = _stride(raw.pulse_t.size)
     t = raw.pulse_t[s]
     coef, se = _lsq(_design(w * (t - t1), with_line=t), levels[s] * (2 * math.pi / pulses_per_rev))
@@ -272,8 +290,21 @@ def _pulse_harmonics(
     jw = np.repeat([j * w for j in HARMONICS], 2)
     meas = jw * np.column_stack([-coef[3::2], coef[2::2]]).ravel()
     se_rate = np.hypot(jw * np.column_stack([se[3::2], se[2::2]]).ravel(), _phase_se(meas, w, sd_stamp_s))
+    return meas, se_rate
+
+
+def _pulse_prediction(design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray:
     f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
-    pred = _twin_rate_harmonics(float(design.theta_rad[i]), f_true, cfg.param("readhead_latency", "delta"), cfg)
+    return _twin_rate_harmonics(float(design.theta_rad[i]), f_true, cfg.param("readhead_latency", "delta"), cfg)
+
+
+def _pulse_harmonics(
+    raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, i: int, design: PointDesign, cfg: TwinConfig,
+    sd_stamp_s: float,
+) -> list[dict]:  # fmt: skip
+    """Rate harmonics from the precession angle at every pulse edge, against the twin's periodic_rate."""
+    meas, se_rate = _pulse_fit(raw, dirs, w, t1, pulses_per_rev, sd_stamp_s)
+    pred = _pulse_prediction(design, i, cfg)
     return [
         {
             "harmonic": j,

@@ -71,3 +71,20 @@ def test_the_pulse_rate_spectrum_of_a_null_session_is_the_twins(twin):
         for h in point["pulse_rate_harmonics"]:
             assert h["difference_radps"] < 4 * h["se_radps"], (point["point_id"], h)
         assert point["pulse_rate_harmonics"][0]["measured_radps"] > 4  # kz a cos(theta): a = 12.1 at 10 Hz
+
+
+def test_pulse_edges_without_directions_are_counted_where_the_rate_never_reverses(twin):
+    """piga-session/1 requires only pulse_t: at 2 Hz (a = 0.48) near IA up the rate keeps its sign, so
+    every edge counts one way and the harmonics are those the recorded directions give."""
+    plan = multiposition_plan([0.0, 30.0], (2.0,), window_s=30.0)
+    session = simulate_session(plan, twin, 5, raw=True)
+    design = PointDesign.from_session(session)
+    sd = timing_stamp_sd_s(twin)
+    with_dir = raw_evidence(session, design, twin, sd)["points"]
+    bare = replace(session, raw={k: replace(v, pulse_dir=None) for k, v in session.raw.items()})
+    without = raw_evidence(bare, design, twin, sd)["points"]
+    assert len(without) == len(with_dir) == 2
+    for a, b in zip(with_dir, without, strict=True):
+        assert not isinstance(b["pulse_rate_harmonics"], str), b["pulse_rate_harmonics"]
+        for ha, hb in zip(a["pulse_rate_harmonics"], b["pulse_rate_harmonics"], strict=True):
+            assert hb["measured_radps"] == pytest.approx(ha["measured_radps"], rel=1e-12, abs=1e-15)
