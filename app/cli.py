@@ -27,8 +27,7 @@ from app.console import (
     run_with_progress,
     write_outputs,
 )
-from app.control import TOKEN_FILE, ControlServer, ensure_token
-from app.controller import ControlError
+from app.control import ControlServer
 from app.panel import add_commands as add_panel_commands
 from app.signals import RunSignals
 from devices.config import ConfigError
@@ -43,6 +42,7 @@ from models.config import TwinConfig, TwinConfigError, default_twin
 from models.plan import seed000_plan
 from models.session_sim import simulate_points, station_info
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
+from station.control_channel import TOKEN_FILE, ControlError, ensure_token
 from station.errors import StationError
 from station.interchange import SessionFormatError, SessionWriter, content_hash, read_session, write_session
 from station.provenance import make_provenance

@@ -35,7 +35,7 @@ from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from engine.runner import Engine, State
 from engine.supervisor import QUICK_STOP_BOUND_S, MotionSupervisor, SafeState
-from station.errors import StationFault
+from station.control_channel import ControlError
 from station.session_lock import INTERRUPTED, recover_interrupted
 from station.store import SessionStore
 
@@ -45,10 +45,6 @@ Publisher = Callable[[str, dict], None]
 ANALYSIS_TIMEOUT_S = 600.0
 RESUMABLE = ("aborted", "failed", INTERRUPTED, "running")  # running: left by a crash and not yet found
 log = logging.getLogger(__name__)
-
-
-class ControlError(StationFault):
-    """A control request that the station's state does not allow (a run already under way, ...)."""
 
 
 @dataclass

@@ -70,11 +70,12 @@ def test_a_session_without_provenance_exports_without_inventing_one(tmp_path):
 
 def _control_rig(tmp_path, seed: int):
     """A simulated station under a controller and its control channel (closed by the caller's ExitStack)."""
-    from app.control import ControlClient, ControlServer
+    from app.control import ControlServer
     from app.controller import StationController
     from devices.config import load_station_config
     from devices.station import simulated_station
     from models.config import default_twin
+    from station.control_channel import ControlClient
 
     config = load_station_config(CONFIG / "station-sim.toml")
     sim = simulated_station(config, default_twin(), seed=seed, speed=1000.0)

@@ -8,8 +8,7 @@ from typing import Any
 
 from fastapi import HTTPException
 
-from app.control import ControlClient, ensure_token
-from app.controller import ControlError
+from station.control_channel import ControlClient, ControlError, ensure_token
 from web.config import PanelConfigError, StationEntry
 
 # The station's error types (app/control.py) as HTTP statuses; any other refusal is a conflict (409).

@@ -9,8 +9,9 @@ import time
 import pytest
 import zmq
 
-from app.control import ControlClient, ControlServer
+from app.control import ControlServer
 from station.clock import VirtualClock
+from station.control_channel import ControlClient
 from station.telemetry import TelemetryPublisher
 
 from .conftest import PROCEDURE, QUICK

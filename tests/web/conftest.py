@@ -22,8 +22,8 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 
-from app.control import TOKEN_FILE, ControlClient, ensure_token
 from app.panel import panel_server
+from station.control_channel import TOKEN_FILE, ControlClient, ensure_token
 from web.app import create_app
 from web.config import PanelConfig, StationEntry
 from web.users import UserBook

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from app.control import TOKEN_FILE, ControlClient, ensure_token
+from station.control_channel import TOKEN_FILE, ControlClient, ensure_token
 from web.archive import unpack
 
 PROCEDURE = "seed000.integral_precession"

@@ -12,19 +12,13 @@ from pathlib import Path
 import pytest
 import zmq
 
-from app.control import (
-    MAX_DEPTH,
-    MAX_REQUEST_BYTES,
-    ControlClient,
-    ControlServer,
-    ensure_token,
-    request_mac,
-)
-from app.controller import ControlError, StationController
+from app.control import ControlServer
+from app.controller import StationController
 from devices.config import load_station_config
 from devices.station import simulated_station
 from models.config import default_twin
 from station.clock import VirtualClock
+from station.control_channel import MAX_DEPTH, MAX_REQUEST_BYTES, ControlClient, ControlError, ensure_token, request_mac
 from station.store import SessionStore
 from station.telemetry import TelemetryPublisher, curve_client, ensure_telemetry_keys
 
@@ -128,7 +122,7 @@ def test_a_server_without_a_token_is_refused() -> None:
 
 
 def test_depth_scan_reads_the_largest_message_and_skips_brackets_in_strings() -> None:
-    from app.control import nesting_depth
+    from station.control_channel import nesting_depth
 
     body = json.dumps({"cmd": "start", "args": {"params": {"positions_deg": list(range(9000))}}}).encode()
     assert len(body) < MAX_REQUEST_BYTES

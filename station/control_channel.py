@@ -1,0 +1,125 @@
+"""The control channel's contract, as both ends speak it: framing, authentication, bounds, the token, the client.
+
+One request at a time, as three frames, and one JSON reply:
+
+    request  [identity, HMAC-SHA256(token, identity NUL body) in hex, body]
+             body = {"cmd": ..., "args": {...}, "user": "for whom a delegate (the panel) asks"}
+    reply    {"ok": true, "result": ...} | {"ok": false, "error": {"type": ..., "message": ...}}
+
+The station's end is app.control.ControlServer; the panel's is `ControlClient`. A request is
+authenticated (`request_mac` under the station's token, `ensure_token`) before anything is parsed,
+and bounded (MAX_REQUEST_BYTES, MAX_DEPTH by `nesting_depth`) before json.loads.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import os
+import secrets
+import threading
+from pathlib import Path
+
+import zmq
+
+from station.errors import StationFault
+
+
+class ControlError(StationFault):
+    """A control request that the station's state does not allow (a run already under way, ...)."""
+
+
+CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge", "reset")
+MAX_REQUEST_BYTES = 64 * 1024  # a start with a few hundred positions is under 10 kB
+MAX_DEPTH = 5  # {"args": {"params": {"positions_deg": [...]}}} is 4 deep
+DEFAULT_IDENTITY = "panel"
+TOKEN_FILE = "control.token"
+
+
+def ensure_token(path: str | Path) -> str:
+    """The token in `path`, created on first use (256 random bits, hex) readable by its owner only (0600).
+
+    A file that others may read or write is refused: its token can no longer be trusted."""
+    path = Path(path)
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(secrets.token_hex(32) + "\n")
+    mode = path.stat().st_mode & 0o777
+    if mode & 0o077:
+        raise ControlError(f"control token {path}: mode {mode:o} lets others read it; allowed 600 (chmod 600 {path})")
+    token = path.read_text().strip()
+    if len(token) < 32:
+        raise ControlError(f"control token {path}: {len(token)} characters; allowed at least 32")
+    return token
+
+
+def request_mac(token: str, identity: bytes, body: bytes) -> bytes:
+    """HMAC-SHA256 of identity NUL body under the token, hex: what authenticates a request."""
+    return hmac.new(token.encode(), identity + b"\0" + body, hashlib.sha256).hexdigest().encode()
+
+
+def nesting_depth(body: bytes, limit: int) -> int:
+    """Bracket depth of a JSON text (strings skipped), scanning no further than a depth above limit."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for ch in body.decode("utf-8", errors="replace"):
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+            if deepest > limit:
+                return deepest
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
+class ControlClient:
+    """The panel's side: one request at a time, a bounded wait for the reply."""
+
+    def __init__(
+        self, endpoint: str, *, token: str | None, identity: str = DEFAULT_IDENTITY, timeout_s: float = 10.0
+    ) -> None:
+        self.endpoint = endpoint
+        self._token = token or ""
+        self._identity = identity.encode()
+        self._timeout_ms = round(timeout_s * 1000)
+        self._ctx = zmq.Context.instance()
+        self._lock = threading.Lock()
+        self._sock = self._new_socket()
+
+    def _new_socket(self) -> zmq.Socket:
+        sock = self._ctx.socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.RCVTIMEO, self._timeout_ms)
+        sock.setsockopt(zmq.SNDTIMEO, self._timeout_ms)
+        sock.connect(self.endpoint)
+        return sock
+
+    def request(self, cmd: str, args: dict | None = None, user: str = "") -> dict:
+        """The reply document; {"ok": false, "error": {"type": "Timeout"}} if the station does not answer."""
+        body = json.dumps({"cmd": cmd, "args": args or {}, "user": user}).encode()
+        frames = [self._identity, request_mac(self._token, self._identity, body), body]
+        with self._lock:
+            try:
+                self._sock.send_multipart(frames)
+                return json.loads(self._sock.recv())
+            except zmq.Again:
+                self._sock.close()  # a REQ socket that missed its reply cannot send again
+                self._sock = self._new_socket()
+                return {"ok": False, "error": {"type": "Timeout", "message": f"no reply from {self.endpoint}"}}
+
+    def close(self) -> None:
+        with self._lock:
+            self._sock.close()
