@@ -95,7 +95,7 @@ class ControlClient:
         self._token = token or ""
         self._identity = identity.encode()
         self._timeout_ms = round(timeout_s * 1000)
-        self._ctx = zmq.Context.instance()
+        self._ctx: zmq.Context = zmq.Context.instance()
         self._lock = threading.Lock()
         self._sock = self._new_socket()
 
