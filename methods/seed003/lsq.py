@@ -17,6 +17,9 @@ from scipy.optimize import least_squares
 from methods.common.least_squares import FitError
 from methods.common.uncertainty import type_a_json
 
+# Units of the static model's identified terms (seed 003 eq. 14; methods.seed003.static_model)
+UNITS = {"k0+ky": "rad/s", "kz": "rad/s/g", "kzz-ky": "rad/s/g²", "koq": "rad/s/g²", "k3": "rad/s/g³"}
+
 # Beyond this condition number of the column-scaled Jacobian the parameters are not separable in double precision.
 MAX_CONDITION = 1e10
 SEED003_TYPE_B = (
@@ -46,8 +49,6 @@ class Fit:
     def to_json(self) -> dict:
         coefs = {n: {"value": float(v), "sigma": float(s)} for n, v, s in zip(self.names, self.values, self.sigmas,
                                                                                strict=True)}  # fmt: skip
-        from methods.seed003.static_model import UNITS  # static_model imports this module
-
         units = {n: UNITS.get(n.split(" ")[-1], "rad" if n[:1] in "cs" or "dtheta" in n else "") for n in self.names}
         gum = type_a_json(coefs, self.names, self.values, self.cov, self.dof, units, SEED003_TYPE_B)
         return {"coefficients": coefs, "sigma_residual_radps": self.sigma_residual, "dof": self.dof,

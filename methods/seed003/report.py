@@ -17,8 +17,9 @@ from methods.seed003.design import (
 )
 from methods.seed003.four_pose import angle_error_rad, harmonic_names
 from methods.seed003.gravity_field import IDENTIFIABILITY, Calibration, GravityFieldResult
+from methods.seed003.lsq import UNITS
 from methods.seed003.sequences import SCHEMES, sequence_deg
-from methods.seed003.static_model import UNITS, relative_fitting_accuracy_g
+from methods.seed003.static_model import relative_fitting_accuracy_g
 from station.htmlkit import document, esc, svg, table
 from station.session import StationInfo
 

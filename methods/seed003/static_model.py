@@ -24,7 +24,6 @@ MODELS: Mapping[str, tuple[str, ...]] = {
     "seed003": ("k0+ky", "kz", "kzz-ky", "koq"),
     "physics": ("k0+ky", "kz", "kzz-ky", "koq", "k3"),
 }
-UNITS = {"k0+ky": "rad/s", "kz": "rad/s/g", "kzz-ky": "rad/s/g²", "koq": "rad/s/g²", "k3": "rad/s/g³"}
 _COLUMNS = {
     "k0+ky": (lambda c: np.ones_like(c), lambda c: np.zeros_like(c)),
     "kz": (lambda c: c, lambda c: np.ones_like(c)),
