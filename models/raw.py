@@ -21,7 +21,7 @@ import numpy as np
 
 from models.config import TwinConfig
 from models.inputs import table_position_m
-from models.measurement import PointSpec
+from models.plan import PointSpec
 from models.precession import PrecessionWindow
 from station.constants import GRATING_RATE_HZ
 from station.errors import InputError

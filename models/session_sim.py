@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from models.config import TwinConfig
-from models.measurement import PointSpec, SimulatedPoint, simulate_point
-from models.plan import point_id
+from models.measurement import SimulatedPoint, simulate_point
+from models.plan import PointSpec, point_id
 from station.session import Session, StationInfo
 
 SETUP_TIME_S = 60.0  # index move, ramp and settle between points (nominal)

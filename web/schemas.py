@@ -93,10 +93,10 @@ ERRORS = {
     403: {"model": Problem, "description": "operators only, or missing CSRF token"},
     404: {"model": Problem, "description": "no such station, session or diagnosis"},
     409: {"model": Problem, "description": "the station's state does not allow it"},
-    422: {"model": Problem, "description": "bad input: the message names the field, the value and what is allowed"},
     413: {"model": Problem, "description": "an upload over the panel's size limits"},
-    502: {"model": Problem, "description": "the station refused the panel (configuration fault)"},
+    422: {"model": Problem, "description": "bad input: the message names the field, the value and what is allowed"},
     429: {"model": Problem, "description": "too many failed logins for this user or address: wait Retry-After s"},
+    502: {"model": Problem, "description": "the station refused the panel (configuration fault)"},
     504: {"model": Problem, "description": "the station did not answer"},
 }
 

@@ -92,6 +92,13 @@ async def _until_closed(ws: WebSocket) -> None:
         await ws.receive_text()
 
 
+async def _until_revoked(ws: WebSocket, logins: LoginSessions, token: str | None) -> None:
+    """Close the socket once its login ends (logout, expiry, the user removed or re-roled)."""
+    while logins.get(token) is not None:
+        await asyncio.sleep(REVOCATION_CHECK_S)
+    await ws.close(NOT_LOGGED_IN, "logged out")
+
+
 @router.websocket("/ws/telemetry")
 async def telemetry(ws: WebSocket, station: Annotated[list[str] | None, Query()] = None) -> None:
     """Every message of the stations (all, or those named by ?station=), as JSON arrays of telemetry documents."""
@@ -105,13 +112,6 @@ async def telemetry(ws: WebSocket, station: Annotated[list[str] | None, Query()]
         return
     await ws.accept()
     queue = p.relay.subscribe(station)
-async def _until_revoked(ws: WebSocket, logins: LoginSessions, token: str | None) -> None:
-    """Close the socket once its login ends (logout, expiry, the user removed or re-roled)."""
-    while logins.get(token) is not None:
-        await asyncio.sleep(REVOCATION_CHECK_S)
-    await ws.close(NOT_LOGGED_IN, "logged out")
-
-
     try:
         async with anyio.create_task_group() as tasks:
 
