@@ -241,8 +241,8 @@ def _candidate_table(
             if s.profiled:
                 entry["profiled_parameters"] = {
                     **s.profiled,
-                    "method": "set by profile on a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50): the grid "
-                    "point whose kx column removes the most chi^2",
+                    "method": "set by profile: a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50), then a fine one "
+                    "around its best point: the point whose kx column removes the most chi^2 (lateral_profile)",
                 }
             G, entry["heldout_shrink"] = shrinks.get(name, (math.nan, None))
             entry["evidence"] = {

@@ -132,7 +132,8 @@ def _gain2(f_hz: np.ndarray, fr_hz: float, q: float) -> np.ndarray:
 def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] | None:
     """fr and Q of a lateral resonance by profile: kx aO^2 has window mean kx L(f)^2 a^2 <sin^2>, so its
     column at (fr, Q) is the linearisation's kx column with each vibration row scaled by L(f)^2 / L(f; twin)^2.
-    The (fr, Q) whose column, off the current model, removes the most chi^2 is returned (None without one)."""
+    The (fr, Q) whose column, off the current model, removes the most chi^2 is returned (None without one):
+    first on the coarse grid, then on a fine one around its best point (a sharp resonance falls between)."""
     key = "lateral_resonance.kx"
     if key not in lin.columns:
         return None
@@ -143,16 +144,26 @@ def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] |
     J = current.J[:, np.linalg.norm(current.J, axis=0) > 0]
     Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
     r = current.r_white
-    best, best_gain = None, 0.0
-    for fr in LATERAL_FR_HZ:
-        for q in LATERAL_Q:
-            c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
-            c = c - Q @ (Q.T @ c)
-            cc = float(c @ c)
-            gain = float(c @ r) ** 2 / cc if cc > 0 else 0.0
-            if gain > best_gain:
-                best, best_gain = {"fr": fr, "Q": q}, gain
-    return best
+
+    def best_of(frs, qs) -> tuple[dict[str, float] | None, float]:
+        best, best_gain = None, 0.0
+        for fr in frs:
+            for q in qs:
+                c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
+                c = c - Q @ (Q.T @ c)
+                cc = float(c @ c)
+                gain = float(c @ r) ** 2 / cc if cc > 0 else 0.0
+                if gain > best_gain:
+                    best, best_gain = {"fr": float(fr), "Q": float(q)}, gain
+        return best, best_gain
+
+    coarse, _ = best_of(LATERAL_FR_HZ, LATERAL_Q)
+    if coarse is None:
+        return None
+    step = LATERAL_FR_HZ[1] / LATERAL_FR_HZ[0]
+    frs = np.geomspace(coarse["fr"] / step, coarse["fr"] * step, 21)
+    fine, _ = best_of(frs, np.geomspace(LATERAL_Q[0], LATERAL_Q[-1], 31))
+    return fine
 
 
 def _step(
