@@ -132,8 +132,9 @@ def _gain2(f_hz: np.ndarray, fr_hz: float, q: float) -> np.ndarray:
 def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] | None:
     """fr and Q of a lateral resonance by profile: kx aO^2 has window mean kx L(f)^2 a^2 <sin^2>, so its
     column at (fr, Q) is the linearisation's kx column with each vibration row scaled by L(f)^2 / L(f; twin)^2.
-    The (fr, Q) whose column, off the current model, removes the most chi^2 is returned (None without one):
-    first on the coarse grid, then on a fine one around its best point (a sharp resonance falls between)."""
+    The (fr, Q) whose column, off the current model, removes the most chi^2 with kx within its plausible
+    bound is returned (None without one): first on the coarse grid, then on a fine one around its best
+    point (a sharp resonance falls between coarse points)."""
     key = "lateral_resonance.kx"
     if key not in lin.columns:
         return None
@@ -141,29 +142,37 @@ def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] |
     fr0, q0 = lin.base_cfg.param("lateral_resonance", "fr"), lin.base_cfg.param("lateral_resonance", "Q")
     f = np.concatenate([d.freq_hz, np.zeros(ch.n_other)])
     col0 = lin.columns[key]
+    bound = lin.param(key).bound
     J = current.J[:, np.linalg.norm(current.J, axis=0) > 0]
     Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
     r = current.r_white
 
-    def best_of(frs, qs) -> tuple[dict[str, float] | None, float]:
+    def best_of(frs, qs, bounded: bool) -> tuple[dict[str, float] | None, float]:
         best, best_gain = None, 0.0
         for fr in frs:
             for q in qs:
                 c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
                 c = c - Q @ (Q.T @ c)
                 cc = float(c @ c)
-                gain = float(c @ r) ** 2 / cc if cc > 0 else 0.0
+                if cc <= 0 or (bounded and abs(float(c @ r) / cc) > bound):  # kx beyond its plausible bound
+                    continue
+                gain = float(c @ r) ** 2 / cc
                 if gain > best_gain:
                     best, best_gain = {"fr": float(fr), "Q": float(q)}, gain
         return best, best_gain
 
-    coarse, _ = best_of(LATERAL_FR_HZ, LATERAL_Q)
-    if coarse is None:
-        return None
     step = LATERAL_FR_HZ[1] / LATERAL_FR_HZ[0]
-    frs = np.geomspace(coarse["fr"] / step, coarse["fr"] * step, 21)
-    fine, _ = best_of(frs, np.geomspace(LATERAL_Q[0], LATERAL_Q[-1], 31))
-    return fine
+    q_fine = np.geomspace(LATERAL_Q[0], LATERAL_Q[-1], 31)
+    # The region from the coarse grid whatever kx (a sharp peak may need the fine grid to come within
+    # bounds), then the fine grid within bounds; failing that, the coarse grid within bounds.
+    for bounded in (False, True):
+        coarse, _ = best_of(LATERAL_FR_HZ, LATERAL_Q, bounded)
+        if coarse is None:
+            continue
+        fine, _ = best_of(np.geomspace(coarse["fr"] / step, coarse["fr"] * step, 21), q_fine, True)
+        if fine is not None:
+            return fine
+    return None
 
 
 def _step(
