@@ -6,7 +6,7 @@
 Python API (stable; the web panel uses it):
     report = diagnose(session, twin)          # GapReport; raises GapInputError on bad input
     report.to_json()                          # the OUT.json document (plain JSON types)
-    gap.report_html.render(report)    # the self-contained HTML report
+    gap.report.render(report)    # the self-contained HTML report
     report.twin_out                           # the twin with the effect(s) switched on
 
 Steps (issue 3): localise (refit the calibrated coefficients, standardised
@@ -23,7 +23,7 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -51,68 +51,11 @@ from gap.noise import (
     timing_rate_sd_radps,
 )
 from gap.rawstreams import GratingRecord, raw_evidence, raw_summary_text
-from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide, family_level
+from gap.report import GapReport, render
+from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, decide, family_level
 from methods.common.least_squares import FitError, fit_joint
 from models.config import TwinConfig, TwinConfigError, default_twin
-from station.jsonsafe import json_safe
 from station.session import Session
-
-FORMAT = "piga-gap/1"
-
-
-@dataclass
-class GapReport:
-    """Everything the diagnosis found. `to_json()` is the OUT.json document; the arrays feed the HTML maps."""
-
-    verdict: Verdict
-    candidates: list[dict]  # ranked: the chosen effects, then identifiable candidates by BIC, then the rest
-    gap_before: HeldOut  # the twin with its calibrated coefficients refitted
-    gap_after: HeldOut  # ... and the chosen effects added
-    where: dict
-    identifiability: IdentifiabilityReport
-    noise: dict
-    coefficients: dict
-    twin_out: TwinConfig  # the twin with the chosen effect(s) switched on (the input twin unless explained)
-    session_info: dict
-    settings: dict
-    elapsed_s: float
-    design: PointDesign = field(repr=False)
-    z_before: np.ndarray = field(repr=False)  # standardised residual of every point, twin refitted
-    z_after: np.ndarray = field(repr=False)  # ... with the chosen effects
-    tau_z_before: np.ndarray = field(repr=False)  # standardised period identities of the vibration points
-    tau_z_after: np.ndarray = field(repr=False)
-    raw: dict = field(default_factory=dict)
-
-    @property
-    def effects(self) -> list[str]:
-        return list(self.verdict.effects)
-
-    def _repr_html_(self) -> str:
-        """Rich display in a notebook: the HTML report's body (gap.report_html.render)."""
-        from gap.report_html import render
-        from station.htmlkit import html_fragment
-
-        return html_fragment(render(self))
-
-    def to_json(self) -> dict:
-        return json_safe(
-            {
-                "format": FORMAT,
-                **self.verdict.to_json(),
-                "candidates": self.candidates,
-                "gap_before": self.gap_before.to_json(),
-                "gap_after": self.gap_after.to_json(),
-                "where": self.where,
-                "identifiability": self.identifiability.to_json(),
-                "noise": self.noise,
-                "calibrated_coefficients": self.coefficients,
-                "twin_config": self.twin_out.to_dict(),
-                "session": self.session_info,
-                "settings": self.settings,
-                "elapsed_s": self.elapsed_s,
-            }
-        )
-
 
 # ----------------------------------------------------------------------------- the diagnosis
 
@@ -473,7 +416,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(report.to_json(), indent=2, allow_nan=False))
     if args.html:
-        from gap.report_html import render
 
         Path(args.html).write_text(render(report))
     if args.twin_out:

@@ -13,7 +13,8 @@ from pathlib import Path
 
 from fastapi import HTTPException
 
-from gap.api import GapReport, diagnose
+from gap.api import diagnose
+from gap.report import GapReport
 from models.config import TwinConfig, default_twin
 from station.session import Session
 

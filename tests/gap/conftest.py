@@ -11,7 +11,8 @@ import functools
 
 import pytest
 
-from gap.api import GapReport, diagnose
+from gap.api import diagnose
+from gap.report import GapReport
 from gap.validate import Case, make_session
 from models.config import TwinConfig, default_twin
 from station.session import Session

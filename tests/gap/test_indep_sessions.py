@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from gap.api import GapReport, diagnose, summary_text
+from gap.api import diagnose, summary_text
+from gap.report import GapReport
 from models.config import default_twin
 from station.interchange import read_session
 

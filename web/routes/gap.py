@@ -10,9 +10,8 @@ from fastapi import APIRouter, Depends, File, HTTPException, Path, Request, Uplo
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse
 
-from gap.api import GapReport
 from gap.heldout import shrink
-from gap.report_html import render
+from gap.report import GapReport, render
 from station.interchange import SessionFormatError
 from web.archive import unpack
 from web.auth import ViewerAction, viewer

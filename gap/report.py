@@ -1,4 +1,5 @@
-"""Self-contained HTML report of a gap diagnosis: `render(report)` (inline SVG, nothing loaded from elsewhere).
+"""The report of a gap diagnosis: `GapReport` (what the diagnosis found, `to_json()` the OUT.json document) and
+`render(report)`, its self-contained HTML (inline SVG, nothing loaded from elsewhere).
 
 Verdict, held-out gap before and after (metric defined), where the gap lies
 (maps of standardised residuals over position x frequency, run order with
@@ -12,13 +13,73 @@ configuration with the chosen effect(s) switched on.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass, field
 
 import numpy as np
 from matplotlib.figure import Figure
 
-from gap.api import GapReport
+from gap.design import PointDesign
+from gap.heldout import HeldOut
+from gap.identifiability import IdentifiabilityReport
+from gap.verdict import Verdict
+from models.config import TwinConfig
 from station import htmlkit
-from station.htmlkit import esc, table
+from station.htmlkit import esc, html_fragment, table
+from station.jsonsafe import json_safe
+
+FORMAT = "piga-gap/1"
+
+
+@dataclass
+class GapReport:
+    """Everything the diagnosis found. `to_json()` is the OUT.json document; the arrays feed the HTML maps."""
+
+    verdict: Verdict
+    candidates: list[dict]  # ranked: the chosen effects, then identifiable candidates by BIC, then the rest
+    gap_before: HeldOut  # the twin with its calibrated coefficients refitted
+    gap_after: HeldOut  # ... and the chosen effects added
+    where: dict
+    identifiability: IdentifiabilityReport
+    noise: dict
+    coefficients: dict
+    twin_out: TwinConfig  # the twin with the chosen effect(s) switched on (the input twin unless explained)
+    session_info: dict
+    settings: dict
+    elapsed_s: float
+    design: PointDesign = field(repr=False)
+    z_before: np.ndarray = field(repr=False)  # standardised residual of every point, twin refitted
+    z_after: np.ndarray = field(repr=False)  # ... with the chosen effects
+    tau_z_before: np.ndarray = field(repr=False)  # standardised period identities of the vibration points
+    tau_z_after: np.ndarray = field(repr=False)
+    raw: dict = field(default_factory=dict)
+
+    @property
+    def effects(self) -> list[str]:
+        return list(self.verdict.effects)
+
+    def _repr_html_(self) -> str:
+        """Rich display in a notebook: the HTML report's body (render, below)."""
+        return html_fragment(render(self))
+
+    def to_json(self) -> dict:
+        return json_safe(
+            {
+                "format": FORMAT,
+                **self.verdict.to_json(),
+                "candidates": self.candidates,
+                "gap_before": self.gap_before.to_json(),
+                "gap_after": self.gap_after.to_json(),
+                "where": self.where,
+                "identifiability": self.identifiability.to_json(),
+                "noise": self.noise,
+                "calibrated_coefficients": self.coefficients,
+                "twin_config": self.twin_out.to_dict(),
+                "session": self.session_info,
+                "settings": self.settings,
+                "elapsed_s": self.elapsed_s,
+            }
+        )
+
 
 _VERDICT_CLASS = {"no_gap": "ok", "explained": "ok", "unexplained": "bad", "cannot_tell": "bad"}
 
