@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import pytest
 
@@ -12,7 +13,7 @@ from station.store import SessionStore
 def test_calibrate_runs_stores_identifies_and_reports(tmp_path, capsys):
     assert main(["calibrate", "--out", str(tmp_path), "--seed", "11"]) == 0
     printed = capsys.readouterr().out
-    assert "  kzz = " in printed and "u = " in printed and "U = " in printed  # value, u and U = k u (issue 17)
+    assert re.search(r"^\s+kzz\s+= ", printed, re.M) and "u = " in printed and "U = " in printed  # value, u, U = k u
     with SessionStore(tmp_path / "station.sqlite") as store:
         (session,) = store.sessions()
         assert session["n_points"] == 40 and session["status"] == "finished"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import sqlite3
 import subprocess
@@ -62,4 +63,4 @@ def test_kill_9_mid_session_then_resume(tmp_path) -> None:
     assert [s for _, s in after] == list(range(10)) and len({p for p, _ in after}) == 10
     with sqlite3.connect(db) as con:
         assert con.execute("SELECT status FROM sessions").fetchone() == ("finished",)
-    assert "integral:" in done.stdout and "  kz = " in done.stdout  # the resumed session was analysed
+    assert re.search(r"^integral:", done.stdout, re.M) and re.search(r"^\s+kz\s+= ", done.stdout, re.M)  # analysed
