@@ -156,7 +156,8 @@ def write_outputs(store: SessionStore, outcome: RunOutcome, out_dir: Path, out: 
 
 def describe_results(results: dict, summary: str) -> str:
     """The coefficients with their units, u and U = k u, each fit's residual sigma and mu vs mu_c, and what
-    the uncertainty means; the method's own summary where it states no quantities with values."""
+    the uncertainty means; then the method's own summary (what to do next: a mass to remove, ...) but for its
+    lines on the results already listed."""
     lines: list[str] = []
     rows = coefficient_rows(results)
     for name in dict.fromkeys(r.result for r in rows):
@@ -171,8 +172,9 @@ def describe_results(results: dict, summary: str) -> str:
             lines.append(f"  residual sigma = {doc['sigma_residual']:.3e} {unit}".rstrip())
         if doc.get("mu") is not None and doc.get("mu_c") is not None:
             lines.append(f"  mu = {doc['mu']:.2f}, mu_c = {doc['mu_c']:.2f} (dimensionless)")
-    if not rows:
-        lines.append(summary)
+    shown = {r.result for r in rows}
+    # the method's own summary, but for its lines on the results listed above ("integral: kz = ...")
+    lines += [line for line in summary.splitlines() if line.split(":", 1)[0].strip() not in shown]
     if rows:
         lines.append(f"({UNCERTAINTY_NOTE}; {MU_NOTE})")
     return "\n".join(lines)
