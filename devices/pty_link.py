@@ -49,6 +49,12 @@ class Fault(enum.Enum):
     COUNTER_OVERFLOW = "counter_overflow"  # counter/timer pulse count overflows
 
 
+# What every framed serial link can suffer; a device's emulator adds its own (signal loss, overflow, ...).
+LINK_FAULTS: frozenset[enum.Enum] = frozenset(
+    {Fault.NO_ANSWER, Fault.GARBLE, Fault.TRUNCATE, Fault.CRC_ERROR, Fault.DISCONNECT}
+)
+
+
 class FaultBox:
     """Armed faults: `count` occurrences each, or persistent until cleared (count=None)."""
 

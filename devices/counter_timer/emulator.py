@@ -28,7 +28,7 @@ import numpy as np
 
 from devices.counter_timer import protocol as c
 from devices.counter_timer.protocol import ARMED, CLOSING, COUNTING, DONE_STATE, FAULTED, IDLE
-from devices.pty_link import Fault, PtyEmulator, garble, truncate
+from devices.pty_link import LINK_FAULTS, Fault, PtyEmulator, garble, truncate
 from devices.serial_port import FrameParser, encode_frame, ticks_of
 
 SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary edges are those
@@ -40,16 +40,7 @@ MAX_STAMP_GAP_S = 100.0  # consecutive stamps well within a wrap of the 32-bit t
 
 class CounterEmulator(PtyEmulator):
     name = "counter-emulator"
-    supported_faults = frozenset(
-        {
-            Fault.NO_ANSWER,
-            Fault.GARBLE,
-            Fault.TRUNCATE,
-            Fault.CRC_ERROR,
-            Fault.DISCONNECT,
-            Fault.COUNTER_OVERFLOW,
-        }
-    )
+    supported_faults = LINK_FAULTS | {Fault.COUNTER_OVERFLOW}
 
     def __init__(self, world: Any, *, baud: int = 921_600, **kw: Any) -> None:
         super().__init__(world.clock, baud=baud, **kw)

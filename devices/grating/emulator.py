@@ -23,7 +23,7 @@ import numpy as np
 
 from devices.grating import protocol as g
 from devices.grating.protocol import SAMPLE_FRAME_LEN, encode_sample_frames
-from devices.pty_link import Fault, PtyEmulator, garble, truncate
+from devices.pty_link import LINK_FAULTS, Fault, PtyEmulator, garble, truncate
 from devices.serial_port import FrameParser, encode_frame, ticks_of
 
 MAX_SAMPLES_PER_POLL = 4000
@@ -31,16 +31,7 @@ MAX_SAMPLES_PER_POLL = 4000
 
 class GratingEmulator(PtyEmulator):
     name = "grating-emulator"
-    supported_faults = frozenset(
-        {
-            Fault.NO_ANSWER,
-            Fault.GARBLE,
-            Fault.TRUNCATE,
-            Fault.CRC_ERROR,
-            Fault.DISCONNECT,
-            Fault.SIGNAL_LOSS,
-        }
-    )
+    supported_faults = LINK_FAULTS | {Fault.SIGNAL_LOSS}
 
     def __init__(self, world: Any, *, baud: int = 3_000_000, **kw: Any) -> None:
         super().__init__(world.clock, baud=baud, **kw)

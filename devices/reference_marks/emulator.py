@@ -17,24 +17,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from devices.pty_link import Fault, PtyEmulator, garble, truncate
+from devices.pty_link import LINK_FAULTS, Fault, PtyEmulator, garble, truncate
 from devices.reference_marks.protocol import HEARTBEAT_S, decode_line, encode_line
 from devices.serial_port import ticks_of
 
 
 class ReferenceEmulator(PtyEmulator):
     name = "reference-emulator"
-    supported_faults = frozenset(
-        {
-            Fault.NO_ANSWER,
-            Fault.GARBLE,
-            Fault.TRUNCATE,
-            Fault.CRC_ERROR,
-            Fault.DISCONNECT,
-            Fault.SIGNAL_LOSS,
-            Fault.OVERSPEED,
-        }
-    )
+    supported_faults = LINK_FAULTS | {Fault.SIGNAL_LOSS, Fault.OVERSPEED}
 
     def __init__(self, world: Any, *, baud: int = 115_200, **kw: Any) -> None:
         super().__init__(world.clock, baud=baud, **kw)
