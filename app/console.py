@@ -147,6 +147,9 @@ def write_outputs(store: SessionStore, outcome: RunOutcome, out_dir: Path, out: 
         result = out_dir / f"result-{outcome.session_uid}.json"
         result.write_text(json.dumps(outcome.analysis.results, indent=2))
         print(f"report: {outcome.report_path}\nresult: {result}", file=out)
+        if outcome.report_path is not None:  # the analysis job writes the certificate beside the report
+            for path in sorted(Path(outcome.report_path).parent.glob(f"certificate-{outcome.session_uid}.*")):
+                print(f"certificate: {path}", file=out)
     export = out_dir / f"session-{outcome.session_uid}"
     write_session(store.load_session(outcome.session_uid), export, overwrite=True)
     print(f"piga-session/1: {export}", file=out)
