@@ -51,7 +51,7 @@ class Alignment:
 
 def earth_rate_along_ia(theta_rad: np.ndarray, station: StationInfo, latitude_rad: float | None = None) -> np.ndarray:
     """w_ie sin(lam - theta): the earth rate along IA (physics.md inputs)."""
-    lam = math.radians(station.latitude_deg) if latitude_rad is None else latitude_rad
+    lam = station.latitude_rad if latitude_rad is None else latitude_rad
     return station.earth_rate_radps * np.sin(lam - np.asarray(theta_rad, dtype=float))
 
 
@@ -66,7 +66,7 @@ def two_position(
     sigma_kz: float,
 ) -> Alignment:
     """|dtheta_h| by eq. 26 and its uncertainty by eq. 27."""
-    lam = math.radians(station.latitude_deg)
+    lam = station.latitude_rad
     wie = station.earth_rate_radps
     c = (rate_0_radps - rate_180_radps + 2 * wie * math.sin(lam)) / (2 * kz_radps_per_g)
     angle = math.acos(min(c, 1.0))

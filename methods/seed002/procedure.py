@@ -47,7 +47,7 @@ VELOCITY_BLOCK_S = 2.0
 
 def _site(ctx: Any) -> Site:
     st = ctx.hw.station
-    return Site(st.g_mps2, st.earth_rate_radps, math.radians(st.latitude_deg))
+    return Site(st.g_mps2, st.earth_rate_radps, st.latitude_rad)
 
 
 # One run's record (seed 002 eqs. 17-22). The dry run knows the settings and the shapes, not the observation:

@@ -33,7 +33,7 @@ def horizontal_axis_alignment(
     sigma_kz: float,
 ) -> Alignment:
     """theta0 by eq. 55 and its uncertainty by eq. 56; k0 + ky from the mean of the two rates."""
-    lam = math.radians(station.latitude_deg)
+    lam = station.latitude_rad
     wie = station.earth_rate_radps
     s = (rate_270_radps - rate_90_radps + 2 * wie * math.cos(lam)) / (2 * kz_radps_per_g)
     theta0 = math.asin(max(-1.0, min(1.0, s)))
