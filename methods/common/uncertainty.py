@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -74,12 +74,15 @@ class Source:
     note: str = ""
     in_combined: bool = True  # False: listed for the record, already inside another row (no double counting)
     contribution_override: np.ndarray | None = None  # Type A: sigma_k per coefficient
+    block_cov: np.ndarray | None = None  # a row that is a whole covariance (a sub-fit's, propagated), added once
 
     @property
     def contribution(self) -> np.ndarray:
-        """|c_j| u(x) per coefficient (GUM 5.1.3 u_j(y))."""
+        """|c_j| u(x) per coefficient (GUM 5.1.3 u_j(y)); sqrt(diag) of a block row."""
         if self.contribution_override is not None:
             return np.asarray(self.contribution_override, dtype=float)
+        if self.block_cov is not None:
+            return np.sqrt(np.clip(np.diag(np.asarray(self.block_cov, dtype=float)), 0.0, None))
         return np.abs(self.sensitivity) * self.standard_uncertainty
 
 
@@ -98,7 +101,11 @@ class Budget:
         p = len(self.names)
         cov = np.zeros((p, p)) if self.cov_a is None else np.array(self.cov_a, dtype=float)
         for s in self.sources:
-            if s.type == "B" and s.in_combined:
+            if not s.in_combined:
+                continue
+            if s.block_cov is not None:
+                cov += np.asarray(s.block_cov, dtype=float)
+            elif s.type == "B":
                 c = np.asarray(s.sensitivity, dtype=float) * s.standard_uncertainty
                 cov += np.outer(c, c)
         if self.extra_cov is not None:
@@ -242,10 +249,121 @@ def type_a_json(
     """Merge the GUM fields of a budget that holds the fit alone (k from t at its dof) into each entry of
     `coefficients` (name -> {"value", "sigma", ...}); return the covariance and budget keys, with a statement of
     the Type B inputs left out (so that a reader sees they were not evaluated, not that they are zero)."""
-    doc = type_a_only(names, values, cov, dof, units).to_json()
+    return merged_json(coefficients, type_a_only(names, values, cov, dof, units), type_b_note)
+
+
+# ---------------------------------------------------------------- budgets of any identification (seeds 001-004)
+
+
+@dataclass(frozen=True)
+class Input:
+    """A Type B input of an identification: its value as used, standard uncertainty u and where u comes from."""
+
+    key: str
+    label: str
+    value: float
+    u: float
+    unit: str
+    note: str = ""
+    dof: float = math.inf
+
+
+def refit_sources(inputs: Sequence[Input], refit: Callable[[Mapping[str, float]], np.ndarray]) -> list[Source]:
+    """One Type B row per input, c = dK/dx from the whole identification re-run with that input at x +- u and the
+    others at their values (GUM 5.1.3 note 2); `refit` maps {key: value} to the coefficient vector."""
+    base = {i.key: i.value for i in inputs}
+    return [
+        type_b_source(i.label, i.value, i.u, i.unit, lambda x, k=i.key: refit({**base, k: x}), note=i.note, dof=i.dof)
+        for i in inputs
+    ]
+
+
+def fit_budget(
+    names: Sequence[str],
+    values: np.ndarray,
+    cov: np.ndarray,
+    dof: int,
+    units: Mapping[str, str],
+    type_b: Sequence[Source] = (),
+    note: str = "",
+) -> Budget:
+    """The budget of a least-squares identification: its fit (Type A) and its Type B rows."""
+    cov = np.asarray(cov, dtype=float)
+    return Budget(tuple(names), np.asarray(values, dtype=float), units, [type_a_source(names, cov, dof, note),
+                  *type_b], cov_a=cov)  # fmt: skip
+
+
+def transformed(budget: Budget, names: Sequence[str], values: np.ndarray, jacobian: np.ndarray,
+                units: Mapping[str, str]) -> Budget:  # fmt: skip
+    """The budget of y' = g(y) from that of y (GUM 5.1.2 to first order): every sensitivity c -> J c, every
+    covariance C -> J C J^T, the dof of each row kept; J = dg/dy at the identified values."""
+    J = np.atleast_2d(np.asarray(jacobian, dtype=float))
+
+    def cov_of(c: np.ndarray | None) -> np.ndarray | None:
+        return None if c is None else J @ np.asarray(c, dtype=float) @ J.T
+
+    cov_a = cov_of(budget.cov_a)
+    rows = []
+    for s in budget.sources:
+        if s.contribution_override is not None:  # the fit: its covariance is cov_a
+            rows.append(replace(s, sensitivity=np.ones(len(names)), contribution_override=np.sqrt(np.diag(cov_a))))
+        else:
+            rows.append(replace(s, sensitivity=J @ np.asarray(s.sensitivity, dtype=float),
+                                block_cov=cov_of(s.block_cov)))  # fmt: skip
+    return Budget(tuple(names), np.asarray(values, dtype=float), units, rows, cov_a=cov_a,
+                  extra_cov=cov_of(budget.extra_cov), probability=budget.probability)  # fmt: skip
+
+
+def with_fit(budget: Budget, cov: np.ndarray, dof: float, note: str) -> Budget:
+    """The same budget with the fit's Type A row replaced (e.g. by a noise pooled over several fits)."""
+    cov = np.asarray(cov, dtype=float)
+    a = type_a_source(budget.names, cov, int(dof), note)
+    rows = [a if s.contribution_override is not None else s for s in budget.sources]
+    return replace(budget, sources=rows, cov_a=cov)
+
+
+def merged_json(coefficients: dict[str, dict], budget: Budget, type_b_note: str) -> dict:
+    """Merge a budget's GUM fields into `coefficients` (name -> {"value", "sigma", ...}, "sigma" kept as the fit's
+    Type A sigma) and return its covariance, budget rows and the note on the Type B inputs left out."""
+    doc = budget.to_json()
     for name, fields in doc["coefficients"].items():
         entry = coefficients.setdefault(name, {})
         entry.update(fields)
         entry.setdefault("sigma", fields["standard_uncertainty"])
     return {"covariance": doc["covariance"], "budget": doc["budget"], "few_dof": doc["few_dof"],
             "type_b": type_b_note}  # fmt: skip
+
+
+def stacked(first: Budget, second: Budget) -> Budget:
+    """One budget of two identifications on independent data that share their Type B inputs (rows of the same
+    source name: their sensitivities side by side, so the inputs' correlation between the two is kept); the
+    fits' Type A rows become one block-diagonal row, which needs the two fits' dof to agree (e.g. pooled)."""
+    a1, a2 = (next(s for s in b.sources if s.contribution_override is not None) for b in (first, second))
+    if a1.dof != a2.dof:
+        raise UncertaintyError(f"Type A dof {a1.dof:g} and {a2.dof:g} differ: one row cannot carry both")
+    p1, p2 = len(first.names), len(second.names)
+
+    def block(c1: np.ndarray | None, c2: np.ndarray | None) -> np.ndarray | None:
+        if c1 is None and c2 is None:
+            return None
+        out = np.zeros((p1 + p2, p1 + p2))
+        out[:p1, :p1] = 0.0 if c1 is None else c1
+        out[p1:, p1:] = 0.0 if c2 is None else c2
+        return out
+
+    cov_a = block(first.cov_a, second.cov_a)
+    rows = [type_a_source((*first.names, *second.names), cov_a, int(a1.dof), a1.note)]
+    other = {s.source: s for s in second.sources if s.contribution_override is None}
+    for s in first.sources:
+        if s.contribution_override is not None:
+            continue
+        t = other.pop(s.source, None)
+        c2 = np.zeros(p2) if t is None else t.sensitivity
+        rows.append(replace(s, sensitivity=np.concatenate([s.sensitivity, c2]),
+                            block_cov=block(s.block_cov, None if t is None else t.block_cov)))  # fmt: skip
+    for t in other.values():
+        rows.append(replace(t, sensitivity=np.concatenate([np.zeros(p1), t.sensitivity]),
+                            block_cov=block(None, t.block_cov)))  # fmt: skip
+    return Budget((*first.names, *second.names), np.concatenate([first.values, second.values]),
+                  {**first.units, **second.units}, rows, cov_a=cov_a,
+                  extra_cov=block(first.extra_cov, second.extra_cov), probability=first.probability)  # fmt: skip

@@ -34,7 +34,8 @@ import numpy as np
 import scipy.linalg
 
 from methods.common.least_squares import FitError, reliability
-from methods.common.uncertainty import type_a_json
+from methods.common.uncertainty import Budget, merged_json, transformed
+from methods.seed001.budget import eq6_budget
 from models.pendulous_accelerometer import CF_NAMES, branch_after_move
 from station.records import Field, declare
 from station.session import Session
@@ -79,8 +80,9 @@ ERROR_NAMES = ("k0", "k2", "k3", "delta_o", "delta_ip")  # eq. 6, last line: K0,
 CF_UNITS = {"K0": "V", "K1": "V/g", "K2": "V/g^2", "K3": "V/g^3", "Mo": "V/g", "Mip": "V/g"}
 ERROR_UNITS = {"k0": "g", "k2": "g/g^2", "k3": "g/g^3", "delta_o": "rad", "delta_ip": "rad"}
 SEED001_TYPE_B = (
-    "Type A only (the stroke fit, k from Student's t at its dof): the dividing head's angle errors, the "
-    "voltmeter's calibration and the temperature readings are not propagated here"
+    "Type B propagated by refit (methods.seed001.budget): the index head's angle error at each head angle, the "
+    "voltmeter's gain and offset; local g is the unit of the inputs and the temperature reading does not enter "
+    "eq. 6 (it places the block on eq. 4's laws)"
 )
 MIN_LEVER_C = 1.0  # a temperature law's slope needs a temperature at least this far from T0
 
@@ -209,6 +211,13 @@ class EightPoint:
     mu: float
     mu_c: float
     Y_sigma_v: np.ndarray
+    budget: Budget | None = None  # GUM budget of K0 .. Mip (methods.seed001.budget)
+
+    def error_budget(self) -> Budget | None:
+        """The budget of k0, k2, k3, delta_o, delta_ip = K / K1 (eq. 6, last line) from that of K0 .. Mip."""
+        if self.budget is None:
+            return None
+        return transformed(self.budget, ERROR_NAMES, self.errors, ratio_jacobian(self.cf), ERROR_UNITS)
 
     def coefficient(self, name: str) -> tuple[float, float]:
         """(value, sigma) of a CF coefficient (K0 .. Mip) or an error-model coefficient (k0 .. delta_ip)."""
@@ -242,22 +251,27 @@ class EightPoint:
             "dof": self.dof,
             "mu": self.mu,
             "mu_c": self.mu_c,
-            "gum_cf": type_a_json(coef, CF_NAMES, self.cf, self.cf_cov, self.dof, CF_UNITS, SEED001_TYPE_B),
-            "gum_errors": type_a_json(
-                coef, ERROR_NAMES, self.errors, self.errors_cov, self.dof, ERROR_UNITS, SEED001_TYPE_B
-            ),
+            "gum_cf": merged_json(coef, self.budget, SEED001_TYPE_B),
+            "gum_errors": merged_json(coef, self.error_budget(), SEED001_TYPE_B),
         }
+
+
+RATIO_OF = [0, 2, 3, 4, 5]  # K0, K2, K3, Mo, Mip over K1
+
+
+def ratio_jacobian(cf: np.ndarray) -> np.ndarray:
+    """d(K / K1)/d(K0 .. Mip) for K0, K2, K3, Mo, Mip (eq. 6, last line)."""
+    k1 = cf[1]
+    jac = np.zeros((len(RATIO_OF), len(cf)))
+    jac[np.arange(len(RATIO_OF)), RATIO_OF] = 1.0 / k1
+    jac[:, 1] = -cf[RATIO_OF] / k1**2
+    return jac
 
 
 def ratios(cf: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """k = K / K1 for K0, K2, K3, Mo, Mip (eq. 6, last line) and their covariance to first order."""
-    others = [0, 2, 3, 4, 5]
-    k1 = cf[1]
-    values = cf[others] / k1
-    jac = np.zeros((len(others), len(cf)))
-    jac[np.arange(len(others)), others] = 1.0 / k1
-    jac[:, 1] = -values / k1
-    return values, jac @ cov @ jac.T
+    jac = ratio_jacobian(cf)
+    return cf[RATIO_OF] / cf[1], jac @ cov @ jac.T
 
 
 def eight_point(block: Readings) -> EightPoint:
@@ -275,6 +289,8 @@ def eight_point(block: Readings) -> EightPoint:
     h, d = fit.values[POSITIONS:] / k1
     s_h, s_d = fit.sigmas[POSITIONS:] / abs(k1)
     mu, mu_c = reliability(fit.residuals, fit.sigma)
+    budget = eq6_budget(CF_NAMES, cf, cf_cov, fit.dof, CF_UNITS, block.volts, block.J,
+                        lambda v: EQ6 @ linear_fit(X, v).values[:POSITIONS])  # fmt: skip
     return EightPoint(
         int(block.block[0]),
         float(block.setpoint_c[0]),
@@ -293,6 +309,7 @@ def eight_point(block: Readings) -> EightPoint:
         mu,
         mu_c,
         np.sqrt(np.diag(cov_Y)),
+        budget,
     )
 
 

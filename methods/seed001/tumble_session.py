@@ -24,9 +24,20 @@ PV_NOISE_C = 0.01
 
 
 def tumble_session(
-    m: AccelerometerModel, temperatures_c: Sequence[float], cycles: int, sigma_g: float, rng: np.random.Generator
+    m: AccelerometerModel,
+    temperatures_c: Sequence[float],
+    cycles: int,
+    sigma_g: float,
+    rng: np.random.Generator,
+    *,
+    head_error_rad: Sequence[float] = (0.0,) * 8,
+    voltmeter_gain: float = 0.0,
+    voltmeter_offset_v: float = 0.0,
 ) -> tuple[Session, list[dict[str, float]]]:
-    """(session, true coefficients per temperature block); sigma_g is the white noise of one reading."""
+    """(session, true coefficients per temperature block); sigma_g is the white noise of one reading.
+
+    head_error_rad: the index head's angle error at 0, 45, .. 315 deg (the head stands at theta + error); the
+    voltmeter reads (1 + gain) y + offset (the Type B inputs of methods.seed001.budget, for its Monte Carlo)."""
     t_s, from_deg, branch = 0.0, -STEP_DEG, 0.0
     launch_g = rng.normal(0.0, m.launch_sigma_g)
     measurements, truths = [], []
@@ -37,8 +48,10 @@ def tumble_session(
             t_s += READING_S
             to_deg = position_deg(J)
             branch = branch_after_move(math.radians(from_deg), math.radians(to_deg), branch)
-            volts = output_v(m, math.radians(to_deg), T, branch, launch_g + m.drift_g_per_s * t_s)
+            error = head_error_rad[round(to_deg / STEP_DEG) % 8]
+            volts = output_v(m, math.radians(to_deg) + error, T, branch, launch_g + m.drift_g_per_s * t_s)
             volts += m.scale_v_per_g * rng.normal(0.0, sigma_g)
+            volts = (1.0 + voltmeter_gain) * volts + voltmeter_offset_v
             values = {"block": block, "setpoint_c": T, "temperature_c": T + rng.normal(0.0, PV_NOISE_C), "J": J,
                       "stroke": stroke, "cycle": cycle, "position_deg": to_deg, "from_deg": from_deg, "t_s": t_s,
                       "volts": volts}  # fmt: skip

@@ -28,7 +28,7 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from methods.common.least_squares import FitError
-from methods.common.uncertainty import type_a_json
+from methods.common.uncertainty import Budget, merged_json, type_a_json
 from methods.seed000.identify import identify
 from models import nonlinear_error as ne
 from models.regressors import COEFFICIENTS, baseline_regressors
@@ -105,8 +105,13 @@ def calibrate(
 
 
 SEED004_TYPE_B = (
-    "Type A only (k from Student's t at the dof of the pooled rate noise): the angular momentum H, the end "
-    "radius and the removal angle of eq. 22 are taken as exact here"
+    "Type A at the pooled rate noise (its dof); Type B by refit (methods.seed004.budget): each calibration's "
+    "seed-000 inputs (Zs1, axs1, eps_f, A0, g, read-head latency, latitude, second harmonic) and, for the mass, "
+    "H, b and theta of eqs. 21-22"
+)
+SEED004_TYPE_A_ONLY = (
+    "Type A only (k from Student's t at the dof of the pooled rate noise): the session has no calibration at the "
+    "best offset nor after the removal, whose budget carries the Type B inputs"
 )
 
 
@@ -246,6 +251,7 @@ class Suppression:
     at_best: Calibration | None
     correction: Correction | None
     after: Calibration | None
+    budget: Budget | None = None  # K2_at_best, removed_mass, K2_after_removal (methods.seed004.budget)
 
     @property
     def k2_no_offset_per_g(self) -> float:
@@ -264,9 +270,13 @@ class Suppression:
             c, cal = self.correction, self.at_best
             rows.append(("removed_mass", c.mass_mg, c.sigma_mass_mg, cal.noise_dof or cal.dof, "mg"))
         coefs: dict[str, dict] = {}
+        if self.budget is not None:
+            for name, value, sigma, _, _ in rows:
+                coefs[name] = {"value": value, "sigma": sigma}
+            return {"coefficients": coefs, **merged_json(coefs, self.budget, SEED004_TYPE_B)}
         for name, value, sigma, dof, unit in rows:
             type_a_json(coefs, (name,), np.array([value]), np.array([[sigma**2]]), dof, {name: unit}, "")
-        return {"coefficients": coefs, "type_b": SEED004_TYPE_B}
+        return {"coefficients": coefs, "type_b": SEED004_TYPE_A_ONLY}
 
     def headline(self) -> dict[str, float | None]:
         k2_0 = self.k2_no_offset_per_g
@@ -300,7 +310,14 @@ def suppression(session: Session) -> Suppression:
     at_best = next((c for c in cals if c.stage == AT_BEST), None)
     after = next((c for c in cals if c.stage == AFTER_REMOVAL), None)
     corr = correction(at_best, *correction_parameters(session)) if at_best else None
-    return Suppression(cals, fit, at_best, corr, after)
+    from methods.seed004.budget import suppression_budget  # it builds on this module's calibrations
+
+    def with_points(cal: Calibration | None) -> tuple[list[PointRecord], Calibration] | None:
+        return None if cal is None else ([p for p in session.points if p.point_id.startswith(cal.prefix + "-")], cal)
+
+    budget = suppression_budget(session.station, with_points(at_best), with_points(after),
+                                correction_parameters(session))  # fmt: skip
+    return Suppression(cals, fit, at_best, corr, after, budget)
 
 
 SEED_FIGURES = {
