@@ -50,7 +50,7 @@ from gap.noise import (
     timing_noise,
     timing_rate_sd_radps,
 )
-from gap.rawstreams import GratingRecord, raw_evidence, raw_summary_text
+from gap.rawstreams import GratingRecord, PulseRecord, raw_evidence, raw_summary_text
 from gap.report import GapReport, render
 from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, decide, family_level
 from methods.common.least_squares import FitError, fit_joint
@@ -126,10 +126,6 @@ def _noise_check(fit: ModelFit, pe: PureError | None, ch: Channels) -> NoiseChec
 
 def _coefficients(fit: ModelFit) -> dict:
     return {c: {"value": float(v), "sigma": float(s)} for c, v, s in zip(CALIBRATED, fit.K, fit.K_sigmas, strict=True)}
-
-
-def _with_coefficients(cfg: TwinConfig, fit: ModelFit) -> TwinConfig:
-    return replace(cfg, instrument=replace(cfg.instrument, **dict(zip(CALIBRATED, map(float, fit.K), strict=True))))
 
 
 def _candidate_table(
@@ -265,6 +261,8 @@ def diagnose(
     tn = timing_noise(design, twin, stated)
     grating = GratingRecord.from_session(session, design, tn.sigma_tau_s / math.sqrt(2.0), stated.grating_noise_m)
     ch = _channels(design, twin, tn, stated, grating)
+    pulses = PulseRecord.from_session(session, design, twin, tn.sigma_tau_s / math.sqrt(2.0)) if session.raw else None
+    ch = replace(ch, pulses=pulses)
     lin = Linearisation(ch, cl.library(exclude=exclude))
     base = fit_model(lin, [])
     dof0 = base.dof_rate
@@ -309,7 +307,7 @@ def diagnose(
     z_after, tau_z_after = z_before, tau_z_before  # the same arrays when no effect was added
     if selection.chosen:
         z_after, tau_z_after = standardised(final, ch, kappa), final.tau_resid_s / tn.sigma_tau_s
-    raw = raw_evidence(session, design, _with_coefficients(twin, base), tn.sigma_tau_s / math.sqrt(2.0))
+    raw = raw_evidence(session, design, base.refitted_cfg(), tn.sigma_tau_s / math.sqrt(2.0))
     maps_before = maps(design, z_before, tau_z_before)
     maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
     where = {
@@ -416,7 +414,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         Path(args.json).write_text(json.dumps(report.to_json(), indent=2, allow_nan=False))
     if args.html:
-
         Path(args.html).write_text(render(report))
     if args.twin_out:
         Path(args.twin_out).write_text(report.twin_out.to_toml())

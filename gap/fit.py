@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from gap import candidates as cl
 from gap.design import PointDesign
 from gap.forward import CALIBRATED, Prediction, period_identity_s, predict, predict_full
-from gap.rawstreams import GratingRecord
+from gap.rawstreams import GratingRecord, PulseRecord
 from methods.common.least_squares import JointFit, fit_joint
 from models.config import TwinConfig
 
@@ -55,6 +55,7 @@ class Channels:
     constant_fraction: float = 0.0  # of the rate variance (gap.noise)
     rate_sigma_known: bool = False  # stated by the session: chi-square tests of the rate rows
     tau_sigma_known: bool = False
+    pulses: PulseRecord | None = None  # rate harmonics of the pulse edges: tested (gap.localise), not fitted
 
     @property
     def n_rate(self) -> int:
@@ -210,10 +211,16 @@ class ModelFit:
     r_white: np.ndarray
     converged: bool  # least_squares met its tolerances
     n_rate_params: int
+    cov: np.ndarray  # of (levels, K, free parameters in units of their scale), rate rows in this fit's sigma0
 
     @property
     def sigma0_hat_radps(self) -> float:
         return math.sqrt(self.rss_rate / self.dof_rate) if self.dof_rate > 0 else math.nan
+
+    def refitted_cfg(self) -> TwinConfig:
+        """The fitted twin with its calibrated coefficients K set to their refitted values."""
+        values = dict(zip(CALIBRATED, map(float, self.K), strict=True))
+        return replace(self.cfg, instrument=replace(self.cfg.instrument, **values))
 
     def effect_parameters(self, effect: str) -> tuple[dict[str, float], dict[str, float]]:
         """Fitted values and standard uncertainties of one effect's free parameters."""
@@ -335,6 +342,7 @@ def _finish(ch, free, p0, scale, u, state: State, J_u, converged: bool) -> Model
         r_white=state.r_white,
         converged=converged,
         n_rate_params=n_rate_params,
+        cov=cov,
     )
 
 

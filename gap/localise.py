@@ -26,14 +26,16 @@ is left after the chosen effects.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.polynomial import legendre
 from scipy import stats
 
+from gap import candidates as cl
 from gap.design import PointDesign
 from gap.fit import Channels, ModelFit
+from gap.forward import CALIBRATED
 from gap.heldout import BLOCKS
 
 
@@ -47,7 +49,7 @@ class Detector:
     # Orthonormal whitened columns of the block off the model (rate-channel blocks only).
     basis: np.ndarray | None = field(default=None, repr=False, compare=False)
     at: str = ""  # the point, for a test of one point
-    channel: str = "rate"  # rate | timing | grating
+    channel: str = "rate"  # rate | timing | grating | pulse
 
     @property
     def label(self) -> str:
@@ -199,7 +201,34 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
         out.append(
             goodness_of_fit("grating_goodness_of_fit", chi2, ch.n_grating - _free_on(fit, grating), what, "grating")
         )
+    if ch.pulses is not None:
+        out.append(pulse_goodness_of_fit(ch, fit))
     return [x for x in out if x is not None]
+
+
+def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
+    """Chi-square of the pulse edges' rate harmonics against the fitted twin (gap.rawstreams.PulseRecord).
+
+    The prediction's uncertainty is carried in: G Cov G^T with G = d(harmonics)/d(K, effect parameters) by
+    forward differences (linear in K; the effects' own fd steps) and Cov the fit's covariance of them."""
+    pulses = ch.pulses
+    if pulses is None:
+        return None
+    d = ch.design
+    cfg = fit.refitted_cfg()
+    p0 = pulses.predict(d, cfg)
+    cols = []
+    sd_K = np.sqrt(np.clip(np.diag(fit.cov)[d.n_levels : d.n_levels + len(CALIBRATED)], 0, None))
+    for name, k, sd in zip(CALIBRATED, fit.K, sd_K, strict=True):
+        h = max(float(sd), 1e-9 * max(abs(float(k)), 1e-6))
+        cfg_h = replace(cfg, instrument=replace(cfg.instrument, **{name: float(k) + h}))
+        cols.append((pulses.predict(d, cfg_h) - p0) / h)
+    for fp, v in zip(fit.free, fit.values, strict=True):
+        cols.append((pulses.predict(d, cl.apply(cfg, [fp], [float(v) + fp.fd_step], {})) - p0) / fp.fd_step * fp.scale)
+    G = np.column_stack(cols)
+    chi2 = pulses.chi2(d, cfg, G, fit.cov[d.n_levels :, d.n_levels :])
+    what = "chi-square of the rate harmonics the pulse edges give (raw records) against the fitted twin"
+    return goodness_of_fit("pulse_goodness_of_fit", chi2, pulses.n_rows, what, "pulse")
 
 
 def _single_identity(d: PointDesign, Q, r, rows: slice, rss: float, dof: int) -> Detector | None:

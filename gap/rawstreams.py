@@ -279,6 +279,12 @@ def _pulse_directions(raw, design: PointDesign, i: int, cfg: TwinConfig) -> np.n
 
 def _pulse_fit(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, sd_stamp_s: float):
     """Rate harmonics (sin, cos per j) and their se from the precession angle at every pulse edge."""
+    meas, se = _pulse_lsq(raw, dirs, w, t1, pulses_per_rev)
+    return meas, np.hypot(se, _phase_se(meas, w, sd_stamp_s))
+
+
+def _pulse_lsq(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rate harmonics (sin, cos per j) in the phase w (t - t1) and the least-squares se (no phase error)."""
     # The level an edge crosses: the up/down count after it, plus one after a down edge (a
     # down-crossing of level k leaves the count at k - 1); the count alone would add a
     # half-pulse square wave in step with the rate's sign, i.e. spurious odd harmonics.
@@ -289,8 +295,7 @@ def _pulse_fit(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, 
     # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
     jw = np.repeat([j * w for j in HARMONICS], 2)
     meas = jw * np.column_stack([-coef[3::2], coef[2::2]]).ravel()
-    se_rate = np.hypot(jw * np.column_stack([se[3::2], se[2::2]]).ravel(), _phase_se(meas, w, sd_stamp_s))
-    return meas, se_rate
+    return meas, jw * np.column_stack([se[3::2], se[2::2]]).ravel()
 
 
 def _pulse_prediction(design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray:
@@ -315,6 +320,74 @@ def _pulse_harmonics(
         }
         for k, j in enumerate(HARMONICS)
     ]
+
+
+@dataclass(frozen=True)
+class PulseRecord:
+    """The rate harmonics that the pulse edges give at every raw vibration record: a channel of the verdict.
+
+    measured[k] = (S1, C1, S2, C2, S3, C3), the rate's harmonics (rad/s) at point index[k] in the apparent crank
+    phase w_m (t - t_ref) (t_ref as for the grating: t1, or the mean of the reference stamps, _reference_phase);
+    se their least-squares standard errors (the edges' scatter about the fitted precession angle);
+    sd_phase_rad = w_m sd(t_ref), the phase error that a record's harmonics share (harmonic j turned by j e).
+    Records whose up/down count cannot be rebuilt (no pulse_dir and a rate that reverses) are left out.
+    The twin's prediction depends on the refitted coefficients and effects: its uncertainty enters the test
+    (`chi2`) through their covariance, so the pulses need not be in the fit (they are independent of its rows).
+    """
+
+    index: np.ndarray
+    w_radps: np.ndarray
+    measured: np.ndarray  # (records, 6)
+    se: np.ndarray  # (records, 6)
+    sd_phase_rad: np.ndarray  # (records,)
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.measured.size)
+
+    @classmethod
+    def from_session(
+        cls, session: Session, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float
+    ) -> PulseRecord | None:
+        idx, ws, meas, ses, sds = [], [], [], [], []
+        for i, pid in enumerate(design.point_ids):
+            raw = session.raw.get(pid)
+            if raw is None or not design.vib[i] or raw.pulse_t.size <= 20:
+                continue
+            dirs = _pulse_directions(raw, design, i, cfg)
+            if dirs is None:
+                continue
+            w = _apparent_w(design, i)
+            t_ref, sd_ref = _reference_phase(raw.reference_t, design.t1_s[i], w, sd_stamp_s)
+            m, se = _pulse_lsq(raw, dirs, w, t_ref, session.station.pulses_per_rev)
+            idx.append(i)
+            ws.append(w)
+            meas.append(m)
+            ses.append(np.maximum(se, 1e-300))
+            sds.append(w * sd_ref)
+        if not idx:
+            return None
+        return cls(np.array(idx), np.array(ws), np.array(meas), np.array(ses), np.array(sds))
+
+    def predict(self, design: PointDesign, cfg: TwinConfig) -> np.ndarray:
+        """The twin's rate harmonics at every record (periodic_rate, latency-rotated), record-major."""
+        return np.concatenate([_pulse_prediction(design, int(i), cfg) for i in self.index])
+
+    def covariance(self) -> np.ndarray:
+        """Of the measured harmonics: diag(se^2) plus each record's shared phase error (d/de of a turn by j e)."""
+        n = self.measured.shape[1]
+        C = np.diag(self.se.ravel() ** 2)
+        j = np.repeat(np.array(HARMONICS, dtype=float), 2)
+        for k, (m, sd) in enumerate(zip(self.measured, self.sd_phase_rad, strict=True)):
+            g = j * np.column_stack([-m[1::2], m[0::2]]).ravel()  # (S, C) -> (S - j e C, C + j e S)
+            C[k * n : (k + 1) * n, k * n : (k + 1) * n] += sd * sd * np.outer(g, g)
+        return C
+
+    def chi2(self, design: PointDesign, cfg: TwinConfig, G: np.ndarray, cov_params: np.ndarray) -> float:
+        """r^T (C_meas + G Cov G^T)^-1 r of r = measured - predicted, G = d(prediction)/d(fitted parameters)."""
+        r = self.measured.ravel() - self.predict(design, cfg)
+        C = self.covariance() + G @ cov_params @ G.T
+        return float(r @ np.linalg.solve(C, r))
 
 
 def raw_summary_text(raw: dict, n_se: float = 3.0) -> str:

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from indep.generator import Design, Draws, Row, Truth, simulate
+from indep.generator import Design, Draws, Noise, Row, Truth, simulate
 from indep.world import A0_M, ARCSEC_RAD, EARTH_RATE_RADPS, LATITUDE_DEG, PULSE_RAD, Perturbation
 
 UM = 1e-6
@@ -390,28 +390,47 @@ def signature(ctx: Context, truth: Truth) -> Signature:
     r_out["period_identity"] = np.array(ident) / noise.identity_sd()
     X_out["period_identity"] = np.zeros((len(vib), 0))
     if ctx.raw and ctx.draws.raw_points:
-        zs, cols = [], []
-        for k, i in enumerate(ctx.draws.raw_points):
-            row = rows[i]
-            length = min(ctx.draws.raw_len_s, row.true_Tm_s)
-            u = float(ctx.draws.raw_u[k])
-            t_a = row.true_Tm_s - length if u < 0 else u * (row.true_Tm_s - length)
-            t = np.arange(t_a, t_a + length, 1.0 / 5000.0)
-            if row.freq_hz:
-                w = 2 * math.pi * row.freq_hz
-                dz = row.window.z_m(t) - A0_M * np.sin(w * (t - row.t1_s))  # type: ignore[operator]
-            else:
-                dz = row.window.z_m(t) - 0.0
-            zs.append(dz / noise.grating_noise_m)
-            cols.append(np.full(t.size, 1.0 / noise.grating_noise_m))
-        n = sum(z.size for z in zs)
-        X = np.zeros((n, len(zs)))
-        o = 0
-        for j, c in enumerate(cols):
-            X[o : o + c.size, j] = c
-            o += c.size
-        r_out["grating"], X_out["grating"] = np.concatenate(zs), X
+        r_out["grating"], X_out["grating"] = _grating_channel(ctx, rows, noise)
     return Signature(r_out, X_out)
+
+
+def _grating_channel(ctx: Context, rows: list[Row], noise: Noise) -> tuple[np.ndarray, np.ndarray]:
+    """Grating residual z(t) - A0 sin(w_cmd (t - t1)) of every raw record, whitened, and what it cannot fix.
+
+    Absorbed per record: a constant (zbar) and the phase of the reference: t1 is the difference of two
+    stamps (the window's opening edge and the first crossing; physics.md: timing uncertainty about
+    1e-7 s), so a shift e of t1 with sd s_ref = noise.identity_sd() moves the nominal model by
+    e A0 w cos(w (t - t1)). That shift is marginalised (generalised least squares with the covariance
+    sigma_g^2 I + s_ref^2 v v^T), written as one column v / sigma_g and one prior row 0 = e / s_ref, so
+    that a latency or a frequency error is not credited with a phase finer than the stamps give.
+    """
+    blocks: list[tuple[np.ndarray, np.ndarray | None]] = []
+    sg, s_ref = noise.grating_noise_m, noise.identity_sd()
+    for k, i in enumerate(ctx.draws.raw_points):
+        row = rows[i]
+        length = min(ctx.draws.raw_len_s, row.true_Tm_s)
+        u = float(ctx.draws.raw_u[k])
+        t_a = row.true_Tm_s - length if u < 0 else u * (row.true_Tm_s - length)
+        t = np.arange(t_a, t_a + length, 1.0 / 5000.0)
+        if row.freq_hz:
+            w = 2 * math.pi * row.freq_hz
+            dz = row.window.z_m(t) - A0_M * np.sin(w * (t - row.t1_s))  # type: ignore[operator]
+            blocks.append((dz / sg, A0_M * w * np.cos(w * (t - row.t1_s)) / sg))  # type: ignore[operator]
+        else:
+            blocks.append((row.window.z_m(t) / sg, None))
+    n_phase = sum(v is not None for _, v in blocks)
+    n = sum(z.size for z, _ in blocks) + n_phase
+    r, X = np.zeros(n), np.zeros((n, len(blocks) + n_phase))
+    o, col, prior = 0, len(blocks), n - n_phase
+    for j, (z, v) in enumerate(blocks):
+        r[o : o + z.size] = z
+        X[o : o + z.size, j] = 1.0 / sg
+        if v is not None:
+            X[o : o + z.size, col] = v
+            X[prior, col] = 1.0 / s_ref
+            col, prior = col + 1, prior + 1
+        o += z.size
+    return r, X
 
 
 def combined(sig: Signature, ctx: Context) -> np.ndarray:

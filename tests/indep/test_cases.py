@@ -264,3 +264,20 @@ def test_scaling_never_exceeds_ten_times_the_plausible_bounds() -> None:
     p, _, s = scale_to_snr(eff, {"dtheta_mount_rad": 1e-6}, 1e9, ctx)
     assert abs(p["dtheta_mount_rad"]) == pytest.approx(STRENGTH_CAP * eff.bounds["dtheta_mount_rad"])
     assert 0 < s < 1e9
+
+
+def test_a_grating_snr_counts_no_phase_finer_than_the_stamps(tmp_path):
+    """A read-head latency delta moves the grating against the nominal model only as a shift of the reference
+    stamp t1 would, and t1 is the difference of two stamps (sd s_ref = sqrt(2 (sigma_t^2 + tick^2 / 12)),
+    physics.md: timing uncertainty about 1e-7 s). With that shift marginalised, each vibration record gives at
+    most delta^2 / s_ref^2 of chi^2, so SNR <= sqrt(N_records) delta / s_ref: delta >= SNR s_ref / sqrt(N)
+    (to 1 %). Counting t1 as exact would credit 1e-8 s latencies with SNR 30."""
+    truth = make_case(100035, "readhead_latency", tmp_path / "s", snr=30.0, family="equal_angle", raw=True)
+    assert truth["channel"] == "grating"
+    n = truth["noise"]
+    s_ref = math.sqrt(2 * (n["timing_sigma_s"] ** 2 + n["tick_s"] ** 2 / 12))
+    vib = {r["point_id"] for r in _rows(tmp_path / "s") if r["kind"] == "vibration"}
+    n_rec = sum(p.stem in vib for p in (tmp_path / "s" / "raw").glob("*.npz"))
+    snr = truth["snr_achieved"]["readhead_latency"]
+    assert n_rec >= 1 and snr == pytest.approx(30.0, rel=0.05)
+    assert truth["params"]["readhead_latency"]["delta_s"] >= 0.99 * snr * s_ref / math.sqrt(n_rec)
