@@ -193,7 +193,7 @@ def budget_rows(budget: Budget, *, with_sensitivity: bool = False) -> tuple[list
     for n in budget.names:
         if with_sensitivity:
             header.append(f"c = ∂{n}/∂x")
-        header.append(f"u_i({n}) ({_UNITS[n]})")
+        header.append(f"u_i({n}) ({budget.units.get(n) or _UNITS.get(n, '')})")
     rows = []
     for s in budget.sources:
         label = s.source + ("" if s.in_combined else " [listed, not added]")

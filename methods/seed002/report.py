@@ -17,10 +17,12 @@ from scipy.stats import chi2
 
 from engine.registry import Analysis
 from methods.common.least_squares import FitError
-from methods.common.uncertainty import type_a_json
+from methods.common.uncertainty import merged_json
+from methods.seed000.report import budget_rows
 from methods.seed002.analysis import FlexureFit, estimate_flexure
+from methods.seed002.budget import SEED002_TYPE_B, flexure_budget
 from models.fixture_poses import POSES
-from models.strapdown_imu import ARCSEC_PER_G, ARCSEC_RAD, TABLE1_ARCSEC_PER_G, TAU_NAMES
+from models.strapdown_imu import ARCSEC_PER_G, ARCSEC_RAD, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site
 from station.htmlkit import document, mapping_table, svg, table
 from station.session import Measurement, Session
 
@@ -119,12 +121,6 @@ def _velocity_figure(runs: list[Measurement]) -> str:
     return svg(fig)
 
 
-SEED002_TYPE_B = (
-    "Type A only (the flexure fit, k from Student's t at its dof): the IMU's own calibration, the shaker's "
-    "amplitude and the site's g and latitude are not propagated here"
-)
-
-
 def analyse_session(session: Session) -> Analysis:
     """The flexure coefficients (eq. 21) and the verification runs, with the session's report."""
     fit = fit_session(session)
@@ -141,11 +137,12 @@ def analyse_session(session: Session) -> Analysis:
         "condition": fit.condition,
         "runs": [m.key for m in calibration],
     }
-    # GUM fields of the flexure coefficients in arcsec/g (Type A, k from t at the fit's dof)
-    gum_coefs: dict[str, dict] = {}
-    gum = type_a_json(gum_coefs, names, fit.values / ARCSEC_PER_G, fit.cov / ARCSEC_PER_G**2, fit.dof,
-                      dict.fromkeys(names, "arcsec/g"), SEED002_TYPE_B)  # fmt: skip
-    flexure["gum"] = {"coefficients": gum_coefs, **gum}
+    # GUM fields of the flexure coefficients in arcsec/g: the fit (Type A) and the Type B rows (methods.seed002.budget)
+    st = session.station
+    budget = flexure_budget([m.values for m in calibration], Site(st.g_mps2, st.earth_rate_radps, st.latitude_rad))
+    gum_coefs = {n: {"value": float(v), "sigma": float(s)} for n, v, s in
+                 zip(names, fit.values / ARCSEC_PER_G, fit.sigmas / ARCSEC_PER_G, strict=True)}  # fmt: skip
+    flexure["gum"] = {"coefficients": gum_coefs, **merged_json(gum_coefs, budget, SEED002_TYPE_B)}
     checks = _verification(verification, fit)
     results = {"flexure": flexure, "verification": {"runs": checks}}
     uid = session.meta.get("store_uid", "")
@@ -161,6 +158,8 @@ def analyse_session(session: Session) -> Analysis:
         "<h2>Flexure coefficients (seed 002 eq. 21, Table 1)</h2>",
         _coefficient_table(fit),
         mapping_table(fit_facts),
+        "<h2>Uncertainty budget (GUM; contributions |c| u in arcsec/g)</h2>",
+        table(*budget_rows(budget, with_sensitivity=True)),
         "<h2>Calibration runs (Fig. 3 poses, eqs. 17-22)</h2>",
         _runs_table(calibration, fit),
         _snippet_figure(calibration[0]),

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from methods.common.least_squares import FitError
+from methods.common.uncertainty import Budget, merged_json
+from methods.seed003 import budget as gum
 from methods.seed003.four_pose import FourPoseFit, PoseWindow, fit_four_pose, harmonic_names
 from methods.seed003.lsq import Fit
 from methods.seed003.static_model import (
@@ -60,6 +62,7 @@ class Calibration:
     uncompensated: Fit
     compensated: Fit | None  # sigma_k by eq. 49, the compensation taken as exact (as seed 003 does)
     compensated_total: Fit | None  # the same values, the harmonics' and offset's uncertainty propagated
+    budgets: dict[str, Budget] = field(default_factory=dict)  # GUM budgets by fit name (methods.seed003.budget)
 
     def fits(self) -> dict[str, Fit | None]:
         return {"uncompensated": self.uncompensated, "compensated": self.compensated,
@@ -71,6 +74,8 @@ class Calibration:
             if fit is not None:
                 rfa = relative_fitting_accuracy_g(fit)
                 out[name] = fit.to_json() | {"max_relative_fitting_accuracy_g": float(np.max(np.abs(rfa)))}
+                if name in self.budgets:
+                    out[name] |= merged_json(out[name]["coefficients"], self.budgets[name], gum.TYPE_B[name])
         return out
 
 
@@ -120,6 +125,12 @@ def final_zero_deg(session: Session, setup: int) -> float:
     return float(zeros[-1]) if zeros else 0.0
 
 
+def final_zero_sigma_rad(session: Session, setup: int) -> float:
+    """The sigma of that head zero (seed 003 eq. 56; 0 if no self-alignment)."""
+    s = [m.values["sigma_rad"] for m in session.measurements if m.kind == ALIGNMENT and m.values["setup"] == setup]
+    return float(s[-1]) if s else 0.0
+
+
 def analyse_gravity_field(session: Session, terms: tuple[str, ...], order: int) -> GravityFieldResult:
     windows = session_windows(session)
     four = [w for w in windows if w.block == "four_pose"]
@@ -141,13 +152,18 @@ def analyse_gravity_field(session: Session, terms: tuple[str, ...], order: int) 
             calibration_errors.append(f"{block}: {exc}")
             continue
         comp = total = None
+        tm = np.array([w.Tm_s for w in cal])
+        budgets = {"uncompensated": gum.uncompensated_budget(unc, theta, aligned, rates, tm, session.station, order,
+                                                             final_zero_sigma_rad(session, 1))}  # fmt: skip
         if fp is not None:
             setup = cal[0].setup
             angles = fp.instrument_angle_rad("A", setup, cal[0].pose, theta)
             comp = fit_static(angles, rates, terms, session.station)
             total = with_angle_uncertainty(comp, angles, fp.angle_derivatives(theta), fp.angle_covariance("A", setup),
                                            session.station)  # fmt: skip
-        calibrations.append(Calibration(block.removeprefix(CALIBRATION), np.degrees(theta),
-                                        np.array([w.Tm_s for w in cal]), unc, comp, total))  # fmt: skip
+            budgets["compensated_total"] = gum.compensated_budget(comp, total, fp, four, setup, cal[0].pose, theta,
+                                                                  rates, tm, session.station)  # fmt: skip
+        calibrations.append(Calibration(block.removeprefix(CALIBRATION), np.degrees(theta), tm, unc, comp, total,
+                                        budgets))  # fmt: skip
     alignments = [m.values for m in session.measurements if m.kind == ALIGNMENT]
     return GravityFieldResult(terms, order, alignments, fp, error, calibrations, calibration_errors, windows)
