@@ -1,18 +1,27 @@
-"""Monte Carlo of the GUM expanded uncertainties of seeds 001, 002 and 004 (issue 15, deliverable 7).
+"""Monte Carlo of the GUM budgets of seeds 001-004: is U (95 %) a 95 % interval? (issue 15, deliverable 7)
 
-For each method, N sessions from its fast twin path; per headline coefficient the mean and spread of
-(k_hat - k) / u and the coverage of U = k u with k = t_95(dof) as the results JSON states it (target
-0.93-0.97). Type A only for these methods (their JSON says which Type B inputs are not propagated);
-the twins have none of those inputs, so the figures test the Type A part and its t factor.
+For each method, N sessions from its fast twin path with every Type B input of its budget drawn from the
+distribution the references file states (config/instruments/references.toml: rectangular where it says
+rectangular, else normal), the session then identified and budgeted exactly as the results JSON does it; per
+headline coefficient the mean and spread of (k_hat - k) / u_c and the fraction of sessions with
+|k_hat - k| <= U = k u_c (k from Student's t at the Welch-Satterthwaite dof; target 0.93-0.97).
 
-- seed 001: methods.seed001.tumble_session (the seed's 4 temperatures x 3 cycles, 8 ug per reading),
-  eq. 6 coefficients at T1 (the JSON's `gum_cf`).
-- seed 002: methods.seed002.vibration_run, the 6 calibration poses at 20 Hz, 1.5 g (runs of 300 s here),
-  the flexure coefficients (the JSON's flexure.gum).
-- seed 004: models.session_sim of one seed-004 calibration (0, 180, 60 deg at 8, 9, 10 Hz, 5 dof) and
-  K2 = kzz / kz with its own noise (no pooling: the hardest case for the t factor).
+- 001: methods.seed001.tumble_session (4 temperatures x 3 cycles, 8 ug a reading), eq. 6 at T1; drawn: the
+  index head's angle error at each of the 8 head angles, the voltmeter's gain and offset.
+- 002: methods.seed002.vibration_run, the 9 calibration poses at 20 Hz, 1.5 g, runs of `--align-s` at rest and
+  `--vibrate-s` of vibration (shorter than the seed's, for time); drawn: each accelerometer's scale factor, the
+  IMU's sampling interval, the latitude (the twin's site is off the recorded one).
+- 003: both PIGAs' static rates (devices.second_instrument.emulator.static_rates_radps: the fixture's physics)
+  in the four-pose design (22 equal-acceleration positions in setup 1, 22 equal-angle in setup 2) and A's
+  22-position equal-angle calibration, 2e-7 rad/s per window; drawn: the head's six angle-error harmonics, the
+  head zero (the self-alignment's error, 8e-6 rad), the latitude. Headline: A's coefficients without
+  (`uncompensated`) and with (`compensated_total`) the compensation.
+- 004: models.session_sim of the calibration at the best offset and the one after the removal (0, 180, 60 deg
+  at 8, 9, 10 Hz, 5 dof each, noise pooled over the two: 10 dof); drawn: seed 000's inputs
+  (bench_mc_seed000.drawn_twin) and H, b, theta of eqs. 21-22. Headline: K2 at the best offset and after, and
+  the removed mass.
 
-    .venv/bin/python bench/bench_mc_methods.py [--method 001|002|004|all] [--n 200]
+    .venv/bin/python bench/bench_mc_methods.py --method 001|002|003|004|all [--n 200] [--seed 1]
 """
 
 from __future__ import annotations
@@ -20,107 +29,210 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
-from methods.common.uncertainty import coverage_factor
-from methods.seed004.analysis import calibrate
-from models.config import default_twin
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from methods.common.uncertainty import Budget
+from methods.seed000.budget import Reference, load_references
+
+NORMAL_ONLY = False  # --normal: every input drawn normal with its u (tests the propagation, not the shape)
 
 
-def _table(label: str, names, z: np.ndarray, cover: np.ndarray, dof: float, wall: float, n: int) -> None:
-    print(f"\n{label}: {n} sessions in {wall:.0f} s, dof {dof:g}, k = {coverage_factor(dof):.3f}\n")
-    print("| coefficient | mean (k_hat - k)/u | spread | coverage of U (95 %) |")
-    print("|---|---|---|---|")
-    for j, name in enumerate(names):
-        print(f"| {name} | {z[:, j].mean():+.3f} | {z[:, j].std(ddof=1):.3f} | {cover[:, j].mean():.3f} |")
-    print(f"(binomial half-width at 0.95 over {n}: {1.96 * math.sqrt(0.0475 / n):.3f})")
+def draw(rng: np.random.Generator, ref: Reference, size: int | None = None) -> np.ndarray | float:
+    """An input's error from its stated distribution: rectangular of half-width sqrt(3) u, else normal."""
+    u = ref.standard_uncertainty
+    if ref.distribution.startswith("rectangular") and not NORMAL_ONLY:
+        return rng.uniform(-math.sqrt(3.0) * u, math.sqrt(3.0) * u, size)
+    return rng.normal(0.0, u, size)
 
 
-def seed001(n: int) -> None:
+@dataclass
+class Tally:
+    """Per coefficient: (k_hat - k) / u_c, coverage of U, and nu_eff, over the sessions."""
+
+    names: tuple[str, ...]
+    z: list[np.ndarray]
+    covered: list[np.ndarray]
+    dof: list[np.ndarray]
+
+    def add(self, budget: Budget, truth: np.ndarray) -> None:
+        err = budget.values - truth
+        self.z.append(err / budget.standard_uncertainty())
+        self.covered.append(np.abs(err) <= budget.expanded_uncertainty())
+        self.dof.append(budget.effective_dof())
+
+    def print(self, label: str, wall_s: float) -> None:
+        z, cover, dof = map(np.array, (self.z, self.covered, self.dof))
+        n = z.shape[0]
+        print(f"\n{label}: {n} sessions in {wall_s:.0f} s\n")
+        print("| coefficient | mean z | spread z | nu_eff (median) | coverage of U (95 %) |")
+        print("|---|---:|---:|---:|---:|")
+        for j, name in enumerate(self.names):
+            nu = np.median(dof[:, j])
+            nu_text = "inf" if math.isinf(nu) else f"{nu:.1f}"
+            print(
+                f"| {name} | {z[:, j].mean():+.3f} | {z[:, j].std(ddof=1):.3f} | {nu_text} | {cover[:, j].mean():.3f} |"
+            )
+        print(f"(binomial 95 % half-width at 0.95 over {n}: {1.96 * math.sqrt(0.0475 / n):.3f})")
+
+
+def seed001(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
     from methods.seed001.analysis import analyse_tumble
     from methods.seed001.tumble_session import tumble_session
     from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
 
-    m, rng = AccelerometerModel(), np.random.default_rng(1)
-    z, cover = [], []
-    t0 = time.perf_counter()
+    m, rng = AccelerometerModel(), np.random.default_rng(seed)
+    tally = Tally(CF_NAMES, [], [], [])
     for _ in range(n):
-        session, truths = tumble_session(m, [20.0, 80.0, -40.0, 20.0], 3, sigma_g=8e-6, rng=rng)
+        session, truths = tumble_session(
+            m, [20.0, 80.0, -40.0, 20.0], 3, sigma_g=8e-6, rng=rng,
+            head_error_rad=draw(rng, refs["tumble_head_angle_rad"], 8),
+            voltmeter_gain=draw(rng, refs["voltmeter_gain"]), voltmeter_offset_v=draw(rng, refs["voltmeter_offset_v"]),
+        )  # fmt: skip
         _, points, _ = analyse_tumble(session, m.reference_c)
-        doc = points[0].to_json()["coefficients"]
-        err = np.array([doc[c]["value"] - truths[0][c] for c in CF_NAMES])
-        u = np.array([doc[c]["standard_uncertainty"] for c in CF_NAMES])
-        U = np.array([doc[c]["expanded_uncertainty"] for c in CF_NAMES])
-        z.append(err / u)
-        cover.append(np.abs(err) <= U)
-        dof = points[0].dof
-    _table("seed 001, eq. 6 at T1", CF_NAMES, np.array(z), np.array(cover), dof, time.perf_counter() - t0, n)
+        tally.add(points[0].budget, np.array([truths[0][c] for c in CF_NAMES]))
+    return tally
 
 
-def seed002(n: int, vibrate_s: float = 300.0) -> None:
-    from methods.common.uncertainty import type_a_json
-    from methods.seed002.analysis import RunRecord, estimate_flexure, observe_run
+def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.0, vibrate_s: float = 60.0) -> Tally:
+    from methods.seed002.analysis import RunRecord, observe_run
+    from methods.seed002.budget import flexure_budget
     from methods.seed002.vibration_run import simulate_run
     from models.fixture_poses import CALIBRATION_POSES, POSES
     from models.shaker_motion import sine_drive
     from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
     from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
 
-    site = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
-    twin, rng = StrapdownImuTwin(), np.random.default_rng(2)
+    recorded = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
+    twin, rng = StrapdownImuTwin(), np.random.default_rng(seed)
     truth = np.array(twin.tau) / ARCSEC_PER_G
-    z, cover = [], []
-    t0 = time.perf_counter()
+    tally = Tally(tuple(f"tau_{t}" for t in TAU_NAMES), [], [], [])
+    rate_hz = 200.0
     for _ in range(n):
-        a, b = [], []
+        accel = np.array([draw(rng, refs["imu_accel_scale"]) for _ in range(3)])
+        clock = float(draw(rng, refs["imu_clock_rel"]))
+        site = replace(recorded, latitude_rad=recorded.latitude_rad + math.radians(draw(rng, refs["latitude_deg"])))
+        runs = []
         for k in CALIBRATION_POSES:
-            run = simulate_run(twin, site, POSES[k], sine_drive(20.0, 1.5, G_MPS2), rate_hz=200.0, align_s=900.0,
-                               vibrate_s=vibrate_s, ramp_s=2.0, rng=rng)  # fmt: skip
-            obs = observe_run(RunRecord.from_times(run.dtheta, run.dv, run.dt_s, 0.0, run.t0_s, run.tk_s), site)
-            a.append(obs.A)
-            b.append(obs.B)
-        fit = estimate_flexure(np.vstack(a), np.concatenate(b))
-        coefs: dict[str, dict] = {}
-        type_a_json(coefs, TAU_NAMES, fit.values / ARCSEC_PER_G, fit.cov / ARCSEC_PER_G**2, fit.dof,
-                    dict.fromkeys(TAU_NAMES, "arcsec/g"), "")  # fmt: skip
-        err = np.array([coefs[t]["value"] for t in TAU_NAMES]) - truth
-        z.append(err / np.array([coefs[t]["standard_uncertainty"] for t in TAU_NAMES]))
-        cover.append(np.abs(err) <= np.array([coefs[t]["expanded_uncertainty"] for t in TAU_NAMES]))
-        dof = fit.dof
-    _table("seed 002, flexure coefficients (Table 1)", [f"tau_{t}" for t in TAU_NAMES], np.array(z),
-           np.array(cover), dof, time.perf_counter() - t0, n)  # fmt: skip
+            run = simulate_run(twin, site, POSES[k], sine_drive(20.0, 1.5, G_MPS2), rate_hz=rate_hz / (1.0 + clock),
+                               align_s=align_s, vibrate_s=vibrate_s, ramp_s=2.0, rng=rng)  # fmt: skip
+            record = RunRecord.from_times(run.dtheta, run.dv * (1.0 + accel), 1.0 / rate_hz, 0.0, run.t0_s, run.tk_s)
+            obs = observe_run(record, recorded)
+            runs.append({"A": obs.A, "B": obs.B, "c_bn_t0": obs.c_bn_t0, "c_bn_tk": obs.c_bn_tk,
+                         "vibration_s": obs.duration_s})  # fmt: skip
+        tally.add(flexure_budget(runs, recorded, refs), truth)
+    return tally
 
 
-def seed004(n: int) -> None:
-    cfg = default_twin()
-    k = cfg.instrument
-    truth = k.kzz / k.kz
+ZERO_SIGMA_RAD = 8e-6  # the self-alignment's sigma at seed 003's figures (eq. 56: about 1.8 arcsec)
+
+
+def seed003(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally, Tally]:
+    from devices.second_instrument.emulator import static_rates_radps
+    from methods.seed003 import budget as gum
+    from methods.seed003.four_pose import PoseWindow, fit_four_pose, harmonic_names
+    from methods.seed003.sequences import sequence_deg
+    from methods.seed003.static_model import MODELS, fit_static, true_static_terms, with_angle_uncertainty
+    from models.config import TwinConfig
+    from models.fixture import POSES_DEG, SETUPS, pose_rad
+    from station.session import StationInfo
+
+    base = TwinConfig.from_toml(Path(__file__).parents[1] / "config" / "twin-seed003.toml")
+    station, terms, rng = StationInfo(), MODELS["seed003"], np.random.default_rng(seed)
+    noise = 2e-7
+    cal_rad = np.radians(sequence_deg("equal_angle", 22))
+    tm = np.full(cal_rad.size, 600.0)
+    tallies = Tally(terms, [], [], []), Tally(terms, [], [], [])
+    for _ in range(n):
+        harmonics = {h: float(draw(rng, refs["index_harmonic_rad"])) for h in harmonic_names(3)}
+        lat = station.latitude_deg + float(draw(rng, refs["latitude_deg"]))
+        zero_err = rng.normal(0.0, ZERO_SIGMA_RAD)  # A's input axis off the head zero the analysis takes as exact
+        twin = base.with_effect("index_harmonics", **harmonics).with_effect("mount_misalignment", dtheta_mount=zero_err)
+        twin = replace(twin, station=replace(base.station, latitude_deg=lat))
+        windows = []
+        for setup in (1, 2):
+            positions = sequence_deg("equal_acceleration" if setup == 1 else "equal_angle", 22)
+            heads = np.radians((np.array(positions) - POSES_DEG[SETUPS[setup][0]]) % 360)
+            for inst, (pose, rates) in static_rates_radps(twin, setup, heads).items():
+                noisy = rates + rng.normal(0.0, noise, rates.size)
+                windows += [PoseWindow(inst, setup, pose, h, r) for h, r in zip(heads, noisy, strict=True)]
+        rates = static_rates_radps(twin, 1, cal_rad)["A"][1] + rng.normal(0.0, noise, cal_rad.size)
+        aligned = cal_rad + pose_rad(1)
+        unc = fit_static(aligned, rates, terms, station)
+        truth_terms = true_static_terms(twin.instrument, twin.param("odd_quadratic", "koq"))
+        truth = np.array([truth_terms[t] for t in terms])
+        tallies[0].add(gum.uncompensated_budget(unc, cal_rad, aligned, rates, tm, station, 3, ZERO_SIGMA_RAD, refs),
+                       truth)  # fmt: skip
+        fp = fit_four_pose(windows, terms, 3, station)
+        angles = fp.instrument_angle_rad("A", 1, 1, cal_rad)
+        comp = fit_static(angles, rates, terms, station)
+        total = with_angle_uncertainty(comp, angles, fp.angle_derivatives(cal_rad), fp.angle_covariance("A", 1),
+                                       station)  # fmt: skip
+        tallies[1].add(gum.compensated_budget(comp, total, fp, windows, 1, 1, cal_rad, rates, tm, station, refs),
+                       truth)  # fmt: skip
+    return tallies
+
+
+def seed004(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
+    from bench_mc_seed000 import drawn_twin
+
+    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, calibrate, correction, pooled
+    from methods.seed004.budget import suppression_budget
+    from models import nonlinear_error as ne
+    from models.plan import multiposition_plan
+    from models.session_sim import simulate_session
+
     plan = multiposition_plan([0.0, 180.0, 60.0], [8.0, 9.0, 10.0], 560.0)
-    z, cover = [], []
-    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    nominal = (ne.ANGULAR_MOMENTUM_KGM2PS, ne.END_RADIUS_M * 1e3, 45.0)
+    tally = Tally(("K2_at_best", "removed_mass", "K2_after_removal"), [], [], [])
     for i in range(n):
-        s = simulate_session(plan, cfg, seed=40_000 + i)
-        cal = calibrate(s.station, s.points, "C", "sweep", 0.0)
-        err = cal.k2_per_g - truth
-        u = cal.sigma_k2_per_g
-        z.append([err / u])
-        cover.append([abs(err) <= coverage_factor(cal.dof) * u])
-        dof = cal.dof
-    _table("seed 004, K2 = kzz / kz of one calibration", ["K2"], np.array(z), np.array(cover), dof,
-           time.perf_counter() - t0, n)  # fmt: skip
+        cfg, recorded = drawn_twin(rng, refs, 1.0)
+        k = cfg.instrument
+        s1 = replace(simulate_session(plan, cfg, seed=seed * 100_000 + 2 * i), station=recorded)
+        s2 = replace(simulate_session(plan, cfg, seed=seed * 100_000 + 2 * i + 1), station=recorded)
+        best, after = pooled([calibrate(recorded, s1.points, "B", AT_BEST, 0.0),
+                              calibrate(recorded, s2.points, "A", AFTER_REMOVAL, 0.0)])  # fmt: skip
+        true_h = nominal[0] + draw(rng, refs["angular_momentum_kgm2ps"])
+        true_b = nominal[1] + draw(rng, refs["end_radius_mm"])
+        true_theta = nominal[2] + draw(rng, refs["removal_angle_deg"])
+        true_cal = replace(best, kz=k.kz, kzz=k.kzz)
+        true_mass = correction(true_cal, true_h, true_b, true_theta).mass_mg
+        budget = suppression_budget(recorded, (s1.points, best), (s2.points, after), nominal, refs, timer_rows=False)
+        tally.add(budget, np.array([k.kzz / k.kz, true_mass, k.kzz / k.kz]))
+    return tally
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--method", choices=("001", "002", "004", "all"), default="all")
+    ap.add_argument("--method", choices=("001", "002", "003", "004", "all"), default="all")
     ap.add_argument("--n", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--normal", action="store_true", help="draw every Type B input normal (not as stated)")
     args = ap.parse_args()
-    for name, run in (("001", seed001), ("002", seed002), ("004", seed004)):
-        if args.method in (name, "all"):
-            run(args.n)
+    global NORMAL_ONLY
+    NORMAL_ONLY = args.normal
+    refs = load_references()
+    runs: dict[str, tuple[str, Callable]] = {
+        "001": ("seed 001, eq. 6 at T1 (dof 43)", seed001),
+        "002": ("seed 002, flexure coefficients (9 calibration runs, dof 6)", seed002),
+        "003": ("seed 003, A's coefficients", seed003),
+        "004": ("seed 004, K2 and removed mass (pooled dof 10)", seed004),
+    }
+    for key, (label, run) in runs.items():
+        if args.method not in (key, "all"):
+            continue
+        t0 = time.perf_counter()
+        out = run(args.n, args.seed, refs)
+        wall = time.perf_counter() - t0
+        if isinstance(out, tuple):
+            out[0].print(f"{label} without compensation", wall)
+            out[1].print(f"{label} with compensation (compensated_total)", wall)
+        else:
+            out.print(label, wall)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,389 @@
+"""GUM budgets of seeds 001-004 (issue 15): Type B sensitivities against an independent finite difference, the
+results JSON's GUM fields, and a small seeded Monte Carlo of each method's coverage.
+
+Independent finite differences: the data are made again with the input changed (the twin's head turned, the
+IMU's accelerometers scaled, the site moved) and identified as they come; the budget's refit instead corrects
+the same data for a known input, so its sensitivity is minus the data's (for the inputs the identification
+itself uses, latitude and g, the identification is re-run on unchanged data and the signs agree).
+
+Coverage bands: per coefficient the count of sessions with |k_hat - k| <= U is binomial(N, 0.95) if U is a
+95 % interval; the tests accept it within 3.29 binomial standard deviations (two-sided 99.9 %), so a correct
+budget fails one coefficient's check in 1000. The Monte Carlo draws every Type B input normal with its stated
+u (bench/bench_mc_methods.py --normal): that tests the propagation; the rectangular shapes the references
+state give higher coverage where a rectangular input dominates (BENCHMARKS.md, issue 15).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from methods.common.uncertainty import COVERAGE_PROBABILITY
+from methods.seed000.budget import load_references
+from station.session import Measurement, Session, StationInfo
+
+ROOT = Path(__file__).parents[2]
+sys.path.insert(0, str(ROOT / "bench"))
+import bench_mc_methods as mc  # noqa: E402  (the bench's session makers: one code for the bench and the test)
+
+REFS = load_references()
+COEFFICIENT_FIELDS = {"value", "unit", "standard_uncertainty", "effective_dof", "coverage_factor",
+                      "coverage_probability", "expanded_uncertainty"}  # fmt: skip
+ROW_FIELDS = {"source", "type", "value", "standard_uncertainty", "sensitivity", "contribution"}
+
+
+def coverage_band(n: int) -> tuple[float, float]:
+    """Two-sided 99.9 % band of a binomial(n, 0.95) fraction (normal approximation, z = 3.29)."""
+    half = 3.29 * math.sqrt(COVERAGE_PROBABILITY * (1 - COVERAGE_PROBABILITY) / n)
+    return COVERAGE_PROBABILITY - half, min(1.0, COVERAGE_PROBABILITY + half)
+
+
+def row(budget, label: str):
+    return next(s for s in budget.sources if s.source.startswith(label))
+
+
+def assert_gum_json(doc: dict, names) -> None:
+    """The issue's item 2: per coefficient value .. expanded_uncertainty, covariance {names, matrix}, budget rows."""
+    for n in names:
+        assert set(doc["coefficients"][n]) >= COEFFICIENT_FIELDS, n
+        c = doc["coefficients"][n]
+        assert c["expanded_uncertainty"] == pytest.approx(c["coverage_factor"] * c["standard_uncertainty"])
+    assert list(doc["covariance"]["names"]) == list(names)
+    assert np.shape(doc["covariance"]["matrix"]) == (len(names), len(names))
+    assert {r["type"] for r in doc["budget"]} == {"A", "B"}
+    for r in doc["budget"]:
+        assert set(r) >= ROW_FIELDS and set(r["sensitivity"]) == set(names)
+
+
+@pytest.fixture(autouse=True)
+def _normal_draws(monkeypatch):
+    monkeypatch.setattr(mc, "NORMAL_ONLY", True)
+
+
+# ---------------------------------------------------------------- seed 001
+
+
+def _tumble(**inputs):
+    from methods.seed001.analysis import analyse_tumble
+    from methods.seed001.tumble_session import tumble_session
+    from models.pendulous_accelerometer import AccelerometerModel
+
+    session, _ = tumble_session(AccelerometerModel(), [20.0], 3, 8e-6, np.random.default_rng(7), **inputs)
+    return analyse_tumble(session, 20.0)[1][0]
+
+
+def test_seed001_type_b_rows_match_tumbles_made_again_with_the_input() -> None:
+    """Noise-free tumbles with the head turned by +-h at 45 deg (and at 90 deg), the voltmeter's gain and offset
+    at +-h: -(K(+h) - K(-h)) / 2h is each row's sensitivity. Eq. 1 is smooth in theta, so the central difference
+    differs from the refit's by O(h^2 Y''') / Y': below 1e-6 of the largest sensitivity at h = 1e-5 rad; 1e-4
+    allowed (the refit's own step is u, 1.2e-5 rad)."""
+    p = _tumble()
+    cases = {
+        "index head angle error at 45 deg": ("head_error_rad", 1, 1e-5),
+        "index head angle error at 90 deg": ("head_error_rad", 2, 1e-5),
+        "voltmeter gain": ("voltmeter_gain", None, 1e-5),
+        "voltmeter offset": ("voltmeter_offset_v", None, 1e-5),
+    }
+    for label, (key, j, h) in cases.items():
+
+        def value(x: float, key: str = key, j: int | None = j):
+            if j is None:
+                return {key: x}
+            e = np.zeros(8)
+            e[j] = x
+            return {key: e}
+
+        independent = -(_tumble(**value(h)).cf - _tumble(**value(-h)).cf) / (2 * h)
+        c = row(p.budget, label).sensitivity
+        assert np.max(np.abs(c)) > 0, label
+        np.testing.assert_allclose(c, independent, rtol=0, atol=1e-4 * np.max(np.abs(independent)), err_msg=label)
+    # J = 9 is J = 1 after a full turn: one input for both
+    assert row(p.budget, "index head angle error at 0 deg (J = 1, 9)").source.endswith("(J = 1, 9)")
+
+
+def test_seed001_json_carries_the_budget_of_eq6_and_of_the_error_model() -> None:
+    from methods.seed001.analysis import ERROR_NAMES
+    from models.pendulous_accelerometer import CF_NAMES
+
+    doc = _tumble().to_json()
+    cf, errors = doc["gum_cf"], doc["gum_errors"]
+    assert_gum_json({"coefficients": doc["coefficients"], **cf}, CF_NAMES)
+    assert_gum_json({"coefficients": doc["coefficients"], **errors}, ERROR_NAMES)
+    assert len([r for r in cf["budget"] if r["type"] == "B"]) == 10  # 8 head angles, gain, offset
+
+
+def test_seed001_monte_carlo_coverage() -> None:
+    n = 150
+    tally = mc.seed001(n, 11, REFS)
+    lo, hi = coverage_band(n)
+    cover = np.mean(tally.covered, axis=0)
+    assert np.all((lo <= cover) & (cover <= hi)), dict(zip(tally.names, cover, strict=True))
+
+
+# ---------------------------------------------------------------- seed 002
+
+
+@pytest.fixture(scope="module")
+def imu_runs():
+    """Nine calibration runs (60 s at rest, 30 s of vibration: the test's, not the seed's) and the site."""
+    from methods.seed002.vibration_run import simulate_run
+    from models.fixture_poses import CALIBRATION_POSES, POSES
+    from models.shaker_motion import sine_drive
+    from models.strapdown_imu import Site, StrapdownImuTwin
+    from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+
+    site = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
+    rng = np.random.default_rng(3)
+    drive = sine_drive(20.0, 1.5, G_MPS2)
+    runs = [(k, simulate_run(StrapdownImuTwin(), site, POSES[k], drive, rate_hz=200.0, align_s=60.0, vibrate_s=30.0,
+                             ramp_s=2.0, rng=rng)) for k in CALIBRATION_POSES]  # fmt: skip
+    return runs, site
+
+
+def _observe(runs, site, accel: np.ndarray | None = None):
+    from methods.seed002.analysis import RunRecord, observe_run
+
+    accel = np.zeros(3) if accel is None else accel
+    out = []
+    for _, r in runs:
+        obs = observe_run(RunRecord.from_times(r.dtheta, r.dv * (1 + accel), r.dt_s, 0.0, r.t0_s, r.tk_s), site)
+        out.append({"A": obs.A, "B": obs.B, "c_bn_t0": obs.c_bn_t0, "c_bn_tk": obs.c_bn_tk,
+                    "vibration_s": obs.duration_s, "mean_products": obs.mean_products})  # fmt: skip
+    return out
+
+
+def _tau(values) -> np.ndarray:
+    from methods.seed002.analysis import estimate_flexure
+    from models.strapdown_imu import ARCSEC_PER_G
+
+    return estimate_flexure(np.vstack([v["A"] for v in values]), np.concatenate([v["B"] for v in values])).values / (
+        ARCSEC_PER_G
+    )
+
+
+def test_seed002_type_b_rows_match_runs_reduced_again(imu_runs) -> None:
+    """Accelerometer k scaled by 1 +- h in the increments, each run reduced again (alignments, attitudes, eqs.
+    17-22): -(tau(+h) - tau(-h)) / 2h. The budget scales A's columns only and leaves out the alignments' share
+    (their level frame turns by h times the off-vertical force, and the stored observations keep only its
+    horizontal rows): measured on these poses at most 17 % of the largest sensitivity, so 20 % is allowed
+    (a contribution of 1e-4 arcsec/g at 50 ppm, against 0.05-0.1 arcsec/g of Type A). Latitude: the runs
+    reduced at lam +- 0.5 deg; the budget's first order in the attitude error (1e-4 rad) allows 2 %."""
+    from methods.seed002.budget import flexure_budget
+
+    runs, site = imu_runs
+    budget = flexure_budget(_observe(runs, site), site, REFS)
+    h = 1e-3
+    for k, axis in enumerate("xyz"):
+        e = np.zeros(3)
+        e[k] = h
+        independent = -(_tau(_observe(runs, site, e)) - _tau(_observe(runs, site, -e))) / (2 * h)
+        c = row(budget, f"accelerometer {axis}").sensitivity
+        assert np.max(np.abs(c)) > 0.1, axis
+        np.testing.assert_allclose(c, independent, rtol=0, atol=0.20 * np.max(np.abs(independent)), err_msg=axis)
+    d = math.radians(0.5)
+    moved = [replace(site, latitude_rad=site.latitude_rad + s * d) for s in (1, -1)]
+    independent = (_tau(_observe(runs, moved[0])) - _tau(_observe(runs, moved[1]))) / (2 * d)
+    c = row(budget, "latitude").sensitivity
+    np.testing.assert_allclose(c, independent, rtol=0, atol=0.02 * np.max(np.abs(independent)))
+    assert np.max(np.abs(row(budget, "IMU sampling").sensitivity)) > 0.1  # A scales by 1 / (1 + e_t): c = -tau
+
+
+def test_seed002_report_json_carries_the_budget(imu_runs) -> None:
+    from methods.seed002.report import analyse_session
+    from models.strapdown_imu import TAU_NAMES
+
+    runs, site = imu_runs
+    values = _observe(runs, site)
+    station = replace(StationInfo(), latitude_deg=math.degrees(site.latitude_rad))
+    ms = [Measurement(f"cal-{k}", "seed002_run", {**v, "role": "calibration", "pose": k, "rate_hz": 200,
+                      "snippet_rate_radps": np.zeros((4, 3)).tolist(), "snippet_force_mps2": np.ones((4, 3)).tolist()})
+          for (k, _), v in zip(runs, values, strict=True)]  # fmt: skip
+    analysis = analyse_session(Session(station, [], measurements=ms))
+    gum = analysis.results["flexure"]["gum"]
+    assert_gum_json(gum, TAU_NAMES)
+    assert "Uncertainty budget" in analysis.report_html
+
+
+def test_seed002_monte_carlo_coverage() -> None:
+    n = 16
+    tally = mc.seed002(n, 12, REFS, align_s=30.0, vibrate_s=15.0)
+    lo, _ = coverage_band(n)
+    cover = np.mean(tally.covered, axis=0)
+    assert np.all(cover >= lo), dict(zip(tally.names, cover, strict=True))
+
+
+# ---------------------------------------------------------------- seed 003
+
+
+def _seed003_case(twin_changes=None, latitude_deg: float | None = None, exact: bool = False):
+    """Noise-free four-pose windows and A's equal-angle calibration of the seed-003 twin (optionally changed)."""
+    from devices.second_instrument.emulator import static_rates_radps
+    from methods.seed003.four_pose import PoseWindow
+    from methods.seed003.sequences import sequence_deg
+    from models.config import TwinConfig
+    from models.fixture import POSES_DEG, SETUPS
+
+    twin = TwinConfig.from_toml(ROOT / "config" / "twin-seed003.toml")
+    if exact:  # the model fits such data exactly: no head error, A's axis on the head zero
+        twin = twin.without_effect("index_harmonics").with_effect("mount_misalignment", dtheta_mount=0.0)
+    for effect, params in (twin_changes or {}).items():
+        twin = twin.with_effect(effect, **params)
+    if latitude_deg is not None:
+        twin = replace(twin, station=replace(twin.station, latitude_deg=latitude_deg))
+    windows = []
+    for setup in (1, 2):
+        positions = sequence_deg("equal_acceleration" if setup == 1 else "equal_angle", 22)
+        heads = np.radians((np.array(positions) - POSES_DEG[SETUPS[setup][0]]) % 360)
+        for inst, (pose, rates) in static_rates_radps(twin, setup, heads).items():
+            windows += [PoseWindow(inst, setup, pose, h, r) for h, r in zip(heads, rates, strict=True)]
+    cal = np.radians(sequence_deg("equal_angle", 22))
+    return twin, windows, cal, static_rates_radps(twin, 1, cal)["A"][1]
+
+
+def _seed003_fits(windows, cal, rates):
+    from methods.seed003.four_pose import fit_four_pose
+    from methods.seed003.static_model import MODELS, fit_static, with_angle_uncertainty
+    from models.fixture import pose_rad
+
+    st, terms = StationInfo(), MODELS["seed003"]
+    unc = fit_static(cal + pose_rad(1), rates, terms, st)
+    fp = fit_four_pose(windows, terms, 3, st)
+    angles = fp.instrument_angle_rad("A", 1, 1, cal)
+    comp = fit_static(angles, rates, terms, st)
+    total = with_angle_uncertainty(comp, angles, fp.angle_derivatives(cal), fp.angle_covariance("A", 1), st)
+    return unc, fp, comp, total
+
+
+def test_seed003_type_b_rows_match_the_twin_made_again_with_the_input() -> None:
+    """Around data the static model fits exactly (the twin without head error, A's axis on the head zero):
+    the head's harmonic s1, s2 at +- h, A's mount (the head zero's error) at +- h, the site's latitude at
+    +- 0.01 deg put in the twin and identified as they come; minus the central difference is the row's
+    sensitivity (compensated: the latitude through the four-pose and the calibration fits). Only where the
+    residuals vanish do the two agree: the refit also turns the regressors against the residuals, which is
+    the measurement model's own sensitivity. The fits are linear in the rates and the angles enter smoothly:
+    1 % of the largest sensitivity allowed (second order in h = 1e-6 rad)."""
+    from methods.seed003 import budget as gum
+    from models.fixture import pose_rad
+
+    _, windows, cal, rates = _seed003_case(exact=True)
+    unc, fp, comp, total = _seed003_fits(windows, cal, rates)
+    assert unc.sigma_residual < 1e-12
+    tm = np.full(cal.size, 600.0)
+    st = StationInfo()
+    b_unc = gum.uncompensated_budget(unc, cal, cal + pose_rad(1), rates, tm, st, 3, 8e-6, REFS)
+    b_comp = gum.compensated_budget(comp, total, fp, windows, 1, 1, cal, rates, tm, st, REFS)
+    h = 1e-6
+    cases = {f"angle-error harmonic {n}": [{"index_harmonics": {n: s * h}} for s in (1, -1)] for n in ("s1", "s2")}
+    cases["head zero"] = [{"mount_misalignment": {"dtheta_mount": s * h}} for s in (1, -1)]
+    for label, changes in cases.items():
+        fits = [_seed003_fits(*_seed003_case(c, exact=True)[1:])[0] for c in changes]
+        independent = -(fits[0].values - fits[1].values) / (2 * h)
+        c = row(b_unc, label).sensitivity
+        assert np.max(np.abs(c)) > 0, label
+        np.testing.assert_allclose(c, independent, rtol=0, atol=0.01 * np.max(np.abs(independent)), err_msg=label)
+    d = 0.01
+    both = [_seed003_fits(*_seed003_case(latitude_deg=st.latitude_deg + s * d, exact=True)[1:]) for s in (1, -1)]
+    for budget, which in ((b_unc, 0), (b_comp, 2)):
+        independent = -(both[0][which].values - both[1][which].values) / (2 * d)
+        c = row(budget, "latitude").sensitivity
+        assert np.max(np.abs(c)) > 0
+        np.testing.assert_allclose(c, independent, rtol=0, atol=0.01 * np.max(np.abs(independent)))
+
+
+def test_seed003_json_carries_both_budgets() -> None:
+    from methods.seed003 import budget as gum
+    from methods.seed003 import gravity_field as gf
+    from models.fixture import pose_rad
+
+    _, windows, cal, rates = _seed003_case()
+    unc, fp, comp, total = _seed003_fits(windows, cal, rates)
+    tm, st = np.full(cal.size, 600.0), StationInfo()
+    budgets = {
+        "uncompensated": gum.uncompensated_budget(unc, cal, cal + pose_rad(1), rates, tm, st, 3, 8e-6, REFS),
+        "compensated_total": gum.compensated_budget(comp, total, fp, windows, 1, 1, cal, rates, tm, st, REFS),
+    }
+    doc = gf.Calibration("equal_angle", np.degrees(cal), tm, unc, comp, total, budgets).to_json()
+    for name in budgets:
+        assert_gum_json(doc[name], unc.names)
+        assert doc[name]["type_b"] == gum.TYPE_B[name]
+    assert "budget" in doc["compensated"]  # eq. 49 as the seed has it (Type A only) is kept beside
+
+
+def test_seed003_monte_carlo_coverage() -> None:
+    n = 300
+    tallies = mc.seed003(n, 13, REFS)
+    lo, hi = coverage_band(n)
+    for tally in tallies:
+        cover = np.mean(tally.covered, axis=0)
+        assert np.all((lo <= cover) & (cover <= hi)), dict(zip(tally.names, cover, strict=True))
+
+
+# ---------------------------------------------------------------- seed 004
+
+
+@pytest.fixture(scope="module")
+def seed004_case():
+    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, calibrate, pooled
+    from models.config import default_twin
+    from models.plan import multiposition_plan
+    from models.session_sim import simulate_session
+
+    plan = multiposition_plan([0.0, 180.0, 60.0], [8.0, 9.0, 10.0], 560.0)
+    s1, s2 = (simulate_session(plan, default_twin(), seed=s) for s in (41, 42))
+    best, after = pooled([calibrate(s1.station, s1.points, "B", AT_BEST, 0.0),
+                          calibrate(s2.station, s2.points, "A", AFTER_REMOVAL, 0.0)])  # fmt: skip
+    return s1, s2, best, after
+
+
+def test_seed004_type_b_rows_match_eqs_21_22_and_a_recalibration(seed004_case) -> None:
+    """H and b: eqs. 21-22 give m = kzz H / kz^2 / (2 b^2 sin 2 theta), so dm/dH = m / H and dm/db = -2 m / b
+    exactly (the refit's central difference at u is exact to (u/b)^2 = 2e-6): 1e-5 relative allowed. g: K2 of
+    the calibration re-run (seed 004's own calibrate) with the station's g at +- u, against the row carried by
+    the chain rule from seed 000's budget: 1 % allowed (both are central differences of one linear fit)."""
+    from methods.seed004.analysis import calibrate, correction
+    from methods.seed004.budget import suppression_budget
+
+    s1, s2, best, after = seed004_case
+    nominal = (0.1, 20.607, 45.0)
+    budget = suppression_budget(s1.station, (s1.points, best), (s2.points, after), nominal, REFS, timer_rows=False)
+    mass = budget.values[1]
+    assert row(budget, "angular momentum").sensitivity[1] == pytest.approx(mass / nominal[0], rel=1e-5)
+    assert row(budget, "radius b").sensitivity[1] == pytest.approx(-2 * mass / nominal[1], rel=1e-5)
+    assert row(budget, "angle theta").sensitivity[1] == pytest.approx(0.0, abs=1e-3 * mass)  # sin 2 theta at 45 deg
+    u_g = REFS["g_mps2"].standard_uncertainty
+    cals = [calibrate(replace(s1.station, g_mps2=s1.station.g_mps2 + s * u_g), s1.points, "B", "best offset", 0.0)
+            for s in (1, -1)]  # fmt: skip
+    c = row(budget, "local gravity g").sensitivity
+    independent = (cals[0].k2_per_g - cals[1].k2_per_g) / (2 * u_g)
+    assert c[0] == pytest.approx(independent, rel=0.01) and c[0] != 0
+    masses = [correction(cal, *nominal).mass_mg for cal in cals]  # g moves kz too: m = K2 H / kz / (2 b^2 sin 2 theta)
+    assert c[1] == pytest.approx((masses[0] - masses[1]) / (2 * u_g), rel=0.01, abs=1e-3 * abs(independent * mass))
+    # both calibrations see the same g: its row carries both, so they are correlated in the covariance
+    assert c[2] != 0 and budget.covariance()[0, 2] != 0
+
+
+def test_seed004_gum_json_carries_the_budget(seed004_case) -> None:
+    from methods.seed004.analysis import Suppression, SweepFit, correction
+    from methods.seed004.budget import suppression_budget
+
+    s1, s2, best, after = seed004_case
+    nominal = (0.1, 20.607, 45.0)
+    budget = suppression_budget(s1.station, (s1.points, best), (s2.points, after), nominal, REFS, timer_rows=False)
+    sweep = SweepFit(np.zeros(4), np.zeros(4), np.zeros(4), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    s = Suppression([best, after], sweep, best, correction(best, *nominal), after, budget)
+    doc = s.gum()
+    assert_gum_json(doc, ("K2_at_best", "removed_mass", "K2_after_removal"))
+    assert doc["coefficients"]["removed_mass"]["sigma"] == pytest.approx(s.correction.sigma_mass_mg)
+
+
+def test_seed004_monte_carlo_coverage() -> None:
+    n = 30
+    tally = mc.seed004(n, 14, REFS)
+    lo, _ = coverage_band(n)
+    cover = np.mean(tally.covered, axis=0)
+    assert np.all(cover >= lo), dict(zip(tally.names, cover, strict=True))
