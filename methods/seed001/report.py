@@ -8,6 +8,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
+from methods.seed000.report import budget_rows
 from methods.seed001.analysis import (
     POSITIONS,
     SOAK,
@@ -65,6 +66,15 @@ def _cf_table(points: list[EightPoint]) -> str:
     header = ["coefficient", "unit"] + [block_name(p) for p in points]
     rows = [[n, CF_UNITS[n], *(pm(*p.coefficient(n), digits=7) for p in points)] for n in CF_NAMES]
     return table(header, rows)
+
+
+def _budget_tables(points: list[EightPoint]) -> list[str]:
+    """The GUM budget of eq. 6's coefficients at each temperature (methods.seed001.budget)."""
+    return [
+        f"<h3>Uncertainty budget at {block_name(p)} (GUM; contributions |c| u)</h3>" + table(*budget_rows(p.budget))
+        for p in points
+        if p.budget is not None
+    ]
 
 
 def _error_table(points: list[EightPoint]) -> str:
@@ -182,6 +192,7 @@ def render_tumble_report(
         _temperature_plots(points, model),
         "<h2>Conversion function coefficients (eq. 1 by eq. 6)</h2>",
         _cf_table(points),
+        *_budget_tables(points),
         "<h2>Hysteresis and drift: readings less their position level</h2>",
         _stroke_plots(r, points),
         _chamber_plot(session, r),

@@ -7,6 +7,7 @@ import math
 import matplotlib.pyplot as plt
 import numpy as np
 
+from methods.seed000.report import budget_rows
 from methods.seed003.alignment import ALIGNMENT_ANGLES_DEG
 from methods.seed003.design import (
     efficiency_sensitivity,
@@ -53,6 +54,9 @@ def _calibration_section(res: GravityFieldResult) -> list[str]:
                 "σ with the harmonics' uncertainty")  # fmt: skip
         parts += [f"<h3>{esc(cal.scheme)}, {len(cal.positions_deg)} positions</h3>",
                   table(head, _coefficient_rows(cal, res.terms))]  # fmt: skip
+        for name, budget in cal.budgets.items():  # GUM budgets (methods.seed003.budget)
+            parts += [f"<h4>Uncertainty budget, {esc(name)} (GUM; contributions |c| u)</h4>",
+                      table(*budget_rows(budget, with_sensitivity=True))]  # fmt: skip
         for name, fit in (("uncompensated", cal.uncompensated), ("compensated", cal.compensated)):
             if fit is not None:
                 rfa = relative_fitting_accuracy_g(fit)

@@ -30,6 +30,7 @@ from scipy.optimize import minimize_scalar
 from methods.common.least_squares import FitError
 from methods.common.uncertainty import Budget, merged_json, type_a_json
 from methods.seed000.identify import identify
+from methods.seed000.report import budget_rows
 from models import nonlinear_error as ne
 from models.regressors import COEFFICIENTS, baseline_regressors
 from station.htmlkit import document, esc, mapping_table, svg, table
@@ -419,6 +420,9 @@ def report_html(s: Suppression, title: str) -> str:
                 }
             ),
         ]
+    if s.budget is not None:
+        parts += ["<h2>Uncertainty budget of the headline figures (GUM; contributions |c| u)</h2>",
+                  table(*budget_rows(s.budget, with_sensitivity=True))]  # fmt: skip
     parts += [
         "<h2>Calibrations (integral precession, seed 000)</h2>",
         table(

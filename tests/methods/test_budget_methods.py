@@ -117,6 +117,17 @@ def test_seed001_json_carries_the_budget_of_eq6_and_of_the_error_model() -> None
     assert len([r for r in cf["budget"] if r["type"] == "B"]) == 10  # 8 head angles, gain, offset
 
 
+def test_seed001_report_shows_the_budget() -> None:
+    from methods.seed001.analysis import analyse_tumble
+    from methods.seed001.report import render_tumble_report
+    from methods.seed001.tumble_session import tumble_session
+    from models.pendulous_accelerometer import AccelerometerModel
+
+    session, _ = tumble_session(AccelerometerModel(), [20.0, 80.0], 3, 8e-6, np.random.default_rng(1))
+    html = render_tumble_report(session, *analyse_tumble(session, 20.0), title="t")
+    assert html.count("Uncertainty budget at") == 2 and "voltmeter offset" in html
+
+
 def test_seed001_monte_carlo_coverage() -> None:
     n = 150
     tally = mc.seed001(n, 11, REFS)
@@ -368,16 +379,18 @@ def test_seed004_type_b_rows_match_eqs_21_22_and_a_recalibration(seed004_case) -
 
 
 def test_seed004_gum_json_carries_the_budget(seed004_case) -> None:
-    from methods.seed004.analysis import Suppression, SweepFit, correction
+    from methods.seed004.analysis import Suppression, SweepFit, correction, report_html
     from methods.seed004.budget import suppression_budget
 
     s1, s2, best, after = seed004_case
     nominal = (0.1, 20.607, 45.0)
     budget = suppression_budget(s1.station, (s1.points, best), (s2.points, after), nominal, REFS, timer_rows=False)
-    sweep = SweepFit(np.zeros(4), np.zeros(4), np.zeros(4), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    offsets, k2 = np.array([-1.0, 0.0, 1.0, 2.0]), np.array([3e-5, 1.1e-5, 2e-5, 4e-5])
+    sweep = SweepFit(offsets, k2, k2 / 100, 0.0, 0.1, 1.1e-5, 1e-7, 0.0, 1.1e-5)
     s = Suppression([best, after], sweep, best, correction(best, *nominal), after, budget)
     doc = s.gum()
     assert_gum_json(doc, ("K2_at_best", "removed_mass", "K2_after_removal"))
+    assert "Uncertainty budget of the headline figures" in report_html(s, "t")
     assert doc["coefficients"]["removed_mass"]["sigma"] == pytest.approx(s.correction.sigma_mass_mg)
 
 
