@@ -8,11 +8,14 @@ Methods report coefficients in one of two shapes:
 `coefficient_rows` reads both (any depth), so a new method is shown with its units
 as soon as it states them. `sigma` is the standard uncertainty of the least-squares
 fit alone (Type A, k = 1): the covariance (X^T X)^-1 scaled by the residual sigma^2
-(seed 000 eqs. 21-22). Where the method adds a GUM budget (methods.common.uncertainty)
-a coefficient also has `standard_uncertainty` (Type A and B combined),
-`coverage_factor` k (Student t at the effective degrees of freedom),
-`coverage_probability` and `expanded_uncertainty` U = k u: then u and U are those.
-Without a budget U = COVERAGE_K u is shown with k = COVERAGE_K stated.
+(seed 000 eqs. 21-22). Where the method has a GUM budget (methods.common.uncertainty;
+every method of seeds 000-004 has one) a coefficient also has `standard_uncertainty`
+(Type A and B combined), `coverage_factor` k (Student's t at the Welch-Satterthwaite
+effective degrees of freedom, so k varies from coefficient to coefficient: 2.57 at 5 dof,
+1.96 for a Type B dominated one), `coverage_probability` and `expanded_uncertainty`
+U = k u: then u, k and U are the budget's, read as stated, never a fixed k. Only a result
+without those fields (a method or an old results file with the fit alone) falls back to
+U = COVERAGE_K u, and then k = COVERAGE_K is printed beside it.
 `mu` is max|e| / sigma and `mu_c = 1.25 + ln sqrt(N / 3)` its critical value
 (seed 000 eq. 28): mu < mu_c says that no residual is an outlier.
 """
