@@ -15,7 +15,8 @@ frequency (vibration points); position harmonics a^2 {cos k theta, sin k theta}
 (vibration points); a cubic trend in session time and its quadratic part alone (every point); one offset per
 run-order block; one point off by itself (the largest studentised deleted
 residual, Bonferroni over the points: seed 000's reliability test, eq. 28, made
-exact). Timing blocks (the period identities t1 + Np T - Tm - t2): a slope in
+exact); a bias step at the best of the times between points (Bonferroni over them). Timing
+blocks (the period identities t1 + Np T - Tm - t2): a slope in
 Np T (a frequency error), one frequency error per frequency, one identity off by
 itself. Goodness of fit of each channel whose noise is known (stated by the
 session; the grating's from thousands of samples): chi-square of its whitened
@@ -183,6 +184,7 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
         out.append(_test_block(name, D * wr[:, None], what, Q, r, rate, rss_rate, fit.dof_rate, "rate"))
     if fit.dof_rate >= 2:
         out.append(_single_point(d, Q, r, rss_rate, fit.dof_rate))
+        out.append(_time_step(d, Q, r, wr, rss_rate, fit.dof_rate))
     if ch.rate_sigma_known:
         what = "chi-square of the rate residuals against the stated instrument repeatability"
         out.append(goodness_of_fit("rate_goodness_of_fit", rss_rate, fit.dof_rate, what, "rate"))
@@ -244,6 +246,35 @@ def _single_identity(d: PointDesign, Q, r, rows: slice, rss: float, dof: int) ->
     pid = d.point_ids[int(np.flatnonzero(d.vib)[i])]
     what = f"one period identity off by itself (the largest of {e.size}, Bonferroni)"
     return Detector("single_identity", F, (1, dof - 1), p, what, at=pid, channel="timing")
+
+
+MIN_STEP_POINTS = 3  # points on each side of a step in session time
+
+
+def _time_step(d: PointDesign, Q, r, wr, rss_rate: float, dof: int) -> Detector | None:
+    """A bias step at some time of the session: the step whose offset lowers the RSS most, Bonferroni over
+    the candidate times (between consecutive points in session time, MIN_STEP_POINTS on each side).
+    A smooth trend test (time_trend) spreads a step over its cubic; this scan gives it one column."""
+    n = d.n_points
+    order = np.argsort(d.start_s, kind="stable")
+    starts = range(MIN_STEP_POINTS, n - MIN_STEP_POINTS + 1)
+    if not starts:
+        return None
+    D = np.zeros((r.size, len(starts)))
+    for j, k in enumerate(starts):
+        D[order[k:], j] = 1.0
+    D *= wr[:, None]
+    Dp = D - Q @ (Q.T @ D)
+    norm2 = np.sum(Dp**2, axis=0)
+    ok = norm2 > 1e-12 * np.max(norm2)
+    drss = np.where(ok, (Dp.T @ r) ** 2 / np.where(ok, norm2, 1.0), 0.0)
+    j = int(np.argmax(drss))
+    F = float(drss[j]) / max((rss_rate - float(drss[j])) / (dof - 1), 1e-300)
+    p = min(1.0, int(ok.sum()) * float(stats.f.sf(F, 1, dof - 1)))
+    k = order[list(starts)[j]]
+    what = f"a bias step in session time (the best of {int(ok.sum())} step times, Bonferroni)"
+    basis = (Dp[:, j] / math.sqrt(norm2[j]))[:, None]
+    return Detector("time_step", F, (1, dof - 1), p, what, basis, f"{d.start_s[k]:.0f} s")
 
 
 def _single_point(d: PointDesign, Q: np.ndarray, r: np.ndarray, rss_rate: float, dof: int) -> Detector:

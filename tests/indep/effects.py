@@ -24,8 +24,9 @@ which its drawn parameters give the largest SNR; `scale_to_snr` multiplies the e
 parameters until that SNR equals the request (power-law secant iteration to 0.1 %; where a first
 passage moves by a whole period as the strength changes, SNR(strength) has small steps and the
 nearest value found, within a few %, is kept: the truth's snr_achieved states it). No effect is made
-stronger than STRENGTH_CAP = 10 times its plausible bounds: where a design cannot show an effect
-at that strength, the SNR reached is below the request (snr_achieved says so, `plausible` is False). For +-1 pulse
+stronger than its plausible bounds (STRENGTH_CAP = 1: a diagnosis that bounds each effect by plausible
+magnitudes, issue 10 item 2, must not be scored on effects beyond them): where a design cannot show an
+effect within them, the SNR reached is below the request (snr_achieved says so). For +-1 pulse
 miscounts, a discrete effect, windows are miscounted one by one (random order) until the SNR
 reaches the request, so the SNR achieved is the nearest the windows allow.
 """
@@ -43,7 +44,7 @@ from indep.generator import Design, Draws, Noise, Row, Truth, simulate
 from indep.world import A0_M, ARCSEC_RAD, EARTH_RATE_RADPS, LATITUDE_DEG, PULSE_RAD, Perturbation
 
 UM = 1e-6
-STRENGTH_CAP = 10.0  # scale_to_snr never makes an effect stronger than this many times its plausible bounds
+STRENGTH_CAP = 1.0  # scale_to_snr never makes an effect stronger than this many times its plausible bounds
 CHANNELS = ("static_rates", "vibration_rates", "period_identity", "grating")
 
 
