@@ -86,3 +86,28 @@ def test_null_sessions_of_another_implementation_pass_the_pulse_test(seed):
     test = _pulse_test(rep)
     assert test["dof"][0] >= 6
     assert test["p_value"] > ALPHA_NULL
+
+
+def test_a_table_tilt_at_2psi_is_told_from_a_parasitic_rotation_by_the_pulse_record():
+    """An out-of-library tilt alpha_x = ax2s sin 2psi + ax2c cos 2psi (tests/indep) is at rest (psi = 0) the
+    same static tilt as parasitic_rotation's axc1 and has no first-order window-mean effect in vibration
+    (<sin psi cos 2psi> = 0), so on the rates axc1 reproduces it (indep's case_mimic: < 0.1 sigma). On the
+    pulse edges it is a 2nd rate harmonic -kz sin(theta) alpha_x (about kz x 1e-4 rad = 5e-5 rad/s against an
+    se of ~5e-7): with raw records the verdict is not `explained` and the pulse test names the gap. Only where
+    the up/down count can be rebuilt (this session records pulse_dir): without it, at a > 1, the pulse edges
+    are left out and axc1 still reproduces the tilt."""
+    indep = pytest.importorskip("indep.cases")
+    import tempfile
+    from pathlib import Path
+
+    from models.config import default_twin
+    from station.interchange import read_session
+
+    out = Path(tempfile.mkdtemp(prefix="gap_tilt_")) / "s"
+    indep.make_case(300108, "ool:table_tilt_2psi", out, snr=10.0, family="equal_accel", raw=True)
+    session = read_session(out)
+    assert any(r.pulse_dir is not None for r in session.raw.values())
+    rep = diagnose(session, default_twin(), suggest=False)
+    assert rep.verdict.verdict != "explained", rep.verdict.text
+    key = "structure_tests_after" if rep.verdict.partial else "structure_tests_before"
+    assert _pulse_test(rep, key)["p_value"] < 1e-6
