@@ -9,8 +9,8 @@ headline coefficient the mean and spread of (k_hat - k) / u_c and the fraction o
 - 001: methods.seed001.tumble_session (4 temperatures x 3 cycles, 8 ug a reading), eq. 6 at T1; drawn: the
   index head's angle error at each of the 8 head angles, the voltmeter's gain and offset.
 - 002: methods.seed002.vibration_run, the 9 calibration poses at 20 Hz, 1.5 g, runs of `--align-s` at rest and
-  `--vibrate-s` of vibration (shorter than the seed's, for time); drawn: each accelerometer's scale factor, the
-  IMU's sampling interval, the latitude (the twin's site is off the recorded one).
+  `--vibrate-s` of vibration (shorter than the seed's, for time); drawn: each accelerometer's scale factor, each
+  gyro's residual bias, the IMU's sampling interval, the latitude (the twin's site is off the recorded one).
 - 003: both PIGAs' static rates (devices.second_instrument.emulator.static_rates_radps: the fixture's physics)
   in the four-pose design (22 equal-acceleration positions in setup 1, 22 equal-angle in setup 2) and A's
   22-position equal-angle calibration, 2e-7 rad/s per window; drawn: the head's six angle-error harmonics, the
@@ -114,10 +114,11 @@ def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.
     for _ in range(n):
         accel = np.array([draw(rng, refs["imu_accel_scale"]) for _ in range(3)])
         clock = float(draw(rng, refs["imu_clock_rel"]))
+        imu = replace(twin, gyro_bias_radps=tuple(draw(rng, refs["imu_gyro_bias_radps"]) for _ in range(3)))
         site = replace(recorded, latitude_rad=recorded.latitude_rad + math.radians(draw(rng, refs["latitude_deg"])))
         runs = []
         for k in CALIBRATION_POSES:
-            run = simulate_run(twin, site, POSES[k], sine_drive(20.0, 1.5, G_MPS2), rate_hz=rate_hz / (1.0 + clock),
+            run = simulate_run(imu, site, POSES[k], sine_drive(20.0, 1.5, G_MPS2), rate_hz=rate_hz / (1.0 + clock),
                                align_s=align_s, vibrate_s=vibrate_s, ramp_s=2.0, rng=rng)  # fmt: skip
             record = RunRecord.from_times(run.dtheta, run.dv * (1.0 + accel), 1.0 / rate_hz, 0.0, run.t0_s, run.tk_s)
             obs = observe_run(record, recorded)
@@ -127,17 +128,35 @@ def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.
     return tally
 
 
+def four_pose_windows(twin, rng: np.random.Generator | None, noise_radps: float) -> list:
+    """Both PIGAs' windows of seed 003's four-pose design (22 equal-acceleration positions of A in setup 1, 22
+    equal-angle in setup 2), from the fixture's physics, with white rate noise (none without `rng`)."""
+    from devices.second_instrument.emulator import static_rates_radps
+    from methods.seed003.four_pose import PoseWindow
+    from methods.seed003.sequences import sequence_deg
+    from models.fixture import POSES_DEG, SETUPS
+
+    windows = []
+    for setup in (1, 2):
+        positions = sequence_deg("equal_acceleration" if setup == 1 else "equal_angle", 22)
+        heads = np.radians((np.array(positions) - POSES_DEG[SETUPS[setup][0]]) % 360)
+        for inst, (pose, rates) in static_rates_radps(twin, setup, heads).items():
+            noisy = rates if rng is None else rates + rng.normal(0.0, noise_radps, rates.size)
+            windows += [PoseWindow(inst, setup, pose, h, r) for h, r in zip(heads, noisy, strict=True)]
+    return windows
+
+
 ZERO_SIGMA_RAD = 8e-6  # the self-alignment's sigma at seed 003's figures (eq. 56: about 1.8 arcsec)
 
 
 def seed003(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally, Tally]:
     from devices.second_instrument.emulator import static_rates_radps
     from methods.seed003 import budget as gum
-    from methods.seed003.four_pose import PoseWindow, fit_four_pose, harmonic_names
+    from methods.seed003.four_pose import fit_four_pose, harmonic_names
     from methods.seed003.sequences import sequence_deg
     from methods.seed003.static_model import MODELS, fit_static, true_static_terms, with_angle_uncertainty
     from models.config import TwinConfig
-    from models.fixture import POSES_DEG, SETUPS, pose_rad
+    from models.fixture import pose_rad
     from station.session import StationInfo
 
     base = TwinConfig.from_toml(Path(__file__).parents[1] / "config" / "twin-seed003.toml")
@@ -152,13 +171,7 @@ def seed003(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally, Tally
         zero_err = rng.normal(0.0, ZERO_SIGMA_RAD)  # A's input axis off the head zero the analysis takes as exact
         twin = base.with_effect("index_harmonics", **harmonics).with_effect("mount_misalignment", dtheta_mount=zero_err)
         twin = replace(twin, station=replace(base.station, latitude_deg=lat))
-        windows = []
-        for setup in (1, 2):
-            positions = sequence_deg("equal_acceleration" if setup == 1 else "equal_angle", 22)
-            heads = np.radians((np.array(positions) - POSES_DEG[SETUPS[setup][0]]) % 360)
-            for inst, (pose, rates) in static_rates_radps(twin, setup, heads).items():
-                noisy = rates + rng.normal(0.0, noise, rates.size)
-                windows += [PoseWindow(inst, setup, pose, h, r) for h, r in zip(heads, noisy, strict=True)]
+        windows = four_pose_windows(twin, rng, noise)
         rates = static_rates_radps(twin, 1, cal_rad)["A"][1] + rng.normal(0.0, noise, cal_rad.size)
         aligned = cal_rad + pose_rad(1)
         unc = fit_static(aligned, rates, terms, station)

@@ -9,6 +9,9 @@ observations A, B as the run's reduction (eqs. 17-22) would give them at the inp
   sensitivities agree within 17 % of the largest, which is 50 ppm x 1.8 arcsec/g = 1e-4 arcsec/g;
 - the IMU's sampling interval dt (1 + e_t): omega and f are increments over dt, so every column of A, a sum of
   omega f dt, scales by 1 / (1 + e_t); the attitudes are sums of angles and do not;
+- each gyro's residual bias b (rad/s): the attitude drifts by b T over the vibration, which the two static
+  alignments do not see; its east component is a heading error that both alignments take up (as the
+  g-sensitive drift at rest, methods.seed002.analysis), so B's north component moves by (C_b^n(t0) b)_N T;
 - the site latitude: B holds the attitude error against the Earth's rotation over the vibration (eq. 19),
   B(lam) = B + D C_b^n(t0) [phi(lam) - phi(lam0)] with phi = vee(I - C_b^i(tk) C_i^b(lam)) (eq. 18).
 
@@ -34,9 +37,9 @@ from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site
 
 AXES = "xyz"
 SEED002_TYPE_B = (
-    "Type B by refit of eq. 21 (methods.seed002.budget): accelerometer scale factors, the IMU's sampling "
-    "interval, the site latitude; the gyros' scale factors are not propagated (they need the raw increments; "
-    "about 1.5e-4 arcsec/g at 5 ppm)"
+    "Type B by refit of eq. 21 (methods.seed002.budget): accelerometer scale factors, the gyros' residual "
+    "biases, the IMU's sampling interval, the site latitude; the gyros' scale factors are not propagated (they "
+    "need the raw increments; about 1.5e-4 arcsec/g at 5 ppm)"
 )
 
 
@@ -58,6 +61,11 @@ def latitude_shift(c_bn_t0: np.ndarray, c_bn_tk: np.ndarray, duration_s: float, 
     return (c_bn_t0 @ -vee(truth.T @ (other - truth)))[HORIZONTAL]
 
 
+def bias_shift(c_bn_t0: np.ndarray, duration_s: float, bias_radps: np.ndarray) -> np.ndarray:
+    """Change of a run's B (east, north) when the reduction removes a gyro bias b from the increments."""
+    return np.array([0.0, (c_bn_t0 @ bias_radps)[1] * duration_s])
+
+
 def flexure_budget(
     runs: Sequence[Mapping],
     site: Site,
@@ -72,13 +80,17 @@ def flexure_budget(
 
     def refit(x: Mapping[str, float]) -> np.ndarray:
         scale = column_scale([x[f"accel_{a}"] for a in AXES], x["clock"])
-        shift = np.concatenate([latitude_shift(c0, ck, d, site, x["latitude"]) for c0, ck, d in geometry])
+        bias = np.array([x[f"bias_{a}"] for a in AXES])
+        shift = np.concatenate([latitude_shift(c0, ck, d, site, x["latitude"]) + bias_shift(c0, d, bias)
+                                for c0, ck, d in geometry])  # fmt: skip
         return estimate_flexure(A * scale, B + shift).values / ARCSEC_PER_G
 
-    accel, clock = refs["imu_accel_scale"], refs["imu_clock_rel"]
+    accel, clock, bias = refs["imu_accel_scale"], refs["imu_clock_rel"], refs["imu_gyro_bias_radps"]
     lat = refs["latitude_deg"]
     inputs = [Input(f"accel_{a}", f"accelerometer {a} scale factor", 0.0, accel.standard_uncertainty, "1",
                     accel.distribution) for a in AXES]  # fmt: skip
+    inputs += [Input(f"bias_{a}", f"gyro {a} residual bias", 0.0, bias.standard_uncertainty, "rad/s",
+                     bias.distribution) for a in AXES]  # fmt: skip
     inputs += [
         Input("clock", "IMU sampling interval (relative)", 0.0, clock.standard_uncertainty, "1", clock.distribution),
         Input("latitude", "latitude", site.latitude_rad, math.radians(lat.standard_uncertainty), "rad",
