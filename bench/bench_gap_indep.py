@@ -112,7 +112,10 @@ def run_case(case: dict) -> dict:
     truth_names = truth["effects"]
     if case.get("mimic") and not truth["in_library"]:
         # indep's judgement (case_mimic): the library effect closest to this out-of-library one on every channel
-        truth["library_mimic"] = case_mimic(case["seed"], case["kind"], snr=case["snr"], family=case["family"])
+        try:
+            truth["library_mimic"] = case_mimic(case["seed"], case["kind"], snr=case["snr"], family=case["family"])
+        except ValueError as exc:  # indep could not run a probe session: the case stays unsplit
+            truth["library_mimic"] = {"error": f"{type(exc).__name__}: {exc}"[:300]}
     shrink = {c["name"]: c["heldout_shrink"] for c in j["candidates"]}
     tests = j["where"]["structure_tests_after" if rep.effects or rep.verdict.partial else "structure_tests_before"]
     row.update(

@@ -159,26 +159,36 @@ def library_mimic(ctx: Context, sig: np.ndarray) -> dict:
     fitted parameters within bounds is one that no diagnosis can tell from a library effect.
     """
     s0 = combined(signature(ctx, ctx.truth), ctx)
-    best: dict = {"effect": None, "distance_sigma": math.inf, "within_bounds": False}
+    best: dict = {"effect": None, "distance_sigma": math.inf, "within_bounds": False, "skipped": []}
     for name in LIBRARY:
-        eff = EFFECTS[name]
-        p0 = {k: 0.0 for k in eff.bounds}
-        if name == "lateral_resonance":  # linearise in kx L0^2 about a mid resonance
-            p0 = {"L0": 0.0, "fr_hz": 1.5 * max(ctx.design.freqs_hz), "Q": 8.0, "phiL_rad": 0.0, "kx": 0.0}
-            cols, keys = [], ["kxL2"]
-            p = dict(p0, L0=0.01, kx=1e-5)
-            cols.append((combined(signature(ctx, with_effect(ctx.truth, eff, p)), ctx) - s0) / 1e-9)
-            J, bounds = np.array(cols).T, np.array([eff.bounds["kx"] * eff.bounds["L0"] ** 2])
-        else:
-            cols, keys = [], list(p0)
-            for k in keys:
-                h = 1e-3 * eff.bounds[k]
-                cols.append((combined(signature(ctx, with_effect(ctx.truth, eff, dict(p0, **{k: h}))), ctx) - s0) / h)
-            J, bounds = np.array(cols).T, np.array([eff.bounds[k] for k in keys])
-        d, x = _fit(sig, J)
+        try:
+            d, x, bounds = _mimic_fit(ctx, sig, s0, name)
+        except ValueError as exc:  # a probe step the design cannot run (a rate through zero: no first passage)
+            best["skipped"].append(f"{name}: {exc}"[:200])
+            continue
         if d < best["distance_sigma"]:
-            best = {"effect": name, "distance_sigma": d, "within_bounds": bool(np.all(np.abs(x) <= bounds))}
+            best.update(effect=name, distance_sigma=d, within_bounds=bool(np.all(np.abs(x) <= bounds)))
     return best
+
+
+def _mimic_fit(ctx: Context, sig: np.ndarray, s0: np.ndarray, name: str) -> tuple[float, np.ndarray, np.ndarray]:
+    """Distance of sig from one library effect's linearised span, the fitted parameters and their bounds."""
+    eff = EFFECTS[name]
+    p0 = {k: 0.0 for k in eff.bounds}
+    if name == "lateral_resonance":  # linearise in kx L0^2 about a mid resonance
+        p0 = {"L0": 0.0, "fr_hz": 1.5 * max(ctx.design.freqs_hz), "Q": 8.0, "phiL_rad": 0.0, "kx": 0.0}
+        cols, keys = [], ["kxL2"]
+        p = dict(p0, L0=0.01, kx=1e-5)
+        cols.append((combined(signature(ctx, with_effect(ctx.truth, eff, p)), ctx) - s0) / 1e-9)
+        J, bounds = np.array(cols).T, np.array([eff.bounds["kx"] * eff.bounds["L0"] ** 2])
+    else:
+        cols, keys = [], list(p0)
+        for k in keys:
+            h = 1e-3 * eff.bounds[k]
+            cols.append((combined(signature(ctx, with_effect(ctx.truth, eff, dict(p0, **{k: h}))), ctx) - s0) / h)
+        J, bounds = np.array(cols).T, np.array([eff.bounds[k] for k in keys])
+    d, x = _fit(sig, J)
+    return d, x, bounds
 
 
 @dataclass
