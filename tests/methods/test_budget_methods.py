@@ -406,3 +406,39 @@ def test_seed004_monte_carlo_coverage() -> None:
     lo, _ = coverage_band(n)
     cover = np.mean(tally.covered, axis=0)
     assert np.all(cover >= lo), dict(zip(tally.names, cover, strict=True))
+
+
+# ---------------------------------------------------------------- through the procedures' own analyses
+
+
+def test_procedure_analyses_of_seeds_001_and_004_write_the_budget_in_their_results() -> None:
+    """What app.analysis_job prints: the procedure's analyse(session) results, JSON-safe, with the GUM fields."""
+    import json
+
+    from methods.seed001.procedure import analyse as analyse_tumble_session
+    from methods.seed001.tumble_session import tumble_session
+    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, SWEEP, servo_offset_measurement
+    from methods.seed004.procedure import analyse_suppression, sweep_prefix
+    from models.config import default_twin
+    from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
+    from models.plan import multiposition_plan
+    from models.session_sim import simulate_session
+    from station.jsonsafe import json_safe
+
+    session, _ = tumble_session(AccelerometerModel(), [20.0, 80.0], 3, 8e-6, np.random.default_rng(2))
+    doc = json.loads(json.dumps(json_safe(analyse_tumble_session(session).results)))
+    for t in doc["eight_point"]["temperatures"]:
+        assert_gum_json({"coefficients": t["coefficients"], **t["gum_cf"]}, CF_NAMES)
+
+    plan = multiposition_plan([0.0, 180.0, 60.0], [8.0, 9.0, 10.0], 560.0)
+    groups = [(sweep_prefix(i), SWEEP, x) for i, x in enumerate([-1.0, 0.0, 1.0, 2.0])]
+    groups += [("B", AT_BEST, 0.0), ("A", AFTER_REMOVAL, 0.0)]
+    points, measurements = [], []
+    for j, (prefix, stage, offset) in enumerate(groups):
+        s = simulate_session(plan, default_twin(), seed=100 + j)
+        measurements.append(servo_offset_measurement(f"offset-{j}", prefix, stage, offset))
+        points += [replace(p, point_id=f"{prefix}-{p.point_id}") for p in s.points]
+    analysis = analyse_suppression(Session(s.station, points, measurements=measurements))
+    doc = json.loads(json.dumps(json_safe(analysis.results)))["suppression"]["gum"]
+    assert_gum_json(doc, ("K2_at_best", "removed_mass", "K2_after_removal"))
+    assert "Uncertainty budget of the headline figures" in analysis.report_html
