@@ -307,6 +307,8 @@ def transformed(budget: Budget, names: Sequence[str], values: np.ndarray, jacobi
     for s in budget.sources:
         if s.contribution_override is not None:  # the fit: its covariance is cov_a
             rows.append(replace(s, sensitivity=np.ones(len(names)), contribution_override=np.sqrt(np.diag(cov_a))))
+        elif s.block_cov is not None:  # a covariance row: carried whole, no sensitivity of its own
+            rows.append(replace(s, sensitivity=np.ones(len(names)), block_cov=cov_of(s.block_cov)))
         else:
             rows.append(replace(s, sensitivity=J @ np.asarray(s.sensitivity, dtype=float),
                                 block_cov=cov_of(s.block_cov)))  # fmt: skip

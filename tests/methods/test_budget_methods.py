@@ -442,3 +442,30 @@ def test_procedure_analyses_of_seeds_001_and_004_write_the_budget_in_their_resul
     doc = json.loads(json.dumps(json_safe(analysis.results)))["suppression"]["gum"]
     assert_gum_json(doc, ("K2_at_best", "removed_mass", "K2_after_removal"))
     assert "Uncertainty budget of the headline figures" in analysis.report_html
+
+
+# ---------------------------------------------------------------- the generic machinery
+
+
+def test_transformed_and_stacked_budgets_follow_the_chain_rule_and_keep_shared_inputs_correlated() -> None:
+    """y = (a, b) from a fit (Type A cov C, dof 8) and one input x (u = 2, c = (1, 3)); z = a / b by the chain rule
+    J = (1/b, -a/b^2): Cov(z) = J (C + c c^T u^2) J^T (GUM eq. 13). Two such budgets on independent data that
+    share x: the fits block-diagonal, x's row side by side, so Cov(z1, z2) = (J1 c) (J2 c) u^2."""
+    from methods.common.uncertainty import Input, fit_budget, refit_sources, stacked, transformed
+
+    cov = np.array([[0.5, 0.1], [0.1, 0.2]])
+    y = np.array([2.0, 4.0])
+    rows = refit_sources([Input("x", "input x", 0.0, 2.0, "V")], lambda x: y + np.array([1.0, 3.0]) * x["x"])
+    b = fit_budget(("a", "b"), y, cov, 8, {"a": "V", "b": "V"}, rows)
+    np.testing.assert_allclose(b.covariance(), cov + 4.0 * np.outer([1.0, 3.0], [1.0, 3.0]))
+    J = np.array([[1 / y[1], -y[0] / y[1] ** 2]])
+    z = transformed(b, ("z",), np.array([y[0] / y[1]]), J, {"z": "1"})
+    expected = (J @ (cov + 4.0 * np.outer([1.0, 3.0], [1.0, 3.0])) @ J.T).item()
+    assert z.covariance()[0, 0] == pytest.approx(expected)
+    # Welch-Satterthwaite: u_A^4 / 8 is the only finite-dof term
+    u_a2, u_b2 = (J @ cov @ J.T).item(), ((J @ [1.0, 3.0]) ** 2 * 4.0).item()
+    assert z.effective_dof()[0] == pytest.approx((u_a2 + u_b2) ** 2 / (u_a2**2 / 8))
+    z2 = transformed(b, ("w",), np.array([y[0] / y[1]]), J, {"w": "1"})
+    both = stacked(z, z2)
+    cross = ((J @ [1.0, 3.0]) ** 2 * 4.0).item()
+    np.testing.assert_allclose(both.covariance(), [[expected, cross], [cross, expected]])
