@@ -257,23 +257,28 @@ def _time_step(d: PointDesign, Q, r, wr, rss_rate: float, dof: int) -> Detector 
     A smooth trend test (time_trend) spreads a step over its cubic; this scan gives it one column."""
     n = d.n_points
     order = np.argsort(d.start_s, kind="stable")
-    starts = range(MIN_STEP_POINTS, n - MIN_STEP_POINTS + 1)
-    if not starts:
+    ks = np.arange(MIN_STEP_POINTS, n - MIN_STEP_POINTS + 1)
+    if not ks.size:
         return None
-    D = np.zeros((r.size, len(starts)))
-    for j, k in enumerate(starts):
-        D[order[k:], j] = 1.0
-    D *= wr[:, None]
-    Dp = D - Q @ (Q.T @ D)
-    norm2 = np.sum(Dp**2, axis=0)
+
+    def tail(x: np.ndarray) -> np.ndarray:  # tail(x)[k] = sum of x[order[m]] for m >= k (a step's column sums)
+        return np.cumsum(x[order][::-1], axis=0)[::-1][ks]
+
+    w = wr[:n]
+    QD = tail(Q[:n] * w[:, None])  # Q^T D_k, one row per step time
+    norm2 = tail(w * w) - np.sum(QD**2, axis=1)  # |D_k off the model|^2
     ok = norm2 > 1e-12 * np.max(norm2)
-    drss = np.where(ok, (Dp.T @ r) ** 2 / np.where(ok, norm2, 1.0), 0.0)
+    num = tail(r[:n] * w) - QD @ (Q.T @ r)
+    drss = np.where(ok, num**2 / np.where(ok, norm2, 1.0), 0.0)
     j = int(np.argmax(drss))
     F = float(drss[j]) / max((rss_rate - float(drss[j])) / (dof - 1), 1e-300)
     p = min(1.0, int(ok.sum()) * float(stats.f.sf(F, 1, dof - 1)))
-    k = order[list(starts)[j]]
+    column = np.zeros(r.size)
+    column[order[ks[j] :]] = w[order[ks[j] :]]
+    column -= Q @ (Q.T @ column)
+    k = order[ks[j]]
     what = f"a bias step in session time (the best of {int(ok.sum())} step times, Bonferroni)"
-    basis = (Dp[:, j] / math.sqrt(norm2[j]))[:, None]
+    basis = (column / np.linalg.norm(column))[:, None]
     return Detector("time_step", F, (1, dof - 1), p, what, basis, f"{d.start_s[k]:.0f} s")
 
 
