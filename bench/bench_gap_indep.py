@@ -28,6 +28,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -164,6 +165,12 @@ def _band(r: dict) -> float | None:
     return max(reached) if reached else None
 
 
+def _strong_pair(r: dict) -> bool:
+    """Both effects of a pair reached SNR >= REACHED x 10 on their channels (indep keeps them within bounds)."""
+    achieved = r["truth"].get("snr_achieved") or {}
+    return all(achieved.get(e, math.inf) >= REACHED * 10.0 for e in r["truth"]["effects"])
+
+
 def _named(r: dict) -> list[str]:
     return r["effects"] + r["ambiguous"] + r["partial"]
 
@@ -228,7 +235,12 @@ def summarise(rows: list[dict]) -> dict:
         "out_of_library_explained_mimicked": _rate(
             [r for r in kind["ool"] if _mimicked(r)], lambda r: r["verdict"] == "explained"
         ),
+        # both effects strong (each reached >= REACHED x 10 on its channel) and separable by indep's judgement
         "separable_pair_both_named": _rate(
+            [r for r in kind["pair"] if r["truth"]["separable"] and _strong_pair(r)],
+            lambda r: set(r["truth"]["effects"]) <= set(_named(r)),
+        ),
+        "separable_pair_both_named_any_snr": _rate(
             [r for r in kind["pair"] if r["truth"]["separable"]],
             lambda r: set(r["truth"]["effects"]) <= set(_named(r)),
         ),
