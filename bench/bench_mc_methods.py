@@ -123,7 +123,7 @@ def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.
             record = RunRecord.from_times(run.dtheta, run.dv * (1.0 + accel), 1.0 / rate_hz, 0.0, run.t0_s, run.tk_s)
             obs = observe_run(record, recorded)
             runs.append({"A": obs.A, "B": obs.B, "c_bn_t0": obs.c_bn_t0, "c_bn_tk": obs.c_bn_tk,
-                         "vibration_s": obs.duration_s})  # fmt: skip
+                         "vibration_s": obs.duration_s, "align_s": record.i0 * record.dt_s})  # fmt: skip
         tally.add(flexure_budget(runs, recorded, refs), truth)
     return tally
 

@@ -16,6 +16,7 @@ A's east row (as navigation leaves it out of the velocity error). The seed keeps
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -130,19 +131,44 @@ class FlexureFit:
         return np.sqrt(np.diag(self.cov))
 
 
-def estimate_flexure(A: np.ndarray, B: np.ndarray) -> FlexureFit:
-    """Least squares of the stacked observations (seed 002 eqs. 21-22)."""
+def observation_weights(vibration_s: float, align_s: float) -> np.ndarray:
+    """Relative weights of a run's (east, north) observation for eq. 21, from the noise of the reduction.
+
+    Both components carry the gyros' angle random walk over the vibration, variance N^2 T. The east one also
+    carries the two static alignments' heading errors, sigma_psi = N / (w_N sqrt(T_a)) each (the heading
+    from the Earth's rate w_N over T_a), which the Earth's turn w_N T between t0 and tk puts into the east
+    tilt: 2 (w_N T sigma_psi)^2 = 2 N^2 T^2 / T_a. So var_E / var_N = 1 + 2 T / T_a, whatever N (the seed's 10 min
+    of vibration after 15 of alignment: 2.3); on 200 simulated sessions equal weights gave (tau_hat - tau) / sigma
+    a spread of 1.5 at 6 dof (t_6: 1.22), these 1.1 (BENCHMARKS.md, issue 15).
+    """
+    if not (vibration_s > 0 and align_s > 0):
+        raise FitError(f"vibration_s = {vibration_s!r}, align_s = {align_s!r}: both must be > 0 s to weight a run")
+    return np.array([1.0 / (1.0 + 2.0 * vibration_s / align_s), 1.0])
+
+
+def estimate_flexure(A: np.ndarray, B: np.ndarray, weights: np.ndarray | None = None) -> FlexureFit:
+    """Least squares of the stacked observations (seed 002 eqs. 21-22), weighted by `weights` (one per row,
+    relative: `observation_weights`) when given; sigma is then that of a unit-weight (north) component."""
     A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
     n, p = A.shape
     if n <= p:
         raise FitError(f"{n} attitude-error components cannot fit {p} flexure coefficients: add vibration runs")
-    tau, _, rank, sv = scipy.linalg.lstsq(A, B)
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != (n,) or not np.all(np.isfinite(w) & (w > 0)):
+        raise FitError(f"weights of shape {w.shape}: expected {n} finite positive numbers, one per observation")
+    sw = np.sqrt(w)
+    tau, _, rank, sv = scipy.linalg.lstsq(A * sw[:, None], B * sw)
     if rank < p:
         raise FitError(f"the runs' design has rank {rank} < {p}: the poses do not observe every coefficient")
     e = B - A @ tau
-    sigma = float(np.sqrt(e @ e / (n - p)))
-    cov = sigma**2 * scipy.linalg.inv(A.T @ A)
+    sigma = float(np.sqrt(e @ (w * e) / (n - p)))
+    cov = sigma**2 * scipy.linalg.inv(A.T @ (A * w[:, None]))
     return FlexureFit(tau, cov, e, sigma, n - p, float(sv[0] / sv[-1]))
+
+
+def run_weights(runs: Sequence[Mapping]) -> np.ndarray:
+    """`observation_weights` of stored runs (their values' vibration_s and align_s), stacked as eq. 21's rows."""
+    return np.concatenate([observation_weights(float(r["vibration_s"]), float(r["align_s"])) for r in runs])
 
 
 def least_squares_tau(A: np.ndarray, B: np.ndarray) -> np.ndarray:

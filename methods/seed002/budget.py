@@ -1,6 +1,7 @@
 """GUM budget of seed 002's flexure coefficients tau (eq. 21; JCGM 100), from the runs' stored observations.
 
-Type A: the least squares of eq. 21 (sigma^2 (A^T A)^-1, n - p dof). Type B, each by re-solving eq. 21 on the
+Type A: the weighted least squares of eq. 21 (sigma^2 (A^T W A)^-1, n - p dof; W from the reduction's noise,
+methods.seed002.analysis.observation_weights). Type B, each by re-solving eq. 21 on the
 observations A, B as the run's reduction (eqs. 17-22) would give them at the input x +- u:
 
 - each accelerometer's residual scale factor e_k: the regressor column of tau_ijk holds omega_j f_k, so it
@@ -31,7 +32,7 @@ import numpy as np
 
 from methods.common.uncertainty import Budget, Input, fit_budget, refit_sources
 from methods.seed000.budget import Reference, load_references
-from methods.seed002.analysis import HORIZONTAL, estimate_flexure
+from methods.seed002.analysis import HORIZONTAL, estimate_flexure, run_weights
 from methods.seed002.strapdown import earth_rotation, vee
 from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site
 
@@ -71,11 +72,13 @@ def flexure_budget(
     site: Site,
     references: Mapping[str, Reference] | None = None,
 ) -> Budget:
-    """The budget of tau (arcsec/g) from the calibration runs' stored values (A, B, c_bn_t0, c_bn_tk, vibration_s)."""
+    """The budget of tau (arcsec/g) from the calibration runs' stored values (A, B, c_bn_t0, c_bn_tk, vibration_s,
+    align_s)."""
     refs = references if references is not None else default_references()
     A = np.vstack([np.asarray(r["A"], dtype=float) for r in runs])
     B = np.concatenate([np.asarray(r["B"], dtype=float) for r in runs])
-    fit = estimate_flexure(A, B)
+    weights = run_weights(runs)
+    fit = estimate_flexure(A, B, weights)
     geometry = [(np.asarray(r["c_bn_t0"]), np.asarray(r["c_bn_tk"]), float(r["vibration_s"])) for r in runs]
 
     def refit(x: Mapping[str, float]) -> np.ndarray:
@@ -83,7 +86,7 @@ def flexure_budget(
         bias = np.array([x[f"bias_{a}"] for a in AXES])
         shift = np.concatenate([latitude_shift(c0, ck, d, site, x["latitude"]) + bias_shift(c0, d, bias)
                                 for c0, ck, d in geometry])  # fmt: skip
-        return estimate_flexure(A * scale, B + shift).values / ARCSEC_PER_G
+        return estimate_flexure(A * scale, B + shift, weights).values / ARCSEC_PER_G
 
     accel, clock, bias = refs["imu_accel_scale"], refs["imu_clock_rel"], refs["imu_gyro_bias_radps"]
     lat = refs["latitude_deg"]

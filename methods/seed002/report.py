@@ -19,7 +19,7 @@ from engine.registry import Analysis
 from methods.common.least_squares import FitError
 from methods.common.uncertainty import merged_json
 from methods.seed000.report import budget_rows
-from methods.seed002.analysis import FlexureFit, estimate_flexure
+from methods.seed002.analysis import FlexureFit, estimate_flexure, run_weights
 from methods.seed002.budget import SEED002_TYPE_B, flexure_budget
 from models.fixture_poses import POSES
 from models.strapdown_imu import ARCSEC_PER_G, ARCSEC_RAD, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site
@@ -42,7 +42,9 @@ def fit_session(session: Session) -> FlexureFit:
     runs = runs_of(session, "calibration")
     if not runs:
         raise FitError("the session holds no calibration run")
-    return estimate_flexure(np.vstack([m.values["A"] for m in runs]), np.concatenate([m.values["B"] for m in runs]))
+    values = [m.values for m in runs]
+    return estimate_flexure(np.vstack([v["A"] for v in values]), np.concatenate([v["B"] for v in values]),
+                            run_weights(values))  # fmt: skip
 
 
 def predicted_sigma_mps(run: Measurement, fit: FlexureFit) -> float:

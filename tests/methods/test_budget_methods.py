@@ -168,17 +168,18 @@ def _observe(runs, site, accel: np.ndarray | None = None, bias_radps: np.ndarray
         record = RunRecord.from_times(r.dtheta + bias * r.dt_s, r.dv * (1 + accel), r.dt_s, 0.0, r.t0_s, r.tk_s)
         obs = observe_run(record, site)
         out.append({"A": obs.A, "B": obs.B, "c_bn_t0": obs.c_bn_t0, "c_bn_tk": obs.c_bn_tk,
-                    "vibration_s": obs.duration_s, "mean_products": obs.mean_products})  # fmt: skip
+                    "vibration_s": obs.duration_s, "align_s": record.i0 * record.dt_s,
+                    "mean_products": obs.mean_products})  # fmt: skip
     return out
 
 
 def _tau(values) -> np.ndarray:
-    from methods.seed002.analysis import estimate_flexure
+    """Eq. 21 as the session's analysis weights it (methods.seed002.analysis.run_weights), in arcsec/g."""
+    from methods.seed002.analysis import estimate_flexure, run_weights
     from models.strapdown_imu import ARCSEC_PER_G
 
-    return estimate_flexure(np.vstack([v["A"] for v in values]), np.concatenate([v["B"] for v in values])).values / (
-        ARCSEC_PER_G
-    )
+    A, B = np.vstack([v["A"] for v in values]), np.concatenate([v["B"] for v in values])
+    return estimate_flexure(A, B, run_weights(values)).values / ARCSEC_PER_G
 
 
 def test_seed002_type_b_rows_match_runs_reduced_again(imu_runs) -> None:
