@@ -261,7 +261,9 @@ def diagnose(
     tn = timing_noise(design, twin, stated)
     grating = GratingRecord.from_session(session, design, tn.sigma_tau_s / math.sqrt(2.0), stated.grating_noise_m)
     ch = _channels(design, twin, tn, stated, grating)
-    pulses = PulseRecord.from_session(session, design, twin, tn.sigma_tau_s / math.sqrt(2.0)) if session.raw else None
+    tick = stated.timer_resolution_s if stated.timer_resolution_s is not None else twin.noise.timer_tick_s
+    sd_stamp = tn.sigma_tau_s / math.sqrt(2.0)
+    pulses = PulseRecord.from_session(session, design, twin, sd_stamp, tick) if session.raw else None
     ch = replace(ch, pulses=pulses)
     lin = Linearisation(ch, cl.library(exclude=exclude))
     base = fit_model(lin, [])

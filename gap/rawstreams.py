@@ -283,15 +283,29 @@ def _pulse_fit(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, 
     return meas, np.hypot(se, _phase_se(meas, w, sd_stamp_s))
 
 
-def _pulse_lsq(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rate harmonics (sin, cos per j) in the phase w (t - t1) and the least-squares se (no phase error)."""
+def _pulse_lsq(
+    raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, tick_s: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rate harmonics (sin, cos per j) in the phase w (t - t1) and the least-squares se (no phase error); the
+    angle's scatter is taken at least |rate| tick / sqrt(12) (rms over the edges, PulseRecord.from_session)."""
     # The level an edge crosses: the up/down count after it, plus one after a down edge (a
     # down-crossing of level k leaves the count at k - 1); the count alone would add a
     # half-pulse square wave in step with the rate's sign, i.e. spurious odd harmonics.
     levels = np.cumsum(dirs) + (dirs < 0)
     s = _stride(raw.pulse_t.size)
     t = raw.pulse_t[s]
-    coef, se = _lsq(_design(w * (t - t1), with_line=t), levels[s] * (2 * math.pi / pulses_per_rev))
+    A, y = _design(w * (t - t1), with_line=t), levels[s] * (2 * math.pi / pulses_per_rev)
+    coef, se = _lsq(A, y)
+    if tick_s > 0:
+        psi = w * (t - t1)
+        rate = coef[1] + sum(
+            j * w * (coef[2 * k + 2] * np.cos(j * psi) - coef[2 * k + 3] * np.sin(j * psi))
+            for k, j in enumerate(HARMONICS)
+        )
+        floor = math.sqrt(float(np.mean(rate**2))) * tick_s / math.sqrt(12.0)
+        scatter = math.sqrt(float(np.sum((y - A @ coef) ** 2)) / max(y.size - A.shape[1], 1))
+        if scatter < floor:
+            se = se * (floor / max(scatter, 1e-300))
     # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
     jw = np.repeat([j * w for j in HARMONICS], 2)
     meas = jw * np.column_stack([-coef[3::2], coef[2::2]]).ravel()
@@ -347,8 +361,11 @@ class PulseRecord:
 
     @classmethod
     def from_session(
-        cls, session: Session, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float
+        cls, session: Session, design: PointDesign, cfg: TwinConfig, sd_stamp_s: float, tick_s: float
     ) -> PulseRecord | None:
+        """tick_s: the counter's quantum; every edge is a stamped event, so no edge is timed finer than
+        tick / sqrt(12) and the precession angle at it no finer than |rate| tick / sqrt(12) (a floor on the
+        edges' scatter, which alone can fall to rounding where a record's stamps carry no jitter)."""
         idx, ws, meas, ses, sds = [], [], [], [], []
         for i, pid in enumerate(design.point_ids):
             raw = session.raw.get(pid)
@@ -359,7 +376,7 @@ class PulseRecord:
                 continue
             w = _apparent_w(design, i)
             t_ref, sd_ref = _reference_phase(raw.reference_t, design.t1_s[i], w, sd_stamp_s)
-            m, se = _pulse_lsq(raw, dirs, w, t_ref, session.station.pulses_per_rev)
+            m, se = _pulse_lsq(raw, dirs, w, t_ref, session.station.pulses_per_rev, tick_s)
             idx.append(i)
             ws.append(w)
             meas.append(m)

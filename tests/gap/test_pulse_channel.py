@@ -111,3 +111,18 @@ def test_a_table_tilt_at_2psi_is_told_from_a_parasitic_rotation_by_the_pulse_rec
     assert rep.verdict.verdict != "explained", rep.verdict.text
     key = "structure_tests_after" if rep.verdict.partial else "structure_tests_before"
     assert _pulse_test(rep, key)["p_value"] < 1e-6
+
+
+def test_a_rocking_table_with_a_static_tilt_passes_the_pulse_test(twin):
+    """parasitic_rotation with ax0 = -1.2", axs1 = 0.6", axc1 = 4" (tests/indep drew such a case): the rates fold
+    ax0 into mount_misalignment and leave it out when they do not need it, which pulls the fitted axs1, axc1 by
+    several of their sigmas; the pulse edges see the fundamental kz a cos(theta + ax0) to ~1e-7 rad/s. With ax0
+    profiled and the chosen effect's parameters free within their bounds, the pulse test accepts the right
+    effect (p > 1e-3) instead of calling it unexplained."""
+    cfg = twin.with_effect("parasitic_rotation", ax0=-5.7e-6, axs1=3.1e-6, axc1=1.97e-5)
+    session = simulate_session(PLAN, cfg, 13, raw=True)
+    rep = diagnose(session, twin, suggest=False)
+    named = rep.effects or rep.verdict.ambiguous or rep.verdict.partial
+    assert "parasitic_rotation" in named, rep.verdict.text
+    key = "structure_tests_after"
+    assert _pulse_test(rep, key)["p_value"] > ALPHA_NULL, rep.verdict.text
