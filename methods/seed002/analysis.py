@@ -135,15 +135,17 @@ def observation_weights(vibration_s: float, align_s: float) -> np.ndarray:
     """Relative weights of a run's (east, north) observation for eq. 21, from the noise of the reduction.
 
     Both components carry the gyros' angle random walk over the vibration, variance N^2 T. The east one also
-    carries the two static alignments' heading errors, sigma_psi = N / (w_N sqrt(T_a)) each (the heading
-    from the Earth's rate w_N over T_a), which the Earth's turn w_N T between t0 and tk puts into the east
-    tilt: 2 (w_N T sigma_psi)^2 = 2 N^2 T^2 / T_a. So var_E / var_N = 1 + 2 T / T_a, whatever N (the seed's 10 min
-    of vibration after 15 of alignment: 2.3); on 200 simulated sessions equal weights gave (tau_hat - tau) / sigma
-    a spread of 1.5 at 6 dof (t_6: 1.22), these 1.1 (BENCHMARKS.md, issue 15).
+    carries the realignment's heading error, sigma_psi = N / (w_N sqrt(T_a)) (gyrocompassing on the Earth's
+    rate w_N over T_a), which the Earth's turn w_N T between t0 and tk puts into the east tilt (the difference
+    of the two headings is a turn about the vertical, which D drops): (w_N T sigma_psi)^2 = N^2 T^2 / T_a. So
+    var_E / var_N = 1 + T / T_a, whatever N (the seed's 10 min of vibration after 15 of alignment: 1.67). On 100
+    simulated sessions (60-s alignments, 30-s vibrations) equal weights gave (tau_hat - tau) / sigma a spread of
+    1.53 at 6 dof (t_6: 1.22) and 0.90 coverage of t_6 sigma; these weights 1.26 and 0.94 (twice the east term:
+    1.10 and 0.97, over-weighted).
     """
     if not (vibration_s > 0 and align_s > 0):
         raise FitError(f"vibration_s = {vibration_s!r}, align_s = {align_s!r}: both must be > 0 s to weight a run")
-    return np.array([1.0 / (1.0 + 2.0 * vibration_s / align_s), 1.0])
+    return np.array([1.0 / (1.0 + vibration_s / align_s), 1.0])
 
 
 def estimate_flexure(A: np.ndarray, B: np.ndarray, weights: np.ndarray | None = None) -> FlexureFit:
