@@ -285,6 +285,36 @@ def _library() -> tuple[str, ...]:
     return tuple(LIBRARY)
 
 
+def large_nulls(seeds: list[int]) -> list[dict]:
+    """Null sessions of 160 and 640 points (indep's equal-angle designs of 16 and 64 positions, 9 frequencies
+    with non-integer ones, 20 revolutions, windows up to an hour near a horizontal input axis), diagnosed blind:
+    the sessions on which the first release answered `unexplained` (rms z 6.8 at 90 deg, a "time trend")."""
+    import numpy as np
+    from indep.generator import Truth, equal_angle_design, random_coefficients, random_noise, write_session
+
+    from gap.api import diagnose
+    from models.config import default_twin
+    from station.interchange import read_session
+
+    freqs = (1.0, 2.0, 3.5, 4.0, 5.25, 6.0, 7.5, 8.0, 10.0)
+    out = []
+    with tempfile.TemporaryDirectory(prefix="gap_large_") as tmp:
+        for seed in seeds:
+            for n_pos in (16, 64):
+                rng = np.random.default_rng([seed, n_pos])
+                design = equal_angle_design(n_pos, freqs, window_revs=20, max_window_s=3600.0)
+                truth = Truth(random_coefficients(rng), noise=random_noise(rng))
+                rows = write_session(Path(tmp) / "s", design, truth, rng, raw=False, state_noise=bool(seed % 2))
+                c0 = time.process_time()
+                rep = diagnose(read_session(Path(tmp) / "s"), default_twin(), suggest=False)
+                row = {"seed": seed, "positions": n_pos, "points": len(rows), "verdict": rep.verdict.verdict,
+                       "effects": rep.effects + rep.verdict.ambiguous, "cpu_s": round(time.process_time() - c0, 2),
+                       "max_window_s": round(max(r.Tm_s for r in rows), 1), "stated_noise": bool(seed % 2)}  # fmt: skip
+                print(json.dumps(row), flush=True)
+                out.append(row)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--reps", type=int, default=1, help="repetitions of each library effect x SNR, pair, ool")
@@ -296,7 +326,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--families", nargs="*", help="only these design families")
     p.add_argument("--out", type=Path, required=True, help="JSON lines, one per case")
     p.add_argument("--no-mimic", action="store_true", help="skip indep's case_mimic of out-of-library cases")
+    p.add_argument("--large-nulls", type=int, default=0, metavar="N",
+                   help="only diagnose N seeds of 160- and 640-point null sessions (windows to an hour)")  # fmt: skip
     args = p.parse_args(argv)
+    if args.large_nulls:
+        rows = large_nulls(list(range(args.seed, args.seed + args.large_nulls)))
+        args.out.write_text("".join(json.dumps(r) + "\n" for r in rows))
+        print(json.dumps({"not_no_gap": sum(r["verdict"] != "no_gap" for r in rows), "n": len(rows)}))
+        return 0
     todo = case_list(args.reps, args.nulls, args.seed, args.pair_snr, not args.no_mimic)
     if args.kinds:
         todo = [c for c in todo if c["kind"] in args.kinds]
