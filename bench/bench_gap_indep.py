@@ -8,11 +8,15 @@ design family: nulls; each library effect at SNR 5, 10 and 30 on the channel it 
 pairs of library effects; every out-of-library effect. One JSON line per case (--out), then
 the scores against the targets:
 
-- correct: `explained` with the effect first, or `cannot_tell` naming it (per family, SNR band);
+- correct: `explained` with the effect first, or `cannot_tell` naming it (per family, SNR band; a case is
+  scored in the highest band of which indep reached 90 %, never beyond the plausible bounds);
 - null false attribution: a null case whose verdict names an effect (explained or cannot_tell);
-- out-of-library explained: an out-of-library case declared `explained`;
-- separable pairs: both effects named (explained, partial or cannot_tell) when indep calls the pair separable;
+- out-of-library explained: an out-of-library case declared `explained`, all and split by indep's
+  case_mimic (a library effect within its bounds reproduces it to < 3 sigma: `mimicked`);
+- separable pairs: both effects named (explained, partial or cannot_tell) when indep calls the pair separable
+  and both reached SNR >= 9 (and at any SNR);
 - median held-out shrink of the true effect's candidate alone (library cases, SNR >= 10).
+`--large-nulls N`: only 160- and 640-point null sessions with windows to an hour.
 
     .venv/bin/python bench/bench_gap_indep.py --reps 1 --nulls 4 --workers 2 --out /tmp/indep.jsonl
 
