@@ -304,21 +304,15 @@ def correction_parameters(session: Session) -> tuple[float, float, float]:
 
 
 def suppression(session: Session) -> Suppression:
-    """The sweep fit, the correction at the best offset and the calibration after the mass removal."""
+    """The sweep fit, the correction at the best offset and the calibration after the mass removal (its Type B
+    budget is added by methods.seed004.budget.with_budget, which builds on this module)."""
     cals = calibrations(session)
     sweep = [c for c in cals if c.stage == SWEEP]
     fit = fit_sweep([c.offset_arcsec for c in sweep], [c.k2_per_g for c in sweep], [c.sigma_k2_per_g for c in sweep])
     at_best = next((c for c in cals if c.stage == AT_BEST), None)
     after = next((c for c in cals if c.stage == AFTER_REMOVAL), None)
     corr = correction(at_best, *correction_parameters(session)) if at_best else None
-    from methods.seed004.budget import suppression_budget  # it builds on this module's calibrations
-
-    def with_points(cal: Calibration | None) -> tuple[list[PointRecord], Calibration] | None:
-        return None if cal is None else ([p for p in session.points if p.point_id.startswith(cal.prefix + "-")], cal)
-
-    budget = suppression_budget(session.station, with_points(at_best), with_points(after),
-                                correction_parameters(session))  # fmt: skip
-    return Suppression(cals, fit, at_best, corr, after, budget)
+    return Suppression(cals, fit, at_best, corr, after)
 
 
 SEED_FIGURES = {

@@ -21,7 +21,7 @@ import numpy as np
 from methods.common.uncertainty import Budget, Input, refit_sources, stacked, transformed, with_fit
 from methods.seed000.budget import Reference, load_references, seed000_budget
 from methods.seed000.identify import identify
-from methods.seed004.analysis import Calibration, correction
+from methods.seed004.analysis import Calibration, Suppression, correction, correction_parameters
 from station.session import PointRecord, Session, StationInfo
 
 
@@ -122,3 +122,14 @@ def suppression_budget(
     if not parts:
         return None
     return parts[0] if len(parts) == 1 else stacked(parts[0], parts[1])
+
+
+def with_budget(session: Session, s: Suppression) -> Suppression:
+    """The suppression with its Type B budget: each calibration by the points of its own prefix."""
+
+    def with_points(cal: Calibration | None) -> tuple[list[PointRecord], Calibration] | None:
+        return None if cal is None else ([p for p in session.points if p.point_id.startswith(cal.prefix + "-")], cal)
+
+    budget = suppression_budget(session.station, with_points(s.at_best), with_points(s.after),
+                                correction_parameters(session))  # fmt: skip
+    return replace(s, budget=budget)

@@ -27,6 +27,7 @@ from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MeasurePoint, Note, OperatorAction, Step
 from methods.seed004 import analysis
+from methods.seed004.budget import with_budget
 from models.nonlinear_error import ANGULAR_MOMENTUM_KGM2PS, END_RADIUS_M, MASS_REMOVAL
 from models.plan import multiposition_plan, point_id
 from station.records import Field, declare
@@ -257,7 +258,7 @@ def calibration(prefix: str, p: dict, window_s: float):
 
 def analyse_suppression(session: Session) -> Analysis:
     """The sweep, the correction and the verification from the stored session, and its report."""
-    s = analysis.suppression(session)
+    s = with_budget(session, analysis.suppression(session))
     uid = session.meta.get("store_uid", "")
     title = f"Session {uid}: suppression of the quadratic term (seed 004)"
     results = {
