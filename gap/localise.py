@@ -231,31 +231,35 @@ def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
     tilt = "parasitic_rotation" in chosen and "mount_misalignment" not in chosen
     n_nuisance = int(tilt) + int("lateral_resonance" in chosen)
 
+    # The prior covariance of what the columns below move, the same at every phiL: K as fitted, the effects'
+    # parameters free within their plausible bounds (a wide prior, in units of their scale): the pulses are not in
+    # the fit, so the test asks whether the chosen effects can reproduce them at all (the rate fit's own values,
+    # pulled by what the rates cannot separate, need not); ax0 as dtheta_mount within its bound when tilt.
+    n_k = len(CALIBRATED)
+    sd_K = np.sqrt(np.clip(np.diag(fit.cov)[d.n_levels : d.n_levels + n_k], 0, None))
+    steps_K = [max(float(sd), 1e-9 * max(abs(float(k)), 1e-6)) for k, sd in zip(fit.K, sd_K, strict=True)]
+    cov = fit.cov[d.n_levels :, d.n_levels :].copy()
+    cov[n_k:, :] = 0.0
+    cov[:, n_k:] = 0.0
+    cov[n_k:, n_k:] = np.diag([min(fp.bound, 1e3 * fp.scale) ** 2 / fp.scale**2 for fp in fit.free])
+    tilt_fp = cl.LIBRARY["mount_misalignment"].free[0]
+    if tilt:
+        m = cov.shape[0]
+        cov = np.pad(cov, ((0, 1), (0, 1)))
+        cov[m, m] = tilt_fp.bound**2
+
     def chi2_at(cfg) -> float:
         p0 = pulses.predict(d, cfg)
         cols = []
-        sd_K = np.sqrt(np.clip(np.diag(fit.cov)[d.n_levels : d.n_levels + len(CALIBRATED)], 0, None))
-        for name, k, sd in zip(CALIBRATED, fit.K, sd_K, strict=True):
-            h = max(float(sd), 1e-9 * max(abs(float(k)), 1e-6))
+        for name, k, h in zip(CALIBRATED, fit.K, steps_K, strict=True):
             cfg_h = replace(cfg, instrument=replace(cfg.instrument, **{name: float(k) + h}))
             cols.append((pulses.predict(d, cfg_h) - p0) / h)
         for fp, v in zip(fit.free, fit.values, strict=True):
             cfg_h = cl.apply(cfg, [fp], [float(v) + fp.fd_step], {})
             cols.append((pulses.predict(d, cfg_h) - p0) / fp.fd_step * fp.scale)
-        n_k = len(CALIBRATED)
-        cov = fit.cov[d.n_levels :, d.n_levels :].copy()
-        # The effects' parameters free within their plausible bounds (a wide prior, in units of their scale): the
-        # pulses are not in the fit, so the test asks whether the chosen effects can reproduce them at all
-        # (the rate fit's own values, pulled by what the rates cannot separate, need not).
-        cov[n_k:, :] = 0.0
-        cov[:, n_k:] = 0.0
-        cov[n_k:, n_k:] = np.diag([min(fp.bound, 1e3 * fp.scale) ** 2 / fp.scale**2 for fp in fit.free])
-        if tilt:  # ax0 as dtheta_mount, free within its plausible bound (a wide prior)
-            fp = cl.LIBRARY["mount_misalignment"].free[0]
-            cols.append((pulses.predict(d, cl.apply(cfg, [fp], [fp.fd_step], {})) - p0) / fp.fd_step)
-            m = cov.shape[0]
-            cov = np.pad(cov, ((0, 1), (0, 1)))
-            cov[m, m] = fp.bound**2
+        if tilt:
+            cfg_h = cl.apply(cfg, [tilt_fp], [tilt_fp.fd_step], {})
+            cols.append((pulses.predict(d, cfg_h) - p0) / tilt_fp.fd_step)
         return pulses.chi2(d, cfg, np.column_stack(cols), cov)
 
     cfg = fit.refitted_cfg()
