@@ -34,7 +34,7 @@ from gap.design import GapInputError, PointDesign, check_geometry
 from gap.fit import Channels, Linearisation, ModelFit, evaluate, fit_model
 from gap.forward import CALIBRATED, predict
 from gap.heldout import Folds, HeldOut, heldout, shrink
-from gap.identifiability import IdentifiabilityReport, assess
+from gap.identifiability import IdentifiabilityReport, assess, seen_only_at_rest
 from gap.localise import detectors, maps, significant, standardised, where_text
 from gap.noise import (
     RATE_FORM_GRID,
@@ -194,6 +194,7 @@ def _candidate_table(
                 "heldout_rank": by_heldout.index(name) + 1 if name in by_heldout else None,
                 "rivals_reproducing_it": s.rivals,
                 "beyond_bounds": s.beyond_bounds,
+                "rejected_by": s.rejected_by or None,
                 "fit_converged": s.fit.converged,
             }
         table.append(entry)
@@ -269,14 +270,16 @@ def diagnose(
     base = fit_model(lin, [])
     dof0 = base.dof_rate
     ident = assess(lin, suggest=suggest and dof0 >= MIN_DOF, has_raw=bool(session.raw))
+    dets_before = detectors(ch, base)
     if dof0 >= MIN_DOF:
-        selection = forward_select(lin, base, ident.fittable(), ident.dropped, max_effects)
+        # The pulse record rejects a candidate at the level the verdict tests it at (gap.verdict.residual_checks).
+        pulse_level = family_level(len(dets_before)) / max(len(dets_before), 1)
+        selection = forward_select(lin, base, ident.fittable(), ident.dropped, max_effects, pulse_level)
     else:
         selection = Selection([], [], base)
     final = selection.final
 
     # Localise: structure tests, then the honest noise, standardised residuals and maps.
-    dets_before = detectors(ch, base)
     dets_after = detectors(ch, final)
     pe = pure_error(design, final.rate_resid_radps, ch.weights)
     structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None and d.channel == "rate"]
@@ -301,8 +304,17 @@ def diagnose(
         h = ho(s.fit)
         shrinks[s.name] = (h.G, shrink(h_base, h))
     checks = (_noise_check(base, pe, ch), _noise_check(final, pe, ch))
+    rest_only = seen_only_at_rest(final, ch) if pulses is None else {}
     verdict = decide(
-        dof0, selection, ident, dets_before, dets_after, *checks, shrink(h_base, h_final), (h_final.G, h_final.se)
+        dof0,
+        selection,
+        ident,
+        dets_before,
+        dets_after,
+        *checks,
+        shrink(h_base, h_final),
+        (h_final.G, h_final.se),
+        rest_only,
     )
 
     z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s

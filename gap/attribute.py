@@ -13,11 +13,15 @@ coefficients and the effects already chosen (gap.fit.fit_model), then
 A candidate is accepted when its p-value is below ALPHA / (number tested at that
 step) (Bonferroni), it lowers the BIC and every fitted parameter is within its
 physically plausible bound (gap.candidates, at 2 sigma); among those the lowest
-BIC wins. Another candidate within bounds that reproduces the winner's fit on
-every channel (its chi^2, rate rows in the winner's sigma^2, within
-REPRODUCE_CHI2 of the winner's) is a rival: this session does not tell them
-apart. Selection stops at max_effects; one more step then says whether a
-further effect would still have been accepted.
+BIC wins unless the pulse record (gap.rawstreams.PulseRecord, when the session has one) rejects it:
+each such candidate's fitted twin is tested against the rate harmonics of the pulse edges
+(gap.localise.pulse_goodness_of_fit) at the verdict's level, and one that leaves them
+significantly inconsistent is rejected (`rejected_by` names the test) and the next one is tried.
+Another candidate within bounds that reproduces the winner's fit on every channel
+(its chi^2, rate rows in the winner's sigma^2, within REPRODUCE_CHI2 of the winner's;
+the pulse record not rejecting it) is a rival: this session does not tell them apart.
+Selection stops at max_effects; one more step then says whether a further effect would
+still have been accepted.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import numpy as np
 from scipy import stats
 
 from gap.fit import Linearisation, ModelFit, fit_model
+from gap.localise import pulse_goodness_of_fit
 
 ALPHA = 0.01
 AMBIGUOUS_DBIC = 6.0
@@ -54,6 +59,7 @@ class Scored:
     rivals: list[str] = field(default_factory=list)  # reproduce the winner (REPRODUCE_CHI2) when chosen
     beyond_bounds: list[str] = field(default_factory=list)  # parameters fitted beyond their plausible bound
     profiled: dict[str, float] = field(default_factory=dict)  # set parameters chosen by profile (fr, Q)
+    rejected_by: str = ""  # the test of another channel that rejects this candidate's fit (the pulse record)
 
     @property
     def plausible(self) -> bool:
@@ -182,10 +188,12 @@ def _step(
     names: Sequence[str],
     drop: frozenset[str],
     profiled: Mapping[str, Mapping[str, float]] | None = None,
+    pulse_level: float = ALPHA,
 ) -> tuple[list[Scored], Scored | None]:
     """Score every candidate of `names` on top of `current`; the accepted one, if any.
 
-    profiled: the profiled set parameters of candidates already chosen (kept in later steps)."""
+    profiled: the profiled set parameters of candidates already chosen (kept in later steps);
+    pulse_level: a candidate whose fit the pulse test rejects below it is not accepted."""
     profiled = dict(profiled or {})
     n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
     scored = []
@@ -203,15 +211,25 @@ def _step(
     scored.sort(key=lambda s: s.bic)
     limit = ALPHA / max(len(scored), 1)
     ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
-    if not ok:
+    best = next((s for s in ok if not _rejected_by_pulses(lin, s, pulse_level)), None)
+    if best is None:
         return scored, None
-    best = ok[0]
     s2 = best.fit.rss_rate / max(best.fit.dof_rate, 1)
     chi_best = _chi2_total(best.fit, s2)
-    best.rivals = [
-        s.name for s in scored if s is not best and s.plausible and _chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2
-    ]
+    # A rival reproduces the winner on every channel: the rates, timing and grating in the fit, the pulses tested.
+    alike = [s for s in scored if s is not best and s.plausible and _chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2]
+    best.rivals = [s.name for s in alike if not _rejected_by_pulses(lin, s, pulse_level)]
     return scored, best
+
+
+def _rejected_by_pulses(lin: Linearisation, s: Scored, level: float) -> bool:
+    """Test the candidate's fit against the pulse record (if any); record and return a rejection below level."""
+    if lin.ch.pulses is None:
+        return False
+    det = pulse_goodness_of_fit(lin.ch, s.fit)
+    if det is not None and det.p_value < level:
+        s.rejected_by = f"pulse_goodness_of_fit (chi^2 / dof = {det.F:.1f} on {det.dof[0]} dof, p = {det.p_value:.1e})"
+    return bool(s.rejected_by)
 
 
 def forward_select(
@@ -220,13 +238,14 @@ def forward_select(
     names: Sequence[str],
     drop: frozenset[str],
     max_effects: int = MAX_EFFECTS,
+    pulse_level: float = ALPHA,
 ) -> Selection:
-    """Greedy forward selection of effects over candidates `names`."""
+    """Greedy forward selection of effects over candidates `names`; pulse_level: that of the pulse test (_step)."""
     current, chosen, steps = base, [], []
     remaining = list(names)
     while remaining:
         profiled = {s.name: s.profiled for s in chosen if s.profiled}
-        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop, profiled)
+        scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop, profiled, pulse_level)
         if len(chosen) == max_effects:
             return Selection(chosen, steps, current, capped=best is not None)
         steps.append(scored)

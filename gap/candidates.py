@@ -65,13 +65,15 @@ def _library() -> dict[str, Candidate]:
     # seed 003: arc-second angle errors of an indexing head; 20" at most.
     idx = tuple(_fp("index_harmonics", f"{p}{k}", 5e-6, bound=20 * ARCSEC_RAD) for k in range(1, 5) for p in ("c", "s"))
     cands = [
-        # seed 000 eq. 32: Zs1 = -0.1299 mm + 0.0032 mm s/rad * w; Zc1 not given, 50 um assumed.
+        # seed 000 eq. 32: Zs1 = -0.1299 mm + 0.0032 mm s/rad * w; Zc1 not given, 50 um assumed. A waveform
+        # error is micrometres to a tenth of a millimetre (Table 5: |Zs1| <= 88 um over 2-10 Hz on a 30 mm
+        # crank): bounds just above eq. 32's own intercept and slope, never ten times them (1.3 mm).
         Candidate(
             "waveform_fundamental",
             (
-                _fp("waveform_fundamental", "z0", 1.3e-4),
-                _fp("waveform_fundamental", "z1", 3.2e-6),
-                _fp("waveform_fundamental", "Zc1", 5e-5),
+                _fp("waveform_fundamental", "z0", 1.3e-4, bound=1.5e-4),
+                _fp("waveform_fundamental", "z1", 3.2e-6, bound=4e-6),
+                _fp("waveform_fundamental", "Zc1", 5e-5, bound=1.5e-4),
             ),
         ),
         # seed 000 Table 5: Zs2, Zc2 up to about 0.05 mm; third harmonic assumed half of that.

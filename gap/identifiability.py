@@ -31,10 +31,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
+from scipy import stats
 
 from gap import candidates as cl
+from gap.attribute import ALPHA
 from gap.design import PointDesign
-from gap.fit import Channels, Linearisation, linear_design, model_columns
+from gap.fit import Channels, Linearisation, ModelFit, linear_design, model_columns
 from gap.forward import predict
 from gap.noise import rate_weights
 from models.config import NoiseModel, TwinConfig
@@ -274,6 +276,45 @@ def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> I
     if suggest:
         _suggest(lin, report)
     return report
+
+
+# ----------------------------------------------------------------------------- seen only at rest
+
+# A parameter is seen only at rest when its signature per vibration row is below this fraction of its
+# signature per static row (and so are the period identities' and the grating's, in information).
+REST_ONLY_RATIO = 0.1
+# Its fit carries the effect when |value| / sd exceeds the two-sided 1-dof test at ALPHA (gap.attribute).
+REST_ONLY_Z = float(stats.norm.isf(ALPHA / 2))
+PULSE_TEST_HOW = "the pulse record (raw pulse_t with pulse_dir at vibration points) would test it"
+
+
+def seen_only_at_rest(fit: ModelFit, ch: Channels) -> dict[str, list[str]]:
+    """Chosen effects' parameters fitted significantly (|v| / sd > REST_ONLY_Z) that only the static rows see.
+
+    Such a parameter is what the effect says the table does at rest, the crank at psi = 0 (physics.md):
+    parasitic_rotation's axc1 tilts the input axis by alpha_x(0) = axc1 at rest, while in vibration
+    its first-order rate term -kz sin(theta) (1 - a sin psi) axc1 cos psi has a zero window mean over
+    whole periods (<cos psi> = <sin psi cos psi> = 0; the kzz, ky, k3 terms alike): the rates, period
+    identities and grating see only the rest value, which any rocking shape with that value at rest (a
+    tilt at 2 psi, say) gives as well. Only the pulse edges see the shape (its rate harmonics), so
+    without a pulse record the effect's attribution rests on an assumption this session cannot test."""
+    d = ch.design
+    n, stat = ch.n_rate, ~d.vib
+    if not stat.any() or not d.vib.any():
+        return {}
+    unwhite = ch.sigma0_radps / np.sqrt(ch.weights)
+    n_lin = fit.J.shape[1] - len(fit.free)
+    out: dict[str, list[str]] = {}
+    for j, (fp, v, sd) in enumerate(zip(fit.free, fit.values, fit.sigmas, strict=True)):
+        col = fit.J[:, n_lin + j]
+        raw = col[:n] * unwhite
+        rest, motion = float(np.sqrt(np.mean(raw[stat] ** 2))), float(np.sqrt(np.mean(raw[d.vib] ** 2)))
+        other2, rest2 = float(col[n:] @ col[n:]), float(col[:n][stat] @ col[:n][stat])
+        if rest <= 0 or motion > REST_ONLY_RATIO * rest or other2 > REST_ONLY_RATIO**2 * rest2:
+            continue
+        if sd > 0 and abs(v) > REST_ONLY_Z * sd:
+            out.setdefault(fp.effect, []).append(fp.param)
+    return out
 
 
 # ----------------------------------------------------------------------------- separating test points

@@ -12,12 +12,16 @@ ALPHA with a Bonferroni correction inside it:
 significant, the held-out gap shrank by at least
 MIN_SHRINK (when there was a held-out gap to shrink), and each effect is one
 this design can tell from the others: not collinear with another candidate
-(gap.identifiability) and without a rival of nearly equal BIC.
+(gap.identifiability) and without a rival of nearly equal BIC, and none of its
+significant parameters is one that only the static points see where the
+session has no pulse record to test it (gap.identifiability.seen_only_at_rest).
 "cannot_tell": the design leaves fewer than MIN_DOF residual degrees of
 freedom after the calibrated terms, or the effects that explain the gap are
 ones this design cannot tell apart (it names them all, and the test points
-that would separate them). Otherwise "unexplained", naming what was found and
-what remains.
+that would separate them), or one it sees only at rest (the table's rest
+value, which out-of-library motions share). Otherwise "unexplained", naming
+what was found and what remains, and which test rejected the library's best
+candidate (its parameters' bounds, or the pulse record).
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from gap.attribute import ALPHA, Selection
-from gap.identifiability import IdentifiabilityReport
+from gap.identifiability import PULSE_TEST_HOW, IdentifiabilityReport
 from gap.localise import Detector, significant
 
 MIN_SHRINK = 0.5
@@ -94,16 +98,31 @@ def _look_alikes(selection: Selection) -> dict[str, list[str]]:
     return out
 
 
-def _implausible(selection: Selection) -> list[str]:
-    """Candidates that would fit the first step only with parameters beyond their plausible bounds."""
+def _rejected(selection: Selection) -> list[str]:
+    """Candidates that the rates would accept at the last step but another test rejects: parameters beyond
+    their plausible bounds, or the pulse record (gap.attribute)."""
     if not selection.steps:
         return []
-    limit = ALPHA / max(len(selection.steps[0]), 1)
-    return [
-        f"{s.name} fits only at an implausible {', '.join(s.beyond_bounds)}"
-        for s in selection.steps[0]
-        if s.beyond_bounds and s.p_value < limit and s.dbic < 0
-    ]
+    last = selection.steps[-1]
+    limit = ALPHA / max(len(last), 1)
+    out = []
+    for s in last:
+        if s.p_value >= limit or s.dbic >= 0:
+            continue
+        if s.beyond_bounds:
+            out.append(f"{s.name} fits only at an implausible {', '.join(s.beyond_bounds)}")
+        elif s.rejected_by:
+            out.append(f"{s.name} fits the rates but is rejected by {s.rejected_by}")
+    return out
+
+
+def _rest_only_text(rest_only: dict[str, list[str]]) -> str:
+    parts = "; ".join(f"{e} through {', '.join(ps)}" for e, ps in rest_only.items())
+    return (
+        f"the gap is fitted by {parts}, which this session sees only at rest (the static points; its window "
+        "means in vibration vanish), so it shows only the table's rest value: any motion with that value at "
+        f"rest (a tilt at 2 psi, out of the library, among them) fits the same; {PULSE_TEST_HOW}"
+    )
 
 
 def decide(
@@ -116,8 +135,10 @@ def decide(
     noise_after: NoiseCheck,
     shrink: float | None,
     heldout_after: tuple[float, float] | None = None,
+    rest_only: dict[str, list[str]] | None = None,
 ) -> Verdict:
-    """The verdict; heldout_after = (G, se) of the held-out gap with the chosen effects (gap.heldout)."""
+    """The verdict; heldout_after = (G, se) of the held-out gap with the chosen effects (gap.heldout);
+    rest_only: chosen effects' significant parameters seen only at rest, untested by a pulse record."""
     if dof < MIN_DOF:
         return Verdict(
             "cannot_tell",
@@ -147,6 +168,9 @@ def decide(
         remaining.append(f"held-out gap with the effects {g:.3g} = {g / se:.1f} se (> {HELDOUT_AFTER_SE:g} se)")
     if effects and not remaining:
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
+        if rest_only:
+            text = f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}"
+            return Verdict("cannot_tell", [], text, ambiguous=effects)
         alike = _look_alikes(selection)
         if alike:
             named = list(dict.fromkeys([n for e in effects for n in [e, *alike.get(e, [])]]))
@@ -162,6 +186,7 @@ def decide(
             )
         return Verdict("explained", effects, f"explained by {', '.join(effects)} ({sh})")
     if effects:
+        remaining += _rejected(selection)
         return Verdict(
             "unexplained",
             [],
@@ -172,5 +197,5 @@ def decide(
             partial=effects,
             remaining=remaining,
         )
-    before = before + _implausible(selection)
+    before = before + _rejected(selection)
     return Verdict("unexplained", [], "a gap that no library effect explains: " + "; ".join(before), remaining=before)
