@@ -315,6 +315,7 @@ def diagnose(
         shrink(h_base, h_final),
         (h_final.G, h_final.se),
         rest_only,
+        (h_base.n_rows, h_final.n_rows),
     )
 
     z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s

@@ -34,6 +34,9 @@ from gap.localise import Detector, significant
 
 MIN_SHRINK = 0.5
 MIN_DOF = 4
+# The chosen effects leave more than this fraction of the held-out rows that the twin predicts unpredictable
+# (gap.heldout.UNPREDICTABLE_EIG): the design fixes their parameters only with the held-out points themselves.
+MAX_UNPREDICTABLE = 0.1
 # Held-out rows of a right model are chi-square_1 (se of their mean sqrt(2 / rows)). The limit is loose:
 # a nonlinear effect fitted on a grid (lateral fr, Q) leaves up to ~6 se at SNR 30 on tests/indep sessions,
 # while an overfitted one (8 index harmonics on few positions) predicts held-out positions at 1000 se.
@@ -136,9 +139,11 @@ def decide(
     shrink: float | None,
     heldout_after: tuple[float, float] | None = None,
     rest_only: dict[str, list[str]] | None = None,
+    heldout_rows: tuple[int, int] | None = None,
 ) -> Verdict:
     """The verdict; heldout_after = (G, se) of the held-out gap with the chosen effects (gap.heldout);
-    rest_only: chosen effects' significant parameters seen only at rest, untested by a pulse record."""
+    rest_only: chosen effects' significant parameters seen only at rest, untested by a pulse record;
+    heldout_rows: the held-out rows predictable by the twin and by the model with the effects."""
     if dof < MIN_DOF:
         return Verdict(
             "cannot_tell",
@@ -170,6 +175,14 @@ def decide(
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
         if rest_only:
             text = f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}"
+            return Verdict("cannot_tell", [], text, ambiguous=effects)
+        if heldout_rows and heldout_rows[1] < (1.0 - MAX_UNPREDICTABLE) * heldout_rows[0]:
+            text = (
+                f"cannot tell with this design ({sh}): with {', '.join(effects)} {heldout_rows[0] - heldout_rows[1]} "
+                f"of the {heldout_rows[0]} held-out rows that the twin predicts cannot be predicted (only the "
+                "held-out points fix some of the effects' parameters), so no held-out test checks them; add "
+                "positions or frequencies"
+            )
             return Verdict("cannot_tell", [], text, ambiguous=effects)
         alike = _look_alikes(selection)
         if alike:
