@@ -35,18 +35,21 @@ from pathlib import Path
 
 import numpy as np
 
+from methods.common.references import Reference, load_references
 from methods.common.uncertainty import Budget
-from methods.seed000.budget import Reference, load_references
-
-NORMAL_ONLY = False  # --normal: every input drawn normal with its u (tests the propagation, not the shape)
 
 
 def draw(rng: np.random.Generator, ref: Reference, size: int | None = None) -> np.ndarray | float:
     """An input's error from its stated distribution: rectangular of half-width sqrt(3) u, else normal."""
     u = ref.standard_uncertainty
-    if ref.distribution.startswith("rectangular") and not NORMAL_ONLY:
+    if ref.shape == "rectangular":
         return rng.uniform(-math.sqrt(3.0) * u, math.sqrt(3.0) * u, size)
     return rng.normal(0.0, u, size)
+
+
+def all_normal(refs: dict[str, Reference]) -> dict[str, Reference]:
+    """--normal: every reference normal with its u, drawn and budgeted so (tests the propagation, not the shape)."""
+    return {k: replace(r, distribution=f"normal (--normal; stated: {r.distribution})") for k, r in refs.items()}
 
 
 @dataclass
@@ -224,11 +227,9 @@ def main() -> None:
     ap.add_argument("--method", choices=("001", "002", "003", "004", "all"), default="all")
     ap.add_argument("--n", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--normal", action="store_true", help="draw every Type B input normal (not as stated)")
+    ap.add_argument("--normal", action="store_true", help="every Type B input normal, drawn and budgeted")
     args = ap.parse_args()
-    global NORMAL_ONLY
-    NORMAL_ONLY = args.normal
-    refs = load_references()
+    refs = all_normal(load_references()) if args.normal else load_references()
     runs: dict[str, tuple[str, Callable]] = {
         "001": ("seed 001, eq. 6 at T1 (dof 43)", seed001),
         "002": ("seed 002, flexure coefficients (9 calibration runs, dof 6)", seed002),

@@ -24,7 +24,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from methods.seed000.budget import load_references, seed000_budget
+from methods.common.references import load_references
+from methods.seed000.budget import seed000_budget
 from methods.seed000.identify import identify
 from models.config import default_twin
 from models.plan import PointSpec, equal_angle_positions_deg, multiposition_plan, preset_pulses, seed000_plan

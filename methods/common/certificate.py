@@ -1,10 +1,10 @@
 """Calibration certificate (ISO/IEC 17025:2017 clause 7.8.2 and 7.8.4) as HTML (Jinja2) and PDF (reportlab).
 
-A method fills a `Certificate` (lab, station, instrument, method and procedure version,
-dates, environmental conditions, results with U and k, traceability, conformity against
-the instrument file's limits with the decision rule, budget table, residual figures) and
-renders it. Every page of a simulated station's certificate says SIMULATED; pages are
-numbered "page i of n" (HTML: @page margin boxes; PDF: a two-pass canvas).
+A `Certificate` holds the lab, station, instrument, method and procedure version, dates, environmental
+conditions, results with U and k, traceability, conformity against the instrument file's limits with the
+decision rule, the budget tables and the residual figures (methods.common.session_certificate fills it from a
+session and its budgets); this module renders it. Every page of a simulated station's certificate says
+SIMULATED; pages are numbered "page i of n" (HTML: @page margin boxes; PDF: a two-pass canvas).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from reportlab.lib.units import mm
 from reportlab.pdfgen import canvas as rl_canvas
 from reportlab.platypus import Image, KeepTogether, Paragraph, SimpleDocTemplate, Spacer, Table, TableStyle
 
+from methods.common.uncertainty import Budget
 from station.defaults import config_file
 from station.htmlkit import esc, svg
 from station.tomlfile import read_toml
@@ -117,6 +118,9 @@ class ResultRow:
     limit: str
 
 
+TableText = tuple[str, Sequence[str], Sequence[Sequence[str]]]  # (title, header, rows)
+
+
 @dataclass
 class Certificate:
     """Everything clause 7.8 asks of a calibration certificate, already formatted as text where it is text."""
@@ -130,22 +134,23 @@ class Certificate:
     results: Sequence[ResultRow]
     decision_rule: str
     traceability: Sequence[Mapping[str, str]]
-    budget_header: Sequence[str]
-    budget_rows: Sequence[Sequence[str]]
-    figures: Sequence[Callable[[], Any]] = ()  # each returns a matplotlib figure
+    budgets: Sequence[TableText]  # one table per budget (or per group of its coefficients)
+    figures: Sequence[tuple[str, Callable[[], Any]]] = ()  # (caption, a maker of a matplotlib figure)
     remarks: Sequence[str] = ()
     simulated: bool = False
     signatures: Sequence[str] = ("Calibrated by", "Reviewed and approved by")
-    extra_tables: Sequence[tuple[str, Sequence[str], Sequence[Sequence[str]]]] = field(default_factory=tuple)
+    extra_tables: Sequence[TableText] = field(default_factory=tuple)
 
 
-def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentSpec | None) -> list[ResultRow]:
-    """Rows from a budget's coefficients_json(), with the conformity of each against `spec`."""
+def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentSpec | None, *, suffix: str = "",
+                limit_names: Mapping[str, str] | None = None) -> list[ResultRow]:  # fmt: skip
+    """Rows from a budget's coefficients_json(), named name + suffix, with the conformity of each against the
+    limit of `spec` named limit_names.get(name, name)."""
     rows = []
     for name, c in coefficients.items():
-        lim = spec.limits.get(name) if spec else None
+        lim = spec.limits.get((limit_names or {}).get(name, name)) if spec else None
         nu = c.get("effective_dof")
-        rows.append(ResultRow(name, c["value"], c.get("unit", ""), c["standard_uncertainty"],
+        rows.append(ResultRow(name + suffix, c["value"], c.get("unit", ""), c["standard_uncertainty"],
                               math.inf if nu is None else float(nu), c["coverage_factor"], c["coverage_probability"],
                               c["expanded_uncertainty"], conformity(c["value"], c["expanded_uncertainty"], lim),
                               f"[{lim.min:.4g}, {lim.max:.4g}]" if lim else "none"))  # fmt: skip
@@ -154,6 +159,42 @@ def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentS
 
 def fmt_dof(nu: float) -> str:
     return "∞" if math.isinf(nu) else f"{nu:.1f}"
+
+
+def budget_rows(budget: Budget, *, with_sensitivity: bool = False,
+                names: Sequence[str] | None = None) -> tuple[list[str], list[list[str]]]:  # fmt: skip
+    """Header and rows of the budget table: source, type, value, u(x), nu, then per coefficient (of `names`, default
+    all) |c| u (and c); the combined u_c, nu_eff and U = k u_c at the foot."""
+    cols = [budget.names.index(n) for n in (names or budget.names)]
+    header = ["source", "type", "value x", "u(x)", "ν"]
+    for j in cols:
+        n = budget.names[j]
+        if with_sensitivity:
+            header.append(f"c = ∂{n}/∂x")
+        header.append(f"u_i({n}) ({budget.units.get(n, '')})")
+    rows = []
+    for s in budget.sources:
+        label = s.source + ("" if s.in_combined else " [listed, not added]")
+        val = "—" if s.type == "A" else f"{s.value:.4g} {s.unit}".strip()
+        ux = "—" if s.type == "A" else f"{s.standard_uncertainty:.2e} {s.unit}".strip()
+        row = [label, s.type, val, ux, fmt_dof(s.dof)]
+        for j in cols:
+            if with_sensitivity:
+                row.append("—" if s.type == "A" else f"{s.sensitivity[j]:.3e}")
+            row.append(f"{s.contribution[j]:.2e}")
+        rows.append(row)
+    uc, nu, k = budget.standard_uncertainty(), budget.effective_dof(), budget.coverage_factors()
+    totals = (
+        ("combined standard uncertainty u_c", [f"{uc[j]:.2e}" for j in cols]),
+        ("effective dof ν_eff (Welch-Satterthwaite)", [fmt_dof(nu[j]) for j in cols]),
+        ("expanded U = k u_c (k at 95 %)", [f"{k[j] * uc[j]:.2e} (k {k[j]:.2f})" for j in cols]),
+    )
+    for label, cells in totals:
+        row = [label, "", "", "", ""]
+        for c in cells:
+            row += ["", c] if with_sensitivity else [c]
+        rows.append(row)
+    return header, rows
 
 
 _ENV = jinja2.Environment(
@@ -165,7 +206,7 @@ _ENV = jinja2.Environment(
 
 def render_html(cert: Certificate) -> str:
     """The certificate as one self-contained HTML page (figures inline as SVG), print-ready (A4, page numbers)."""
-    figures = [svg(make()) for make in cert.figures]
+    figures = [(caption, svg(make())) for caption, make in cert.figures]
     return _ENV.get_template("certificate.html.j2").render(c=cert, figures=figures, fmt_dof=fmt_dof, esc=esc)
 
 
@@ -280,13 +321,16 @@ def render_pdf(cert: Certificate) -> bytes:
                      [(t["quantity"], t["standard_uncertainty"], t["traceability"]) for t in cert.traceability],
                      [50 * mm, 28 * mm, 102 * mm]))  # fmt: skip
     story.append(section("6. Uncertainty budget (GUM, JCGM 100:2008)"))
-    story.append(tbl(cert.budget_header, cert.budget_rows))
-    for title, header, rows in cert.extra_tables:
-        story += [section(title), tbl(header, rows)]
-    for i, make in enumerate(cert.figures):
+    for title, header, rows in cert.budgets:
+        story += [Paragraph(f"<b>{pdf_text(title)}</b>", small), tbl(header, rows)]
+    for i, (title, header, rows) in enumerate(cert.extra_tables):
+        story += [section(f"{7 + i}. {title}"), tbl(header, rows)]
+    first = 7 + len(cert.extra_tables)
+    for i, (caption, make) in enumerate(cert.figures):
         png, aspect = _png(make())
         width = 180 * mm
-        story.append(KeepTogether([section(f"{7 + i}. Residuals" if i == 0 else "Residuals (continued)"),
+        story.append(KeepTogether([section(f"{first}. Residuals" if i == 0 else "Residuals (continued)"),
+                                   Paragraph(pdf_text(caption), small),
                                    Image(io.BytesIO(png), width=width, height=width * aspect)]))  # fmt: skip
     sig_rows = [(f"{s}:", "name ____________________", "signature ____________________", "date __________")
                 for s in cert.signatures]  # fmt: skip

@@ -14,6 +14,12 @@ Combined standard uncertainty (GUM eq. 10/13): Cov(y) = Cov_A + sum_i c_i c_i^T 
 Welch-Satterthwaite formula (GUM eq. G.2b) nu_eff = u_c^4 / sum_i (c_i u_i)^4 / nu_i;
 coverage factor k = t_{(1+p)/2}(nu_eff) from Student's t (GUM G.3) and expanded
 uncertainty U = k u_c (GUM 6.2).
+
+Student's t assumes the output near normal. Where rectangular inputs carry much of u_c^2 it is not (GUM G.2.3:
+one dominant rectangular input makes the output nearly rectangular, whose 95 % point is 1.65 u, not 1.96 u), so
+k is t_{(1+p)/2}(nu_eff) times q_p / z_p: q_p the p coverage point of the sum of the contributions with their
+stated shapes (rectangular as stated, every other input and the fit normal), by numerical convolution (JCGM 101
+for the linearised model), z_p the normal's. With no rectangular input q_p = z_p and k is t's.
 """
 
 from __future__ import annotations
@@ -27,8 +33,14 @@ import numpy as np
 import scipy.stats
 
 SourceType = Literal["A", "B"]
+Shape = Literal["normal", "rectangular"]
 COVERAGE_PROBABILITY = 0.95
 MIN_RELIABLE_DOF = 10  # below this the Type A estimate of sigma is itself uncertain by > 22 % (GUM E.4.3)
+COVERAGE_RULE = (
+    "k = Student's t at the Welch-Satterthwaite effective dof (GUM G.4), times q_95 / 1.96 where rectangular "
+    "inputs shape the result: q_95 the 95 % point of the sum of the contributions with their stated shapes "
+    "(JCGM 101 for the linearised model; 1 when every input is normal)"
+)
 
 
 def finite_or_none(x: float) -> float | None:
@@ -48,6 +60,46 @@ def coverage_factor(dof: float, probability: float = COVERAGE_PROBABILITY) -> fl
         raise UncertaintyError(f"effective degrees of freedom {dof!r}: expected > 0")
     q = 0.5 * (1.0 + probability)
     return float(scipy.stats.norm.ppf(q) if math.isinf(dof) else scipy.stats.t.ppf(q, dof))
+
+
+GRID_POINTS = 4001  # of the convolution in coverage_point: its q to about 1e-4 u_c
+
+
+def _grid_point(x: np.ndarray, normal_variance: float, half_widths: np.ndarray, probability: float) -> float:
+    """The p point of |N(0, normal_variance) + sum U(-a_i, a_i)| on the grid x: the density convolved one box at a
+    time through its cumulative, (f * box_a)(x) = (F(x + a) - F(x - a)) / 2a."""
+    h = x[1] - x[0]
+
+    def cumulative(f: np.ndarray) -> np.ndarray:
+        return np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * h)])
+
+    if math.sqrt(normal_variance) > 4 * h:
+        f = scipy.stats.norm.pdf(x, scale=math.sqrt(normal_variance))
+    else:
+        f = np.zeros_like(x)
+        f[x.size // 2] = 1.0 / h
+    for a in half_widths:
+        F = cumulative(f)
+        f = (np.interp(x + a, x, F, left=0.0, right=F[-1]) - np.interp(x - a, x, F, left=0.0, right=F[-1])) / (2 * a)
+    F = cumulative(f)
+    return float(np.interp(0.5 * (1.0 + probability), F / F[-1], x))
+
+
+def coverage_point(normal_variance: float, half_widths: Sequence[float], probability: float) -> float:
+    """q with P(|Y| <= q) = p for Y = N(0, normal_variance) + sum_i U(-a_i, a_i), all independent and in units of
+    u_c (normal_variance + sum a_i^2 / 3 = 1), by numerical convolution (`_grid_point`) as a ratio to the normal's
+    point on the same grid (which cancels the grid's own error); a box narrower than 4 grid steps joins the
+    normal, and with no box left q is the normal's z_p."""
+    a = np.sort(np.asarray(half_widths, dtype=float))[::-1]
+    total = max(normal_variance, 0.0) + float(np.sum(a**2)) / 3.0
+    x = np.linspace(-1.0, 1.0, GRID_POINTS) * (float(np.sum(a)) + 8.0 * math.sqrt(total))
+    h = x[1] - x[0]
+    var_n = max(normal_variance, 0.0) + float(np.sum(a[a < 4 * h] ** 2) / 3.0)
+    a = a[a >= 4 * h]
+    z = coverage_factor(math.inf, probability)
+    if a.size == 0:
+        return z * math.sqrt(var_n)
+    return z * _grid_point(x, var_n, a, probability) / _grid_point(x, total, np.zeros(0), probability)
 
 
 def welch_satterthwaite(contributions: np.ndarray, dofs: np.ndarray) -> float:
@@ -75,6 +127,7 @@ class Source:
     in_combined: bool = True  # False: listed for the record, already inside another row (no double counting)
     contribution_override: np.ndarray | None = None  # Type A: sigma_k per coefficient
     block_cov: np.ndarray | None = None  # a row that is a whole covariance (a sub-fit's, propagated), added once
+    shape: Shape = "normal"  # the input's distribution as stated (the fit and covariance rows: normal)
 
     @property
     def contribution(self) -> np.ndarray:
@@ -128,8 +181,24 @@ class Budget:
             out.append(welch_satterthwaite(u_all, np.append(dofs, math.inf)))
         return np.array(out)
 
+    def shape_factors(self) -> np.ndarray:
+        """q_p / z_p per coefficient (module docstring): 1 where no rectangular input contributes."""
+        uc = self.standard_uncertainty()
+        rect = [s for s in self.sources if s.in_combined and s.shape == "rectangular" and s.block_cov is None]
+        z = coverage_factor(math.inf, self.probability)
+        out = np.ones(len(self.names))
+        for j in range(len(self.names)):
+            a = np.array([math.sqrt(3.0) * s.contribution[j] for s in rect]) / uc[j] if uc[j] > 0 else np.zeros(0)
+            a = a[a > 0]
+            if a.size:  # never above 1 at p > 0.92: uniform parts flatten the tails (Cornish-Fisher: the p point
+                # moves by (z^3 - 3 z) kappa / 24 with kappa < 0), so a ratio above 1 is the grid's rounding
+                out[j] = min(1.0, coverage_point(1.0 - float(np.sum(a**2)) / 3.0, a, self.probability) / z)
+        return out
+
     def coverage_factors(self) -> np.ndarray:
-        return np.array([coverage_factor(nu, self.probability) for nu in self.effective_dof()])
+        """k = t_{(1+p)/2}(nu_eff) x the shape factor (module docstring)."""
+        t = np.array([coverage_factor(nu, self.probability) for nu in self.effective_dof()])
+        return t * self.shape_factors()
 
     def expanded_uncertainty(self) -> np.ndarray:
         return self.coverage_factors() * self.standard_uncertainty()
@@ -169,12 +238,14 @@ class Budget:
                     "sensitivity": dict(zip(self.names, map(float, s.sensitivity), strict=True)),
                     "contribution": dict(zip(self.names, map(float, s.contribution), strict=True)),
                     "in_combined": s.in_combined,
+                    "distribution": s.shape,
                     "note": s.note,
                 }
                 for s in self.sources
             ],
             "few_dof": self.few_dof(),
             "min_reliable_dof": MIN_RELIABLE_DOF,
+            "coverage_factor_rule": COVERAGE_RULE,
         }
 
 
@@ -220,12 +291,13 @@ def type_b_source(
     note: str = "",
     dof: float = math.inf,
     in_combined: bool = True,
+    shape: Shape = "normal",
 ) -> Source:
     """A Type B row with its sensitivity from the refit at value +- step (step = u unless given)."""
     check_uncertainty(name, value, u)
     h = step if step is not None else (u if u > 0 else max(abs(value), 1.0) * 1e-6)
     c = sensitivity(refit, value, h)
-    return Source(name, "B", value, u, unit, c, dof=dof, note=note, in_combined=in_combined)
+    return Source(name, "B", value, u, unit, c, dof=dof, note=note, in_combined=in_combined, shape=shape)
 
 
 def type_a_only(
@@ -266,6 +338,7 @@ class Input:
     unit: str
     note: str = ""
     dof: float = math.inf
+    shape: Shape = "normal"
 
 
 def refit_sources(inputs: Sequence[Input], refit: Callable[[Mapping[str, float]], np.ndarray]) -> list[Source]:
@@ -273,7 +346,16 @@ def refit_sources(inputs: Sequence[Input], refit: Callable[[Mapping[str, float]]
     others at their values (GUM 5.1.3 note 2); `refit` maps {key: value} to the coefficient vector."""
     base = {i.key: i.value for i in inputs}
     return [
-        type_b_source(i.label, i.value, i.u, i.unit, lambda x, k=i.key: refit({**base, k: x}), note=i.note, dof=i.dof)
+        type_b_source(
+            i.label,
+            i.value,
+            i.u,
+            i.unit,
+            lambda x, k=i.key: refit({**base, k: x}),
+            note=i.note,
+            dof=i.dof,
+            shape=i.shape,
+        )
         for i in inputs
     ]
 

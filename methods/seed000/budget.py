@@ -22,13 +22,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
 from methods.common.least_squares import fit_joint
+from methods.common.references import Reference, default_references
 from methods.common.uncertainty import (
     Budget,
+    Shape,
     Source,
     UncertaintyError,
     check_uncertainty,
@@ -38,41 +39,11 @@ from methods.common.uncertainty import (
 from methods.seed000.identify import COEFFICIENT_UNITS, Compensation, Identification, design, point_weights
 from models.config import InstrumentCoefficients, TwinConfig
 from models.precession import PrecessionWindow, periodic_rate
-from station.defaults import config_file
 from station.session import PointRecord, Session
-from station.tomlfile import read_toml
 
-REFERENCES_FILE = config_file("instruments", "references.toml")  # shipped defaults (station.defaults)
-
-
-@dataclass(frozen=True)
-class Reference:
-    """One specified input: standard uncertainty, unit, how it was obtained and its traceability."""
-
-    key: str
-    quantity: str
-    standard_uncertainty: float
-    unit: str
-    distribution: str
-    traceability: str
-
-
-def load_references(path: str | Path = REFERENCES_FILE) -> dict[str, Reference]:
-    """The station's reference standards (config/instruments/references.toml)."""
-    doc = read_toml(path, "references file", UncertaintyError).get("references", {})
-    out = {}
-    for key, r in doc.items():
-        try:
-            u = float(r["standard_uncertainty"])
-        except (KeyError, TypeError, ValueError):
-            raise UncertaintyError(
-                f"references file {path}: [references.{key}] standard_uncertainty = "
-                f"{r.get('standard_uncertainty')!r}: expected a number >= 0"
-            ) from None
-        check_uncertainty(key, 0.0, u)
-        out[key] = Reference(key, str(r.get("quantity", key)), u, str(r.get("unit", "")),
-                             str(r.get("distribution", "")), str(r.get("traceability", "not stated")))  # fmt: skip
-    return out
+# The references this budget uses (config/instruments/references.toml): the certificate's traceability.
+SEED000_REFERENCES = ("A0_m", "g_mps2", "latitude_deg", "timer_resolution_s", "readhead_latency_s", "eps_f",
+                      "zs1_z0_m", "zs1_z1_m_s", "axs1_rad", "second_harmonic_m")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -82,6 +53,7 @@ class Measured:
     value: float
     u: float
     origin: str
+    shape: Shape = "normal"  # the references' shape where u comes from them; a measured sigma: normal
 
 
 def measured_inputs(params: Mapping, refs: Mapping[str, Reference], compensated: bool = True) -> dict[str, Measured]:
@@ -99,7 +71,8 @@ def measured_inputs(params: Mapping, refs: Mapping[str, Reference], compensated:
         if not compensated and v:
             return Measured(0.0, math.hypot(u, v), f"measured {v:.3g} not compensated here: u = sqrt(u^2 + v^2); "
                             + origin)  # fmt: skip
-        return Measured(v, u, ("compensated; " if v else "not compensated (none measured); ") + origin)
+        shape = refs[key].shape if s is None else "normal"
+        return Measured(v, u, ("compensated; " if v else "not compensated (none measured); ") + origin, shape)
 
     out = {
         "zs1_z0_m": one("zs1_z0_m", "zs1_z0_m", "zs1_z0_sigma_m"),
@@ -198,7 +171,7 @@ def seed000_budget(
     `result` used the params' measured Zs1, axs1 and eps_f; `timer_rows` False leaves the timer-resolution
     row (listed, not added) at zero."""
     params = dict(params if params is not None else session.meta.get("params", {}))
-    refs = dict(references) if references is not None else load_references()
+    refs = dict(references if references is not None else default_references())
     meas = measured_inputs(params, refs, compensated)
     st = session.station
     values = {k: m.value for k, m in meas.items()} | {"latency_s": 0.0, "A0_m": st.A0_m, "g_mps2": st.g_mps2}
@@ -213,7 +186,8 @@ def seed000_budget(
     }
     for key, label in labels.items():
         m = meas[key]
-        sources.append(type_b_source(label, m.value, m.u, refs[key].unit, refit.along(key), note=m.origin))
+        sources.append(type_b_source(label, m.value, m.u, refs[key].unit, refit.along(key), note=m.origin,
+                                     shape=m.shape))  # fmt: skip
     corr = float(params.get("zs1_z0_z1_corr", 0.0) or 0.0)
     if not -1.0 <= corr <= 1.0:
         raise UncertaintyError(f"params zs1_z0_z1_corr = {corr!r}: expected a correlation in [-1, 1]")
@@ -225,7 +199,8 @@ def seed000_budget(
         r = refs[key]
         along = "latency_s" if key == "readhead_latency_s" else key
         note = f"{r.distribution}; not corrected" if key == "readhead_latency_s" else r.distribution
-        sources.append(type_b_source(label, value, r.standard_uncertainty, r.unit, refit.along(along), note=note))
+        sources.append(type_b_source(label, value, r.standard_uncertainty, r.unit, refit.along(along), note=note,
+                                     shape=r.shape))  # fmt: skip
     # inputs outside the identification model: exact rate change -> refit
     cfg0 = _exact_cfg(session, result)
     r_lat = refs["latitude_deg"]
@@ -235,7 +210,7 @@ def seed000_budget(
         return refit(delta_rates=exact_rate_shift(session, _exact_cfg(session, result, latitude_deg=x), cfg0))
 
     sources.append(type_b_source("latitude", st.latitude_deg, r_lat.standard_uncertainty, "deg", lat_refit,
-                                 note=lat_note))  # fmt: skip
+                                 note=lat_note, shape=r_lat.shape))  # fmt: skip
     r2 = refs["second_harmonic_m"]
     for comp_key in ("Zs2", "Zc2"):
 
@@ -244,7 +219,7 @@ def seed000_budget(
             return refit(delta_rates=exact_rate_shift(session, cfg, cfg0))
 
         sources.append(type_b_source(f"unmodelled second harmonic {comp_key}", 0.0, r2.standard_uncertainty, "m",
-                                     harm_refit, note=f"{r2.distribution}"))  # fmt: skip
+                                     harm_refit, note=r2.distribution, shape=r2.shape))  # fmt: skip
     r_t = refs["timer_resolution_s"]
     # listed only (in the Type A scatter): `timer_rows=False` skips its 3 refits per point (Monte Carlo)
     c_t = np.zeros(len(names))
@@ -269,10 +244,3 @@ def seed000_budget(
     extra = corr * (np.outer(c0, c1) + np.outer(c1, c0))
     units = {n: COEFFICIENT_UNITS[n] for n in names}
     return Budget(names, np.asarray(result.values, dtype=float), units, sources, cov_a=result.cov, extra_cov=extra)
-
-
-def traceability(references: Mapping[str, Reference] | None = None) -> list[dict[str, str]]:
-    """The certificate's traceability statement of each reference (ISO/IEC 17025 7.8.4.1)."""
-    refs = references or load_references()
-    return [{"quantity": r.quantity, "standard_uncertainty": f"{r.standard_uncertainty:.3g} {r.unit}",
-             "traceability": r.traceability} for r in refs.values()]  # fmt: skip

@@ -24,12 +24,12 @@ import numpy as np
 from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MeasurePoint, Note
-from methods.common.certificate import render_html, render_pdf
+from methods.common.session_certificate import certificate_files, result_provenance
 from methods.seed000.alignment import multi_position, two_position
 from methods.seed000.budget import seed000_budget
 from methods.seed000.identify import METHODS, Compensation, Identification, identify
 from methods.seed000.planning import design_quality, relative_sensitivity
-from methods.seed000.report import certificate, render_report, result_provenance
+from methods.seed000.report import certificate, render_report
 from models.plan import (
     SEED000_FREQS_HZ,
     SEED000_WINDOW_S,
@@ -112,9 +112,7 @@ def _analyse(session: Session, order: tuple[str, ...], title: str) -> Analysis:
     uid = session.meta.get("store_uid", "")
     html = render_report(session, results, title=f"Session {uid}: {title}", config=params)
     primary = "integral_compensated" if comp is not None else order[0]
-    cert = certificate(session, results, primary, procedure_title=title)
-    files = {f"certificate-{uid or 'session'}.html": render_html(cert).encode(),
-             f"certificate-{uid or 'session'}.pdf": render_pdf(cert)}  # fmt: skip
+    files = certificate_files(certificate(session, results, primary, procedure_title=title), uid)
     prov = result_provenance(session)
     docs = {m: {**r.to_json(), "provenance": prov} for m, r in results.items()}
     return Analysis(docs, html, _summary(results), files)

@@ -11,23 +11,14 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
-from datetime import UTC, datetime
-from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
-from methods.common.certificate import (
-    NOT_MEASURED,
-    NOT_RECORDED,
-    Certificate,
-    InstrumentSpec,
-    load_instrument_spec,
-    load_laboratory,
-    result_rows,
-)
-from methods.common.uncertainty import MIN_RELIABLE_DOF, Budget, coverage_factor
-from methods.seed000.budget import load_references, traceability
+from methods.common.certificate import Certificate, InstrumentSpec, budget_rows
+from methods.common.session_certificate import Certified, session_certificate
+from methods.common.uncertainty import MIN_RELIABLE_DOF, coverage_factor
+from methods.seed000.budget import SEED000_REFERENCES
 from methods.seed000.identify import Identification
 from models.regressors import COEFFICIENTS
 from station.htmlkit import document, esc, mapping_table, svg, table
@@ -105,6 +96,9 @@ def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float
                 "uncertainty.</p>"
             )
     return "<table>" + "".join(rows) + "</table>" + "".join(notes)
+
+
+RESIDUAL_CAPTION = "Residuals of Y (eq. 21), each identification on its own axis, and proportional residuals (eq. 29)"
 
 
 def residual_figure(results: Mapping[str, Identification]):
@@ -187,38 +181,6 @@ def render_report(
 # ---- budget and certificate ------------------------------------------------------------------------------
 
 
-def budget_rows(budget: Budget, *, with_sensitivity: bool = False) -> tuple[list[str], list[list[str]]]:
-    """Header and rows of the budget table: source, type, value, u(x), nu, then per coefficient |c| u (and c)."""
-    header = ["source", "type", "value x", "u(x)", "ν"]
-    for n in budget.names:
-        if with_sensitivity:
-            header.append(f"c = ∂{n}/∂x")
-        header.append(f"u_i({n}) ({budget.units.get(n) or _UNITS.get(n, '')})")
-    rows = []
-    for s in budget.sources:
-        label = s.source + ("" if s.in_combined else " [listed, not added]")
-        val = "—" if s.type == "A" else f"{s.value:.4g} {s.unit}".strip()
-        ux = "—" if s.type == "A" else f"{s.standard_uncertainty:.2e} {s.unit}".strip()
-        row = [label, s.type, val, ux, "∞" if math.isinf(s.dof) else f"{s.dof:g}"]
-        for c, u in zip(s.sensitivity, s.contribution, strict=True):
-            if with_sensitivity:
-                row.append("—" if s.type == "A" else f"{c:.3e}")
-            row.append(f"{u:.2e}")
-        rows.append(row)
-    uc, nu, k = budget.standard_uncertainty(), budget.effective_dof(), budget.coverage_factors()
-    totals = (
-        ("combined standard uncertainty u_c", [f"{u:.2e}" for u in uc]),
-        ("effective dof ν_eff (Welch-Satterthwaite)", ["∞" if math.isinf(v) else f"{v:.1f}" for v in nu]),
-        ("expanded U = k u_c (k from t at 95 %)", [f"{kk * u:.2e} (k {kk:.2f})" for kk, u in zip(k, uc, strict=True)]),
-    )
-    for label, cells in totals:
-        row = [label, "", "", "", ""]
-        for c in cells:
-            row += ["", c] if with_sensitivity else [c]
-        rows.append(row)
-    return header, rows
-
-
 def budget_section(results: Mapping[str, Identification]) -> str:
     parts = []
     for m, r in results.items():
@@ -227,44 +189,6 @@ def budget_section(results: Mapping[str, Identification]) -> str:
         header, rows = budget_rows(r.budget, with_sensitivity=True)
         parts.append(f"<h3>{esc(m)}</h3>" + table(header, rows))
     return "".join(parts)
-
-
-def environment_conditions(session: Session) -> list[tuple[str, str]]:
-    """Temperature from the points' temperature_c column or the measurements' arrays, else not measured."""
-    temps = [float(p.extra["temperature_c"]) for p in session.points if p.extra.get("temperature_c") not in (None, "")]
-    for m in session.measurements:
-        if "temperature_c" in m.arrays:
-            temps += [float(x) for x in np.ravel(m.arrays["temperature_c"])]
-    out = []
-    if temps:
-        out.append(("temperature", f"{min(temps):.2f} to {max(temps):.2f} °C ({len(temps)} readings of the station's "
-                                   "sensors)"))  # fmt: skip
-    else:
-        out.append(("temperature", f"{NOT_MEASURED} (the station has no temperature sensor on this session)"))
-    out.append(("humidity, pressure, magnetic field", f"{NOT_MEASURED} (no sensor on the station)"))
-    return out
-
-
-def provenance_of(session: Session) -> dict:
-    """The session's provenance (issue 14) if it has one, else an empty record."""
-    prov = getattr(session, "provenance", None) or session.meta.get("provenance") or {}
-    return dict(prov)
-
-
-def result_provenance(session: Session) -> dict:
-    """Session identity for the result JSON: uid, instrument serial, station, operator, dates, software, simulated."""
-    prov = provenance_of(session)
-    keys = ("station_id", "operator", "host", "created_utc", "software_version", "simulated", "seed")
-    out = {"session_uid": session.meta.get("store_uid") or NOT_RECORDED,
-           "instrument_serial": prov.get("instrument_serial") or session.meta.get("instrument_serial") or NOT_RECORDED,
-           "procedure": session.meta.get("procedure") or NOT_RECORDED}  # fmt: skip
-    out |= {k: (NOT_RECORDED if prov.get(k) in (None, "") else prov[k]) for k in keys}
-    out["analysed_utc"] = datetime.now(UTC).isoformat(timespec="seconds")
-    return out
-
-
-def _or(v: object) -> str:
-    return NOT_RECORDED if v in (None, "") else str(v)
 
 
 def certificate(
@@ -276,68 +200,25 @@ def certificate(
     procedure_title: str = "",
 ) -> Certificate:
     """The calibration certificate of a seed-000 session from its `primary` identification (with a budget)."""
-    spec = spec or load_instrument_spec()
     r = results[primary]
     if r.budget is None:
         raise ValueError(f"identification {primary!r} has no uncertainty budget: a certificate needs one")
-    prov = provenance_of(session)
-    uid = _or(session.meta.get("store_uid"))
-    simulated = bool(prov.get("simulated")) if prov.get("simulated") is not None else "SIM" in str(
-        prov.get("instrument_serial") or session.meta.get("instrument_serial") or "")  # fmt: skip
-    serial = prov.get("instrument_serial") or session.meta.get("instrument_serial")
     proc = session.meta.get("procedure") or "seed000.integral_precession"
-    issued = datetime.now(UTC).isoformat(timespec="seconds")
-    span_s = max((p.start_s + p.Tm_s for p in session.points), default=0.0)
-    dates = [
-        ("date of calibration (session start)", _or(prov.get("created_utc"))),
-        ("duration of the measurements", f"{span_s / 3600:.2f} h of session time ({len(session.points)} points)"),
-        ("date of issue", issued),
-    ]
-    ident = [
-        ("station", _or(prov.get("station_id"))),
-        ("instrument", spec.model),
-        ("manufacturer", spec.manufacturer),
-        ("serial number", _or(serial)),
-        ("specification (instrument file)", f"{spec.specification} ({Path(spec.path).name})"),
-        ("calibration session", uid),
-        ("method", f"integral precession on the linear vibration table (seed 000 eqs. 19-22, exact window means); "
-                   f"{r.method} identification, weighted joint least squares ({r.weighting})"),
-        ("procedure and version", f"{proc} {procedure_title}; software {_or(prov.get('software_version'))}"),
-        ("operator", _or(prov.get("operator"))),
-        ("host", _or(prov.get("host"))),
-        ("simulated", "yes: digital twin, seed " + _or(prov.get("seed")) if simulated else "no"),
-    ]  # fmt: skip
-    rows = result_rows(r.budget.coefficients_json(), spec)
-    remarks = [
+    reliability = (
         f"Reliability (seed 000 eq. 28 on the residuals of Y): μ = {_fmt(r.mu_eq28, '.2f')} against μc = "
         f"{_fmt(r.mu_c_eq28, '.2f')}: {'no outlier' if r.reliable else 'POSSIBLE OUTLIER: results to be reviewed'}. "
         f"σ of Y (eq. 21) {_fmt(r.sigma_Y_eq21, '.3e')} rad/s; σ of one rate (joint fit) {r.sigma_residual:.3e} "
-        f"rad/s with {r.dof} degrees of freedom.",
-        "The expanded uncertainty U = k u_c has a coverage probability of about 95 %; k is Student's t at the "
-        "Welch-Satterthwaite effective degrees of freedom of each coefficient (GUM G.4).",
-    ]
-    few = r.budget.few_dof()
-    if few:
-        remarks.append(f"Few degrees of freedom: {', '.join(few)} rest on fewer than {MIN_RELIABLE_DOF} effective "
-                       "degrees of freedom; their U uses the larger t factor and a design with more points is "
-                       "advised for a reliable uncertainty.")  # fmt: skip
-    if any(x.conformity == "not decided" for x in rows):
-        remarks.append("'not decided': the value lies within U of a limit, so conformity cannot be stated at 95 %.")
-    refs = load_references()
-    header, brows = budget_rows(r.budget)
-    return Certificate(
-        certificate_id=f"CERT-{uid}",
+        f"rad/s with {r.dof} degrees of freedom."
+    )
+    return session_certificate(
+        session,
+        [Certified(r.budget)],
         title="Calibration certificate: PIGA nonlinear error coefficients",
-        laboratory=load_laboratory(),
-        identification=ident,
-        dates=dates,
-        environment=environment_conditions(session),
-        results=rows,
-        decision_rule=f"{spec.decision_rule_name}: {spec.decision_rule}",
-        traceability=traceability(refs),
-        budget_header=header,
-        budget_rows=brows,
-        figures=[lambda: residual_figure({primary: r})],
-        remarks=remarks,
-        simulated=simulated,
+        method=f"integral precession on the linear vibration table (seed 000 eqs. 19-22, exact window means); "
+        f"{r.method} identification, weighted joint least squares ({r.weighting})",
+        procedure=f"{proc} {procedure_title}",
+        references=SEED000_REFERENCES,
+        spec=spec,
+        figures=[(RESIDUAL_CAPTION, lambda: residual_figure({primary: r}))],
+        remarks=[reliability],
     )

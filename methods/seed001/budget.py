@@ -15,22 +15,15 @@ V/g^n; the chamber's temperature reading places the block on eq. 4's laws and do
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Mapping
 
 import numpy as np
 
+from methods.common.references import Reference, default_references, reference_input
 from methods.common.uncertainty import Budget, Input, fit_budget, refit_sources
-from methods.seed000.budget import Reference, load_references
 
 HEAD_ANGLES = 8  # distinct head angles of the tumble (J = 1 .. 8; J = 9 is J = 1)
-
-
-@functools.cache
-def default_references() -> Mapping[str, Reference]:
-    """The shipped references file, read once (the budget runs at every temperature of every session)."""
-    return load_references()
 
 
 def eq1_output(cf: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
@@ -56,11 +49,10 @@ def eq6_inputs(refs: Mapping[str, Reference]) -> list[Input]:
     rows = []
     for j in range(1, HEAD_ANGLES + 1):
         label = f"index head angle error at {(j - 1) * 45:g} deg (J = {j}{', 9' if j == 1 else ''})"
-        rows.append(Input(f"delta_{j}", label, 0.0, head.standard_uncertainty, "rad", head.distribution))
+        rows.append(reference_input(f"delta_{j}", label, 0.0, head))
     for key, name, label in (("gain", "voltmeter_gain", "voltmeter gain"),
                              ("offset", "voltmeter_offset_v", "voltmeter offset")):  # fmt: skip
-        r = refs[name]
-        rows.append(Input(key, label, 0.0, r.standard_uncertainty, r.unit, r.distribution))
+        rows.append(reference_input(key, label, 0.0, refs[name]))
     return rows
 
 

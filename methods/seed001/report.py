@@ -8,7 +8,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from methods.seed000.report import budget_rows
+from methods.common.certificate import budget_rows
 from methods.seed001.analysis import (
     POSITIONS,
     SOAK,

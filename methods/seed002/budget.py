@@ -23,15 +23,14 @@ not enter (the reduction uses measured specific force; g only converts arcsec/g,
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
 
-from methods.common.uncertainty import Budget, Input, fit_budget, refit_sources
-from methods.seed000.budget import Reference, load_references
+from methods.common.references import Reference, default_references, reference_input
+from methods.common.uncertainty import Budget, fit_budget, refit_sources
 from methods.seed002.analysis import HORIZONTAL, estimate_flexure, run_weights
 from methods.seed002.strapdown import earth_rotation, vee
 from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site
@@ -42,12 +41,6 @@ SEED002_TYPE_B = (
     "biases, the IMU's sampling interval, the site latitude; the gyros' scale factors are not propagated (they "
     "need the raw increments; about 1.5e-4 arcsec/g at 5 ppm)"
 )
-
-
-@functools.cache
-def default_references() -> Mapping[str, Reference]:
-    """The shipped references file, read once."""
-    return load_references()
 
 
 def column_scale(accel_scale: Sequence[float], clock_rel: float) -> np.ndarray:
@@ -90,14 +83,12 @@ def flexure_budget(
 
     accel, clock, bias = refs["imu_accel_scale"], refs["imu_clock_rel"], refs["imu_gyro_bias_radps"]
     lat = refs["latitude_deg"]
-    inputs = [Input(f"accel_{a}", f"accelerometer {a} scale factor", 0.0, accel.standard_uncertainty, "1",
-                    accel.distribution) for a in AXES]  # fmt: skip
-    inputs += [Input(f"bias_{a}", f"gyro {a} residual bias", 0.0, bias.standard_uncertainty, "rad/s",
-                     bias.distribution) for a in AXES]  # fmt: skip
+    inputs = [reference_input(f"accel_{a}", f"accelerometer {a} scale factor", 0.0, accel) for a in AXES]
+    inputs += [reference_input(f"bias_{a}", f"gyro {a} residual bias", 0.0, bias) for a in AXES]
     inputs += [
-        Input("clock", "IMU sampling interval (relative)", 0.0, clock.standard_uncertainty, "1", clock.distribution),
-        Input("latitude", "latitude", site.latitude_rad, math.radians(lat.standard_uncertainty), "rad",
-              lat.distribution),
+        reference_input("clock", "IMU sampling interval (relative)", 0.0, clock),
+        reference_input("latitude", "latitude", site.latitude_rad, lat, u=math.radians(lat.standard_uncertainty),
+                        unit="rad"),
     ]  # fmt: skip
     names = TAU_NAMES
     units = dict.fromkeys(names, "arcsec/g")

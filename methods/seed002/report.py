@@ -16,9 +16,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from engine.registry import Analysis
+from methods.common.certificate import budget_rows
 from methods.common.least_squares import FitError
 from methods.common.uncertainty import merged_json
-from methods.seed000.report import budget_rows
 from methods.seed002.analysis import FlexureFit, estimate_flexure, run_weights
 from methods.seed002.budget import SEED002_TYPE_B, flexure_budget
 from models.fixture_poses import POSES

@@ -19,18 +19,24 @@ Both list the counter/timer's resolution (two stamps a window, rate w / Tm each)
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
 
+from methods.common.references import Reference, default_references, reference_input
 from methods.common.uncertainty import Budget, Input, Source, fit_budget, refit_sources
-from methods.seed000.budget import Reference, load_references
-from methods.seed003.four_pose import FourPoseFit, PoseWindow, angle_error_rad, fit_four_pose, harmonic_names
+from methods.seed003.four_pose import (
+    FourPoseFit,
+    PoseWindow,
+    angle_error_rad,
+    fit_four_pose,
+    harmonic_basis,
+    harmonic_names,
+)
 from methods.seed003.lsq import UNITS, Fit
-from methods.seed003.static_model import fit_static, regressors
+from methods.seed003.static_model import fit_static, rate_slope_radps, regressors
 from station.session import StationInfo
 
 TYPE_B = {
@@ -39,12 +45,6 @@ TYPE_B = {
     "compensated_total": "Type B by refit (methods.seed003.budget): the four-pose harmonics and offset (a Type A "
     "block with its dof), the latitude through both fits; the timer resolution listed (in the scatter)",
 }
-
-
-@functools.cache
-def default_references() -> Mapping[str, Reference]:
-    """The shipped references file, read once."""
-    return load_references()
 
 
 def _units(names: tuple[str, ...]) -> dict[str, str]:
@@ -60,6 +60,29 @@ def timer_row(fit: Fit, angles_rad: np.ndarray, rates_radps: np.ndarray, Tm_s: n
     return Source("timer resolution (two stamps a window)", "B", 0.0, u_s, "s",
                   contribution / u_s if u_s else contribution,
                   note="already in the fit's scatter (Type A), not added", in_combined=False)  # fmt: skip
+
+
+def rate_noise(fit: Fit, head_rad: np.ndarray, aligned_rad: np.ndarray, station: StationInfo,
+               order: int) -> tuple[float, int]:  # fmt: skip
+    """The windows' rate noise alone, sigma and its dof, for the uncompensated fit's Type A (GUM 4.3.10: an effect
+    counted once).
+
+    Uncompensated, the head's angle error puts d(wbar)/d(theta) dtheta(theta) into the rates. The part of it that
+    the polynomial absorbs moves the coefficients: that is the harmonics' Type B row. The rest stays in the
+    residuals, where eq. 48's sigma would take it for noise and count the same harmonics a second time through
+    sigma^2 (X^T X)^-1 (the seed's harmonics at their u leave sigma at 6e-6 rad/s over 2e-7 of noise). So the
+    residuals are fitted again with each Type B angle input's rate signature as a further column (each harmonic
+    at the head angles, and the head zero: the rate's slope itself); what is left is noise, n - rank dof."""
+    slope = rate_slope_radps(aligned_rad, fit.values, fit.names, station)
+    columns = np.column_stack([regressors(np.cos(aligned_rad), fit.names), slope,
+                               slope[:, None] * harmonic_basis(head_rad, order)])  # fmt: skip
+    u, sv, _ = np.linalg.svd(columns, full_matrices=False)
+    basis = u[:, sv > sv[0] * 1e-10]
+    dof = fit.residuals.size - basis.shape[1]
+    if dof < 1:
+        return fit.sigma_residual, fit.dof
+    left = fit.residuals - basis @ (basis.T @ fit.residuals)
+    return float(np.sqrt(left @ left / dof)), dof
 
 
 def uncompensated_budget(
@@ -78,12 +101,10 @@ def uncompensated_budget(
     h = refs["index_harmonic_rad"]
     lat = refs["latitude_deg"]
     names = harmonic_names(order)
-    inputs = [Input(n, f"angle-error harmonic {n} (eq. 15), not compensated", 0.0, h.standard_uncertainty, "rad",
-                    h.distribution) for n in names]  # fmt: skip
+    inputs = [reference_input(n, f"angle-error harmonic {n} (eq. 15), not compensated", 0.0, h) for n in names]
     inputs.append(Input("zero", "head zero of the self-alignment (eq. 56)", 0.0, zero_sigma_rad, "rad",
                         "its own sigma (self-alignment, eq. 56)"))  # fmt: skip
-    inputs.append(Input("latitude", "latitude", station.latitude_deg, lat.standard_uncertainty, "deg",
-                        lat.distribution))  # fmt: skip
+    inputs.append(reference_input("latitude", "latitude", station.latitude_deg, lat))
 
     def refit(x: Mapping[str, float]) -> np.ndarray:
         angles = aligned_rad + angle_error_rad(head_rad, np.array([x[n] for n in names])) + x["zero"]
@@ -91,8 +112,12 @@ def uncompensated_budget(
 
     rows = refit_sources(inputs, refit)
     rows.append(timer_row(fit, aligned_rad, rates_radps, Tm_s, refs["timer_resolution_s"].standard_uncertainty))
-    return fit_budget(fit.names, fit.values, fit.cov, fit.dof, _units(fit.names), rows,
-                      f"eq. 49, {fit.dof} dof; angles taken as exact")  # fmt: skip
+    sigma, dof = rate_noise(fit, head_rad, aligned_rad, station, order)
+    cov = fit.cov * (sigma / fit.sigma_residual) ** 2 if fit.sigma_residual > 0 else fit.cov
+    return fit_budget(fit.names, fit.values, cov, dof, _units(fit.names), rows,
+                      f"eq. 49 at the rate noise alone ({sigma:.2e} rad/s, {dof} dof: the residuals less the "
+                      f"angle inputs' signatures; eq. 48's sigma {fit.sigma_residual:.2e} also holds the "
+                      "harmonics' unabsorbed part)")  # fmt: skip
 
 
 def compensated_budget(
@@ -118,8 +143,8 @@ def compensated_budget(
         four = fit_four_pose(four_pose_windows, fp.terms, fp.order, st)
         return fit_static(four.instrument_angle_rad("A", setup, pose, head_rad), rates_radps, fit.names, st).values
 
-    latitude = Input("latitude", "latitude (through the four-pose and the calibration fits)", station.latitude_deg,
-                     lat.standard_uncertainty, "deg", lat.distribution)  # fmt: skip
+    latitude = reference_input("latitude", "latitude (through the four-pose and the calibration fits)",
+                               station.latitude_deg, lat)  # fmt: skip
     block = Source("angle-error harmonics and mounting offset (four-pose fit, Type A)", "A", 0.0, 0.0, "",
                    np.ones(len(fit.names)), dof=float(fp.fit.dof),
                    note=f"their covariance through the compensated angles; {fp.fit.dof} dof of the four-pose fit",

@@ -7,7 +7,7 @@ import math
 import matplotlib.pyplot as plt
 import numpy as np
 
-from methods.seed000.report import budget_rows
+from methods.common.certificate import budget_rows
 from methods.seed003.alignment import ALIGNMENT_ANGLES_DEG
 from methods.seed003.design import (
     efficiency_sensitivity,

@@ -27,10 +27,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
+from methods.common.certificate import budget_rows
 from methods.common.least_squares import FitError
 from methods.common.uncertainty import Budget, merged_json, type_a_json
 from methods.seed000.identify import identify
-from methods.seed000.report import budget_rows
 from models import nonlinear_error as ne
 from models.regressors import COEFFICIENTS, baseline_regressors
 from station.htmlkit import document, esc, mapping_table, svg, table

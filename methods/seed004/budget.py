@@ -12,23 +12,17 @@ x +- u. Both calibrations see the same station, so their shared Type B rows stay
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
 
-from methods.common.uncertainty import Budget, Input, refit_sources, stacked, transformed, with_fit
-from methods.seed000.budget import Reference, load_references, seed000_budget
+from methods.common.references import Reference, default_references, reference_input
+from methods.common.uncertainty import Budget, refit_sources, stacked, transformed, with_fit
+from methods.seed000.budget import seed000_budget
 from methods.seed000.identify import identify
 from methods.seed004.analysis import Calibration, Suppression, correction, correction_parameters
 from station.session import PointRecord, Session, StationInfo
-
-
-@functools.cache
-def default_references() -> Mapping[str, Reference]:
-    """The shipped references file, read once."""
-    return load_references()
 
 
 def _pooled_budget(
@@ -95,7 +89,7 @@ def correction_budget(
         r = refs[name]
         value = {"H": angular_momentum_kgm2ps, "b": radius_mm, "theta": angle_deg}[key]
         note = r.distribution + ("; d m / d theta = 0 at 45 deg (second order only)" if key == "theta" else "")
-        inputs.append(Input(key, label, value, r.standard_uncertainty, unit, note))
+        inputs.append(reference_input(key, label, value, r, unit=unit, note=note))
 
     def refit(x: Mapping[str, float]) -> np.ndarray:
         """K2 and the mass with eqs. 21-22 re-run at H, b, theta = x."""

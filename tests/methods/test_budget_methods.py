@@ -8,9 +8,9 @@ itself uses, latitude and g, the identification is re-run on unchanged data and 
 
 Coverage bands: per coefficient the count of sessions with |k_hat - k| <= U is binomial(N, 0.95) if U is a
 95 % interval; the tests accept it within 3.29 binomial standard deviations (two-sided 99.9 %), so a correct
-budget fails one coefficient's check in 1000. The Monte Carlo draws every Type B input normal with its stated
-u (bench/bench_mc_methods.py --normal): that tests the propagation; the rectangular shapes the references
-state give higher coverage where a rectangular input dominates (BENCHMARKS.md, issue 15).
+budget fails one coefficient's check in 1000. The Monte Carlo draws every Type B input from the distribution the
+references state (rectangular where they say so), which the budget's coverage factor takes into account
+(methods.common.uncertainty: Student's t times the shape factor; BENCHMARKS.md, issue 15).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from methods.common.references import load_references
 from methods.common.uncertainty import COVERAGE_PROBABILITY
-from methods.seed000.budget import load_references
 from station.session import Measurement, Session, StationInfo
 
 ROOT = Path(__file__).parents[2]
@@ -59,11 +59,6 @@ def assert_gum_json(doc: dict, names) -> None:
     assert {r["type"] for r in doc["budget"]} == {"A", "B"}
     for r in doc["budget"]:
         assert set(r) >= ROW_FIELDS and set(r["sensitivity"]) == set(names)
-
-
-@pytest.fixture(autouse=True)
-def _normal_draws(monkeypatch):
-    monkeypatch.setattr(mc, "NORMAL_ONLY", True)
 
 
 # ---------------------------------------------------------------- seed 001

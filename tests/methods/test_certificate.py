@@ -168,7 +168,7 @@ def test_self_alignment_report_has_no_nan(positions) -> None:
 def test_environment_comes_from_the_stations_sensors_where_it_has_them() -> None:
     from dataclasses import replace
 
-    from methods.seed000.report import environment_conditions
+    from methods.common.session_certificate import environment_conditions
 
     s = simulate_session(multiposition_plan([0.0, 180.0], [10.0], 560.0), default_twin(), seed=2)
     assert "not measured" in dict(environment_conditions(s))["temperature"]

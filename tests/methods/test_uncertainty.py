@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
+from methods.common.references import load_references
 from methods.common.uncertainty import (
     Budget,
     UncertaintyError,
@@ -23,7 +24,7 @@ from methods.common.uncertainty import (
     type_b_source,
     welch_satterthwaite,
 )
-from methods.seed000.budget import load_references, seed000_budget
+from methods.seed000.budget import seed000_budget
 from methods.seed000.identify import identify, point_weights, seed_eq28
 from models.config import NoiseModel, default_twin
 from models.plan import multiposition_plan, seed000_plan
