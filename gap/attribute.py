@@ -16,7 +16,9 @@ physically plausible bound (gap.candidates, at 2 sigma); among those the lowest
 BIC wins unless the pulse record (gap.rawstreams.PulseRecord, when the session has one) rejects it:
 each such candidate's fitted twin is tested against the rate harmonics of the pulse edges
 (gap.localise.pulse_goodness_of_fit) at the verdict's level, and one that leaves them
-significantly inconsistent is rejected (`rejected_by` names the test) and the next one is tried.
+significantly inconsistent is rejected (`rejected_by` names the test) and the next one is tried;
+when the pulse record rejects every one, the rates' best is taken (the pulses may show a second
+effect still missing, as in a pair: the verdict's own pulse test, after the selection, decides).
 Another candidate within bounds that reproduces the winner's fit on every channel
 (its chi^2, rate rows in the winner's sigma^2, within REPRODUCE_CHI2 of the winner's;
 the pulse record not rejecting it) is a rival: this session does not tell them apart.
@@ -33,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from gap import candidates as cl
 from gap.fit import Linearisation, ModelFit, fit_model
 from gap.localise import pulse_goodness_of_fit
 
@@ -66,10 +69,22 @@ class Scored:
         return not self.beyond_bounds
 
 
-def beyond_bounds(fit: ModelFit, name: str) -> list[str]:
-    """Parameters of effect `name` whose fitted |value| exceeds its bound by more than BOUND_SIGMAS sd."""
+def beyond_bounds(fit: ModelFit, name: str, w_radps: np.ndarray) -> list[str]:
+    """Parameters of effect `name` whose fitted |value| exceeds its bound by more than BOUND_SIGMAS sd, and
+    the waveform's Zs1(w) = z0 + z1 w at the design's vibration frequencies w (cl.ZS1_BOUND_M)."""
     rows = zip(fit.free, fit.values, fit.sigmas, strict=True)
-    return [fp.param for fp, v, sd in rows if fp.effect == name and abs(v) - BOUND_SIGMAS * sd > fp.bound]
+    out = [fp.param for fp, v, sd in rows if fp.effect == name and abs(v) - BOUND_SIGMAS * sd > fp.bound]
+    keys = [fp.key for fp in fit.free]
+    if name == "waveform_fundamental" and {"waveform_fundamental.z0", "waveform_fundamental.z1"} <= set(keys):
+        j = [keys.index("waveform_fundamental.z0"), keys.index("waveform_fundamental.z1")]
+        n_lin = fit.J.shape[1] - len(fit.free)
+        scale = np.array([fit.free[i].scale for i in j])
+        cov = fit.cov[np.ix_([n_lin + i for i in j], [n_lin + i for i in j])] * np.outer(scale, scale)
+        A = np.column_stack([np.ones_like(w_radps), w_radps])
+        zs1, sd = A @ fit.values[j], np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, cov, A), 0, None))
+        if np.any(np.abs(zs1) - BOUND_SIGMAS * sd > cl.ZS1_BOUND_M):
+            out.append("Zs1 = z0 + z1 w")
+    return out
 
 
 def _chi2_total(fit: ModelFit, s2_rate: float) -> float:
@@ -93,8 +108,9 @@ def bic(fit: ModelFit, n_rate: int, n_other: int) -> float:
     return n_rate * math.log(fit.rss_rate / n_rate) + chi2_other + k * math.log(n_rate + n_other)
 
 
-def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_other: int) -> Scored:
-    """Evidence for adding candidate `name` (fit) to the reference model (ref)."""
+def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_other: int, w_radps: np.ndarray) -> Scored:
+    """Evidence for adding candidate `name` (fit) to the reference model (ref); w_radps: the design's
+    vibration frequencies (for beyond_bounds)."""
     m_rate = fit.n_rate_params - ref.n_rate_params
     drss = ref.rss_rate - fit.rss_rate
     F, p_rate = math.nan, 1.0
@@ -109,7 +125,7 @@ def score(ref: ModelFit, fit: ModelFit, name: str, n_rate: int, n_other: int) ->
         p = min(1.0, 2.0 * min(p_rate, p_other)) if m_rate > 0 else p_other
     b_ref, b = bic(ref, n_rate, n_other), bic(fit, n_rate, n_other)
     s0 = ref.rss_rate / max(ref.dof_rate, 1)
-    return Scored(name, fit, F, p, b, b - b_ref, drss / s0, dchi, beyond_bounds=beyond_bounds(fit, name))
+    return Scored(name, fit, F, p, b, b - b_ref, drss / s0, dchi, beyond_bounds=beyond_bounds(fit, name, w_radps))
 
 
 @dataclass
@@ -196,6 +212,8 @@ def _step(
     pulse_level: a candidate whose fit the pulse test rejects below it is not accepted."""
     profiled = dict(profiled or {})
     n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
+    d = lin.ch.design
+    w_radps = 2 * math.pi * np.unique(d.freq_hz[d.vib])
     scored = []
     for name in names:
         override = profiled.get(name)
@@ -205,15 +223,16 @@ def _step(
         over |= {n: v for n, v in profiled.items() if n in chosen}
         fit = fit_model(lin, [*chosen, name], drop=drop, fixed_override=over)
         if fit.dof_rate > 0:
-            sc = score(current, fit, name, n_rate, n_other)
+            sc = score(current, fit, name, n_rate, n_other, w_radps)
             sc.profiled = dict(override or {})
             scored.append(sc)
     scored.sort(key=lambda s: s.bic)
     limit = ALPHA / max(len(scored), 1)
     ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
-    best = next((s for s in ok if not _rejected_by_pulses(lin, s, pulse_level)), None)
-    if best is None:
+    if not ok:
         return scored, None
+    # The pulse record rejecting all of them may show a second effect still missing (a pair): the rates' best.
+    best = next((s for s in ok if not _rejected_by_pulses(lin, s, pulse_level)), ok[0])
     s2 = best.fit.rss_rate / max(best.fit.dof_rate, 1)
     chi_best = _chi2_total(best.fit, s2)
     # A rival reproduces the winner on every channel: the rates, timing and grating in the fit, the pulses tested.

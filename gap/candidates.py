@@ -58,6 +58,9 @@ def _fp(effect: str, param: str, scale: float, step_fraction: float = 1e-2, boun
 
 # A lab's plausible range: an order of magnitude above the typical size (seed 000 Tables 5-7, 6.1).
 BOUND_FACTOR = 10.0
+# What the table does at each frequency, Zs1(w) = z0 + z1 w, within the same bound as z0: Table 5 measured
+# |Zs1| <= 88 um over 2-10 Hz (z0 and z1 each within bounds can still add to half a millimetre at 7 Hz).
+ZS1_BOUND_M = 1.5e-4
 ARCSEC_RAD = 4.84813681109536e-06
 
 

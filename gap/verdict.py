@@ -2,7 +2,8 @@
 
 Evidence of a gap (before any effect is added), two families each at level
 ALPHA with a Bonferroni correction inside it:
-- a library candidate accepted by the forward selection (gap.attribute);
+- a library candidate significant in the forward selection (gap.attribute), accepted or
+  rejected by another test (beyond its plausible bounds, or by the pulse record);
 - the residual checks: the structure tests on the twin's residuals
   (gap.localise) and excess scatter, the residual noise of the fit
   against a reference: the pure error of repeats when there are any
@@ -102,16 +103,16 @@ def _look_alikes(selection: Selection) -> dict[str, list[str]]:
 
 
 def _rejected(selection: Selection) -> list[str]:
-    """Candidates that the rates would accept at the last step but another test rejects: parameters beyond
-    their plausible bounds, or the pulse record (gap.attribute)."""
+    """Candidates that the rates would accept but another test rejects: parameters beyond their plausible
+    bounds, or the pulse record (gap.attribute): those of the last step, and chosen ones the pulses reject
+    (taken because the pulses rejected every candidate of their step)."""
     if not selection.steps:
         return []
     last = selection.steps[-1]
     limit = ALPHA / max(len(last), 1)
+    chosen = [c for c in selection.chosen if c.rejected_by]
     out = []
-    for s in last:
-        if s.p_value >= limit or s.dbic >= 0:
-            continue
+    for s in chosen + [s for s in last if s.p_value < limit and s.dbic < 0]:
         if s.beyond_bounds:
             out.append(f"{s.name} fits only at an implausible {', '.join(s.beyond_bounds)}")
         elif s.rejected_by:
@@ -154,7 +155,8 @@ def decide(
         )
     effects = selection.effects
     before = residual_checks(dets_before, noise_before)
-    if not effects and not before:
+    rejected = _rejected(selection)  # significant candidates that another test rejects: a gap all the same
+    if not effects and not before and not rejected:
         ref = (
             f"; residual scatter consistent with the {noise_before.reference}"
             if noise_before.reference != "none"
@@ -199,7 +201,7 @@ def decide(
             )
         return Verdict("explained", effects, f"explained by {', '.join(effects)} ({sh})")
     if effects:
-        remaining += _rejected(selection)
+        remaining += rejected
         return Verdict(
             "unexplained",
             [],
@@ -210,5 +212,5 @@ def decide(
             partial=effects,
             remaining=remaining,
         )
-    before = before + _rejected(selection)
+    before = before + rejected
     return Verdict("unexplained", [], "a gap that no library effect explains: " + "; ".join(before), remaining=before)
