@@ -228,10 +228,18 @@ def _candidate_table(report: GapReport) -> str:
                 _num(ev.get("delta_bic"), ".1f"),
                 _num(ev.get("p_value"), ".1e"),
                 _num(c["heldout_shrink"], ".2f"),
+                _rejection(ev),
             ]
         )
-    head = ["candidate", "rank", "identifiable", "parameters ± 1σ", "ΔBIC", "p", "held-out shrink"]
+    head = ["candidate", "rank", "identifiable", "parameters ± 1σ", "ΔBIC", "p", "held-out shrink", "rejected by"]
     return table(head, rows)
+
+
+def _rejection(evidence: dict) -> str:
+    """The test that rejects a candidate the rates would accept: its plausible bounds, or the pulse record."""
+    if evidence.get("beyond_bounds"):
+        return "plausible bounds: " + ", ".join(evidence["beyond_bounds"])
+    return evidence.get("rejected_by") or "—"
 
 
 def _identifiability_table(report: GapReport) -> str:

@@ -19,6 +19,7 @@ import pytest
 
 from gap.api import diagnose
 from gap.candidates import LIBRARY
+from gap.report import render
 from models.config import default_twin
 from station.interchange import read_session
 
@@ -43,8 +44,8 @@ def _entry(report, name: str) -> dict:
 def test_a_tilt_at_2psi_with_pulses_is_not_explained_and_the_pulse_test_rejects_the_best_candidate():
     """indep case 300108 (80 points, pulse_dir recorded): the rates fit axc1 to the tilt's ax2c within
     AGREE_SD of axc1's sd (they cannot tell them apart), the pulse test rejects that fit far beyond its level
-    (p < 1e-6, the verdict's level being about 1e-3 / tests), the verdict is not `explained`, and its text and
-    the candidate table name the rejecting test."""
+    (p < 1e-6, the verdict's level being about 1e-3 / tests), the verdict is not `explained`, and its text, the
+    candidate table and the HTML report name the rejecting test."""
     session, truth, rep = _diagnose(300108, "ool:table_tilt_2psi", "equal_accel", raw=True)
     assert any(r.pulse_dir is not None for r in session.raw.values())
     entry = _entry(rep, "parasitic_rotation")
@@ -56,6 +57,7 @@ def test_a_tilt_at_2psi_with_pulses_is_not_explained_and_the_pulse_test_rejects_
     p = float(rejected.rsplit("p = ", 1)[1].rstrip(")"))
     assert p < 1e-6
     assert "parasitic_rotation fits the rates but is rejected by pulse_goodness_of_fit" in rep.verdict.text
+    assert "rejected by" in render(rep) and rejected in render(rep)  # the HTML report's candidate table
 
 
 def test_a_tilt_at_2psi_without_pulses_is_cannot_tell_not_explained():
