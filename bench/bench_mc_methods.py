@@ -101,7 +101,7 @@ def seed001(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
 
 
 def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.0, vibrate_s: float = 60.0) -> Tally:
-    from methods.seed002.analysis import RunRecord, observe_run
+    from methods.seed002.analysis import RunRecord, observation_values, observe_run
     from methods.seed002.budget import flexure_budget
     from methods.seed002.vibration_run import simulate_run
     from models.fixture_poses import CALIBRATION_POSES, POSES
@@ -124,9 +124,7 @@ def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.
             run = simulate_run(imu, site, POSES[k], sine_drive(20.0, 1.5, G_MPS2), rate_hz=rate_hz / (1.0 + clock),
                                align_s=align_s, vibrate_s=vibrate_s, ramp_s=2.0, rng=rng)  # fmt: skip
             record = RunRecord.from_times(run.dtheta, run.dv * (1.0 + accel), 1.0 / rate_hz, 0.0, run.t0_s, run.tk_s)
-            obs = observe_run(record, recorded)
-            runs.append({"A": obs.A, "B": obs.B, "c_bn_t0": obs.c_bn_t0, "c_bn_tk": obs.c_bn_tk,
-                         "vibration_s": obs.duration_s, "align_s": record.i0 * record.dt_s})  # fmt: skip
+            runs.append(observation_values(observe_run(record, recorded)) | {"align_s": record.i0 * record.dt_s})
         tally.add(flexure_budget(runs, recorded, refs), truth)
     return tally
 

@@ -142,15 +142,15 @@ class Certificate:
     extra_tables: Sequence[TableText] = field(default_factory=tuple)
 
 
-def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentSpec | None, *, suffix: str = "",
-                limit_names: Mapping[str, str] | None = None) -> list[ResultRow]:  # fmt: skip
-    """Rows from a budget's coefficients_json(), named name + suffix, with the conformity of each against the
-    limit of `spec` named limit_names.get(name, name)."""
+def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentSpec | None, *, prefix: str = "",
+                suffix: str = "", limit_names: Mapping[str, str] | None = None) -> list[ResultRow]:  # fmt: skip
+    """Rows from a budget's coefficients_json(), named prefix + name + suffix, with the conformity of each against
+    the limit of `spec` named limit_names.get(name, name)."""
     rows = []
     for name, c in coefficients.items():
         lim = spec.limits.get((limit_names or {}).get(name, name)) if spec else None
         nu = c.get("effective_dof")
-        rows.append(ResultRow(name + suffix, c["value"], c.get("unit", ""), c["standard_uncertainty"],
+        rows.append(ResultRow(prefix + name + suffix, c["value"], c.get("unit", ""), c["standard_uncertainty"],
                               math.inf if nu is None else float(nu), c["coverage_factor"], c["coverage_probability"],
                               c["expanded_uncertainty"], conformity(c["value"], c["expanded_uncertainty"], lim),
                               f"[{lim.min:.4g}, {lim.max:.4g}]" if lim else "none"))  # fmt: skip
@@ -158,7 +158,7 @@ def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentS
 
 
 def fmt_dof(nu: float) -> str:
-    return "∞" if math.isinf(nu) else f"{nu:.1f}"
+    return "∞" if math.isinf(nu) else f"{nu:.1f}" if nu < 1000 else f"{nu:.2g}"
 
 
 def budget_rows(budget: Budget, *, with_sensitivity: bool = False,
@@ -272,7 +272,16 @@ _PDF_TEXT = str.maketrans(
         "·": "*",
         "−": "-",
         "Δ": "Delta",
-        "λ": "lat",
+        "λ": "lambda",
+        "β": "beta",
+        "γ": "gamma",
+        "δ": "delta",
+        "ε": "eps",
+        "τ": "tau",
+        "φ": "phi",
+        "∂": "d",
+        "″": '"',
+        "′": "'",
     }
 )
 
@@ -329,7 +338,7 @@ def render_pdf(cert: Certificate) -> bytes:
     for i, (caption, make) in enumerate(cert.figures):
         png, aspect = _png(make())
         width = 180 * mm
-        story.append(KeepTogether([section(f"{first}. Residuals" if i == 0 else "Residuals (continued)"),
+        story.append(KeepTogether([section(f"{first}. Figures" if i == 0 else "Figures (continued)"),
                                    Paragraph(pdf_text(caption), small),
                                    Image(io.BytesIO(png), width=width, height=width * aspect)]))  # fmt: skip
     sig_rows = [(f"{s}:", "name ____________________", "signature ____________________", "date __________")

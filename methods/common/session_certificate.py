@@ -1,12 +1,13 @@
 """The certificate of a calibration session: what every method's certificate shares (ISO/IEC 17025 7.8).
 
 A method hands `session_certificate` its session, the budgets it certifies (each a `Certified`: the coefficients
-and their budget table), the references its budget uses, its instrument file, its residual figures and its own
-remarks; this fills in the rest the same way for every method: identification (lab, station, instrument,
-serial, method, procedure and software version, operator), dates, environmental conditions from the session's
-sensors (else "not measured"), results with U and k and their conformity under the decision rule, the remarks
-on k, few degrees of freedom and undecided conformity, traceability, and SIMULATED for a simulated station.
-`certificate_files` renders it as the HTML and PDF files the analysis writes beside its report.
+and their budget table), its `MethodCard` (title, method, procedure, the references its budgets use, its
+instrument file), its residual figures and its own remarks; this fills in the rest the same way for every
+method: identification (lab, station, instrument, serial, method, procedure and software version, operator),
+dates, environmental conditions from the session's sensors (else "not measured"), results with U and k and their
+conformity under the decision rule, the remarks on k, few degrees of freedom and undecided conformity,
+traceability, and SIMULATED for a simulated station. `certificate_files` renders it as the HTML and PDF files
+the analysis writes beside its report.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from methods.common.certificate import (
+    DEFAULT_INSTRUMENT_FILE,
     NOT_MEASURED,
     NOT_RECORDED,
     Certificate,
@@ -41,13 +43,29 @@ BUDGET_COLUMNS = 6  # coefficients per budget table: wider tables do not fit an 
 
 @dataclass(frozen=True)
 class Certified:
-    """One budget on the certificate: its coefficients as results (named name + suffix) and, unless `table` is
-    None, its budget table under that title; limit_names maps a coefficient to its limit in the instrument file."""
+    """One budget on the certificate: its coefficients as results (named prefix + name + suffix) and, unless
+    `table` is None, its budget table under that title; limit_names maps a coefficient to its limit in the
+    instrument file."""
 
     budget: Budget
+    prefix: str = ""
     suffix: str = ""
     table: str | None = "Uncertainty budget"
     limit_names: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MethodCard:
+    """What a method's certificate says of the method: its title, the method in words, its procedure (the
+    session's own name wins) and procedure title, the keys of config/instruments/references.toml its budgets use
+    (their traceability) and the instrument file of its limits."""
+
+    title: str
+    method: str
+    procedure: str
+    procedure_title: str
+    references: tuple[str, ...]
+    instrument_file: Path = DEFAULT_INSTRUMENT_FILE
 
 
 def or_not_recorded(v: object) -> str:
@@ -131,7 +149,7 @@ def _budget_tables(parts: Sequence[Certified]) -> list[TableText]:
 
 def _remarks(parts: Sequence[Certified], rows: Sequence[Any], own: Iterable[str]) -> list[str]:
     out = [*own, "The expanded uncertainty U = k u_c has a coverage probability of about 95 %. " + COVERAGE_RULE + "."]
-    few = [n + p.suffix for p in parts for n in p.budget.few_dof()]
+    few = [p.prefix + n + p.suffix for p in parts for n in p.budget.few_dof()]
     if few:
         out.append(f"Few degrees of freedom: {', '.join(few)} rest on fewer than {MIN_RELIABLE_DOF} effective "
                    "degrees of freedom; their U uses the larger t factor and a design with more points is "
@@ -144,11 +162,8 @@ def _remarks(parts: Sequence[Certified], rows: Sequence[Any], own: Iterable[str]
 def session_certificate(
     session: Session,
     parts: Sequence[Certified],
+    card: MethodCard,
     *,
-    title: str,
-    method: str,
-    procedure: str,
-    references: Iterable[str],
     spec: InstrumentSpec | None = None,
     figures: Sequence[tuple[str, Callable[[], Any]]] = (),
     remarks: Iterable[str] = (),
@@ -156,9 +171,10 @@ def session_certificate(
     identification: Sequence[tuple[str, str]] = (),
     extra_tables: Sequence[TableText] = (),
 ) -> Certificate:
-    """The certificate of `session` for the budgets `parts`; `procedure`: its name and title, `references`: the
-    keys of config/instruments/references.toml its budgets use, `identification`: rows beside the common ones."""
-    spec = spec or load_instrument_spec()
+    """The certificate of `session` for the budgets `parts` of the method `card` (its limits from `spec`, else from
+    the card's instrument file); `identification`: rows beside the common ones."""
+    spec = spec or load_instrument_spec(card.instrument_file)
+    procedure = f"{session.meta.get('procedure') or card.procedure} {card.procedure_title}"
     prov = provenance_of(session)
     uid = or_not_recorded(session.meta.get("store_uid"))
     simulated = is_simulated(session)
@@ -170,25 +186,25 @@ def session_certificate(
         ("serial number", or_not_recorded(serial)),
         ("specification (instrument file)", f"{spec.specification} ({Path(spec.path).name})"),
         ("calibration session", uid),
-        ("method", method),
+        ("method", card.method),
         ("procedure and version", f"{procedure}; software {or_not_recorded(prov.get('software_version'))}"),
         ("operator", or_not_recorded(prov.get("operator"))),
         ("host", or_not_recorded(prov.get("host"))),
         ("simulated", "yes: digital twin, seed " + or_not_recorded(prov.get("seed")) if simulated else "no"),
         *identification,
     ]
-    rows = [r for p in parts for r in result_rows(p.budget.coefficients_json(), spec, suffix=p.suffix,
-                                                   limit_names=p.limit_names)]  # fmt: skip
+    rows = [r for p in parts for r in result_rows(p.budget.coefficients_json(), spec, prefix=p.prefix,
+                                                   suffix=p.suffix, limit_names=p.limit_names)]  # fmt: skip
     return Certificate(
         certificate_id=f"CERT-{uid}",
-        title=title,
+        title=card.title,
         laboratory=load_laboratory(),
         identification=ident,
         dates=_dates(session),
         environment=environment if environment is not None else environment_conditions(session),
         results=rows,
         decision_rule=f"{spec.decision_rule_name}: {spec.decision_rule}",
-        traceability=traceability(references),
+        traceability=traceability(card.references),
         budgets=_budget_tables(parts),
         figures=figures,
         remarks=_remarks(parts, rows, remarks),

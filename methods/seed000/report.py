@@ -11,12 +11,13 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
+from dataclasses import replace
 
 import matplotlib.pyplot as plt
 import numpy as np
 
 from methods.common.certificate import Certificate, InstrumentSpec, budget_rows
-from methods.common.session_certificate import Certified, session_certificate
+from methods.common.session_certificate import Certified, MethodCard, session_certificate
 from methods.common.uncertainty import MIN_RELIABLE_DOF, coverage_factor
 from methods.seed000.budget import SEED000_REFERENCES
 from methods.seed000.identify import Identification
@@ -98,6 +99,13 @@ def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float
     return "<table>" + "".join(rows) + "</table>" + "".join(notes)
 
 
+CARD = MethodCard(
+    title="Calibration certificate: PIGA nonlinear error coefficients",
+    method="integral precession on the linear vibration table (seed 000 eqs. 19-22, exact window means)",
+    procedure="seed000.integral_precession",
+    procedure_title="",
+    references=SEED000_REFERENCES,
+)
 RESIDUAL_CAPTION = "Residuals of Y (eq. 21), each identification on its own axis, and proportional residuals (eq. 29)"
 
 
@@ -203,7 +211,6 @@ def certificate(
     r = results[primary]
     if r.budget is None:
         raise ValueError(f"identification {primary!r} has no uncertainty budget: a certificate needs one")
-    proc = session.meta.get("procedure") or "seed000.integral_precession"
     reliability = (
         f"Reliability (seed 000 eq. 28 on the residuals of Y): μ = {_fmt(r.mu_eq28, '.2f')} against μc = "
         f"{_fmt(r.mu_c_eq28, '.2f')}: {'no outlier' if r.reliable else 'POSSIBLE OUTLIER: results to be reviewed'}. "
@@ -213,12 +220,9 @@ def certificate(
     return session_certificate(
         session,
         [Certified(r.budget)],
-        title="Calibration certificate: PIGA nonlinear error coefficients",
-        method=f"integral precession on the linear vibration table (seed 000 eqs. 19-22, exact window means); "
-        f"{r.method} identification, weighted joint least squares ({r.weighting})",
-        procedure=f"{proc} {procedure_title}",
-        references=SEED000_REFERENCES,
+        replace(CARD, procedure_title=procedure_title),
         spec=spec,
         figures=[(RESIDUAL_CAPTION, lambda: residual_figure({primary: r}))],
         remarks=[reliability],
+        identification=[("identification", f"{r.method}, weighted joint least squares ({r.weighting})")],
     )

@@ -77,8 +77,9 @@ EQ6 = np.array(
     ]
 )
 ERROR_NAMES = ("k0", "k2", "k3", "delta_o", "delta_ip")  # eq. 6, last line: K0, K2, K3, Mo, Mip over K1
-CF_UNITS = {"K0": "V", "K1": "V/g", "K2": "V/g^2", "K3": "V/g^3", "Mo": "V/g", "Mip": "V/g"}
-ERROR_UNITS = {"k0": "g", "k2": "g/g^2", "k3": "g/g^3", "delta_o": "rad", "delta_ip": "rad"}
+# Mip multiplies aI aP (eq. 1): V/g^2, and delta_ip = Mip / K1 is per g
+CF_UNITS = {"K0": "V", "K1": "V/g", "K2": "V/g^2", "K3": "V/g^3", "Mo": "V/g", "Mip": "V/g^2"}
+ERROR_UNITS = {"k0": "g", "k2": "g/g^2", "k3": "g/g^3", "delta_o": "rad", "delta_ip": "g/g^2"}
 SEED001_TYPE_B = (
     "Type B propagated by refit (methods.seed001.budget): the index head's angle error at each head angle, the "
     "voltmeter's gain and offset; local g is the unit of the inputs and the temperature reading does not enter "
@@ -211,6 +212,7 @@ class EightPoint:
     mu: float
     mu_c: float
     Y_sigma_v: np.ndarray
+    residuals_v: np.ndarray  # of the stroke fit, reading by reading (y - Y_J + K1 h b - d t)
     budget: Budget | None = None  # GUM budget of K0 .. Mip (methods.seed001.budget)
 
     def error_budget(self) -> Budget | None:
@@ -309,6 +311,7 @@ def eight_point(block: Readings) -> EightPoint:
         mu,
         mu_c,
         np.sqrt(np.diag(cov_Y)),
+        fit.residuals,
         budget,
     )
 

@@ -23,7 +23,9 @@ from devices.voltmeter.protocol import MAX_SAMPLES, NPLC_LIMITS, OVERRANGE, RANG
 from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MoveIndex, Note, Step
+from methods.common.session_certificate import certificate_files, result_provenance
 from methods.seed001.analysis import READING, SOAK, STEP_DEG, analyse_tumble, position_deg, stroke_sequence
+from methods.seed001.certificate import certificate
 from methods.seed001.report import render_tumble_report, summary
 from models.chamber_thermal import time_to_band_s
 from station.session import Measurement, Session
@@ -254,13 +256,16 @@ PARAMS = (
 
 
 def analyse(session: Session) -> Analysis:
-    """Eq. 6 at each temperature, eq. 4's temperature laws and hysteresis across them, and the report."""
+    """Eq. 6 at each temperature, eq. 4's temperature laws and hysteresis across them, the report and the
+    certificate."""
     reference_c = float(session.meta.get("params", {}).get("reference_c", 20.0))
     r, points, model = analyse_tumble(session, reference_c)
     uid = session.meta.get("store_uid", "")
     html = render_tumble_report(session, r, points, model, title=f"Session {uid}: eight-point tumble (seed 001)")
-    results = {"eight_point": {"temperatures": [p.to_json() for p in points]}, "temperature_model": model.to_json()}
-    return Analysis(results, html, summary(points, model))
+    results = {"eight_point": {"temperatures": [p.to_json() for p in points], "provenance": result_provenance(session)},
+               "temperature_model": model.to_json()}  # fmt: skip
+    files = certificate_files(certificate(session, r, points, model), uid)
+    return Analysis(results, html, summary(points, model), files)
 
 
 @procedure(

@@ -108,7 +108,11 @@ LAW_ROWS = (
 )
 
 
-def _temperature_table(model: TemperatureModel) -> str:
+TEMPERATURE_HEADER = ("coefficient (eq. 4)", "unit", "estimate ± σ", "seed 001 (AL-15)")
+
+
+def temperature_rows(model: TemperatureModel) -> list[list[str]]:
+    """Eq. 4's laws and the hysteresis: label, unit, estimate ± sigma (or why there is none), the seed's figure."""
     rows = []
     for text, unit, scale, law, term, seed in LAW_ROWS:
         pair = getattr(getattr(model, law), term)
@@ -117,7 +121,7 @@ def _temperature_table(model: TemperatureModel) -> str:
         rows.append([text, unit, estimate, quoted])
     rows.append(["h_T (hysteresis, all temperatures)", "mg", pm(*model.hysteresis_g, 1e3),
                  f"±{SEED.hysteresis_g * 1e3:g}"])  # fmt: skip
-    return table(["coefficient (eq. 4)", "unit", "estimate ± σ", "seed 001 (AL-15)"], rows)
+    return rows
 
 
 def _law_curve(law: TwoSlope, dT: np.ndarray, relative: bool = False) -> np.ndarray:
@@ -188,7 +192,7 @@ def render_tumble_report(
         "<h2>Error model at each temperature (eq. 6, last line; hysteresis and drift of eqs. 3-4)</h2>",
         _error_table(points),
         "<h2>Temperature laws (eq. 4)</h2>",
-        _temperature_table(model),
+        table(TEMPERATURE_HEADER, temperature_rows(model)),
         _temperature_plots(points, model),
         "<h2>Conversion function coefficients (eq. 1 by eq. 6)</h2>",
         _cf_table(points),

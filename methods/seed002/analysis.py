@@ -89,6 +89,12 @@ class Observation:
     duration_s: float
 
 
+def observation_values(obs: Observation) -> dict:
+    """What a run stores of its observation (the stored values that the budget and the report read)."""
+    return {"A": obs.A.tolist(), "B": obs.B.tolist(), "c_bn_t0": obs.c_bn_t0.tolist(), "c_bn_tk": obs.c_bn_tk.tolist(),
+            "mean_products": obs.mean_products.tolist(), "vibration_s": obs.duration_s}  # fmt: skip
+
+
 def static_means(dtheta: np.ndarray, dv: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Mean rate and specific force of a static stretch of increments."""
     span = dtheta.shape[0] * dt_s

@@ -29,7 +29,7 @@ from devices.shaker.envelope import check_ramp, check_random, check_sine
 from engine.params import Param
 from engine.registry import procedure
 from engine.steps import Checkpoint, Note, OperatorAction, Step
-from methods.seed002.analysis import RunRecord, least_squares_tau, navigate, observe_run
+from methods.seed002.analysis import RunRecord, least_squares_tau, navigate, observation_values, observe_run
 from methods.seed002.report import analyse_session
 from models.fixture_poses import CALIBRATION_POSES, POSES
 from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site
@@ -195,10 +195,8 @@ class VibrationRun(Step):
         values = self._values(self.pose, rate_hz, float(t_s[-1] - t_s[0] + dt))
         mid = (run.i0 + run.ik) // 2
         snip = slice(mid, mid + max(round(SNIPPET_S / dt), 2))
-        values |= {"A": obs.A.tolist(), "B": obs.B.tolist(), "c_bn_t0": obs.c_bn_t0.tolist(),
-                   "c_bn_tk": obs.c_bn_tk.tolist(), "mean_products": obs.mean_products.tolist(),
-                   "vibration_s": obs.duration_s, "snippet_rate_radps": (dtheta[snip] / dt).tolist(),
-                   "snippet_force_mps2": (dv[snip] / dt).tolist()}  # fmt: skip
+        values |= observation_values(obs) | {"snippet_rate_radps": (dtheta[snip] / dt).tolist(),
+                                             "snippet_force_mps2": (dv[snip] / dt).tolist()}  # fmt: skip
         if self.tau_hat:
             nav = navigate(run, site, np.array(self.tau_hat), round(VELOCITY_BLOCK_S * rate_hz))
             values |= {"t_s": nav.t_s.tolist(), "v_uncompensated_mps": nav.v_uncompensated_mps.tolist(),

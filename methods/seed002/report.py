@@ -18,9 +18,11 @@ from scipy.stats import chi2
 from engine.registry import Analysis
 from methods.common.certificate import budget_rows
 from methods.common.least_squares import FitError
+from methods.common.session_certificate import certificate_files, result_provenance
 from methods.common.uncertainty import merged_json
 from methods.seed002.analysis import FlexureFit, estimate_flexure, run_weights
 from methods.seed002.budget import SEED002_TYPE_B, flexure_budget
+from methods.seed002.certificate import VERIFY_HEADER, certificate, verification_rows
 from models.fixture_poses import POSES
 from models.strapdown_imu import ARCSEC_PER_G, ARCSEC_RAD, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site
 from station.htmlkit import document, mapping_table, svg, table
@@ -29,8 +31,6 @@ from station.session import Measurement, Session
 KIND = "seed002_run"
 RUNS_HEADER = ("run", "pose (Fig. 3)", "vibration along", "for", "vibration s", "max |<ω f>| (rad/s·m/s²)",
                "φ east, north (arcsec)", "residual (arcsec)")  # fmt: skip
-VERIFY_HEADER = ("run", "vibration", "pose", "|δv| end, uncompensated (m/s)", "|δv| end, compensated (m/s)",
-                 "from σ(τ) alone (m/s)", "decrease %")  # fmt: skip
 
 
 def runs_of(session: Session, role: str) -> list[Measurement]:
@@ -124,7 +124,7 @@ def _velocity_figure(runs: list[Measurement]) -> str:
 
 
 def analyse_session(session: Session) -> Analysis:
-    """The flexure coefficients (eq. 21) and the verification runs, with the session's report."""
+    """The flexure coefficients (eq. 21) and the verification runs, with the session's report and certificate."""
     fit = fit_session(session)
     calibration, verification = runs_of(session, "calibration"), runs_of(session, "verification")
     names = list(TAU_NAMES)
@@ -146,7 +146,7 @@ def analyse_session(session: Session) -> Analysis:
                  zip(names, fit.values / ARCSEC_PER_G, fit.sigmas / ARCSEC_PER_G, strict=True)}  # fmt: skip
     flexure["gum"] = {"coefficients": gum_coefs, **merged_json(gum_coefs, budget, SEED002_TYPE_B)}
     checks = _verification(verification, fit)
-    results = {"flexure": flexure, "verification": {"runs": checks}}
+    results = {"flexure": flexure | {"provenance": result_provenance(session)}, "verification": {"runs": checks}}
     uid = session.meta.get("store_uid", "")
     low, high = np.sqrt(fit.dof / chi2.ppf([0.95, 0.05], fit.dof))  # the true sigma over the estimate, 90 %
     fit_facts = {
@@ -167,12 +167,9 @@ def analyse_session(session: Session) -> Analysis:
         _snippet_figure(calibration[0]),
     ]
     if verification:
-        rows = [(c["key"], c["mode"], c["pose"], f"{c['v_end_uncompensated_mps']:.4f}",
-                 f"{c['v_end_compensated_mps']:.4f}", f"{c['predicted_sigma_mps']:.4f}", f"{c['decrease_pct']:.1f}")
-                for c in checks]  # fmt: skip
         parts += [
             "<h2>Verification: velocity error after compensation (Figs. 6-7, Table 2)</h2>",
-            table(VERIFY_HEADER, rows),
+            table(VERIFY_HEADER, verification_rows(checks)),
             _velocity_figure(verification),
         ]
     html = document(f"Session {uid}: g-sensitive misalignment calibration (seed 002)", parts)
@@ -186,4 +183,5 @@ def analyse_session(session: Session) -> Analysis:
         f"(-{c['decrease_pct']:.1f} %)"
         for c in checks
     ]
-    return Analysis(results, html, "\n".join(lines))
+    files = certificate_files(certificate(session, fit, budget, calibration, checks), uid)
+    return Analysis(results, html, "\n".join(lines), files)

@@ -29,9 +29,11 @@ from devices.errors import DriverError
 from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MeasurePoint, Note, OperatorAction, Recorded, Step
+from methods.common.session_certificate import certificate_files, result_provenance
 from methods.seed000.alignment import Alignment
 from methods.seed003 import gravity_field as gf
 from methods.seed003.alignment import ALIGNMENT_ANGLES_DEG, horizontal_axis_alignment
+from methods.seed003.certificate import certificate
 from methods.seed003.report import design_report, gravity_field_report
 from methods.seed003.sequences import SCHEMES, on_head_grid_deg, sequence_deg
 from methods.seed003.static_model import MODELS
@@ -279,7 +281,8 @@ def _calibration_sequences(p: dict, zero_deg: float):
 
 
 def analyse_gravity_field(session: Session) -> Analysis:
-    """Harmonics by the 4-pose method, then A's coefficients without and with them; the report."""
+    """Harmonics by the 4-pose method, then A's coefficients without and with them; the report and the
+    certificate."""
     p = session.meta.get("params", {})
     res = gf.analyse_gravity_field(session, MODELS[p.get("model", "seed003")], int(p.get("harmonics", 3)))
     uid = session.meta.get("store_uid", "")
@@ -296,7 +299,12 @@ def analyse_gravity_field(session: Session) -> Analysis:
                 coefs = ", ".join(f"{n} = {v:.6e} ± {s:.1e}" for n, v, s in zip(fit.names, fit.values, fit.sigmas,
                                                                                   strict=True))  # fmt: skip
                 lines.append(f"{cal.scheme} {name}: {coefs}; sigma = {fit.sigma_residual:.2e} rad/s")
-    return Analysis({"gravity_field": res.to_json()}, html, "\n".join(lines))
+    cert = certificate(session, res)
+    if cert is None:
+        lines.append("no certificate: the session has no calibration sequence of A")
+    files = {} if cert is None else certificate_files(cert, uid)
+    results = {"gravity_field": res.to_json() | {"provenance": result_provenance(session)}}
+    return Analysis(results, html, "\n".join(lines), files)
 
 
 @procedure(

@@ -326,9 +326,10 @@ SEED_FIGURES = {
 }
 
 
-def _sweep_plot(s: Suppression) -> str:
+def sweep_figure(s: Suppression):
+    """K2 of every calibration against the digital offset, the spline and its minimum (seed 004 Fig. 10)."""
     fit = s.sweep
-    fig, ax = plt.subplots(figsize=(9, 4.2))
+    fig, ax = plt.subplots(figsize=(7.5, 3.8))
     grid = np.linspace(fit.offsets_arcsec[0], fit.offsets_arcsec[-1], 2001)
     ax.errorbar(fit.offsets_arcsec, fit.k2_per_g, yerr=fit.sigma_k2_per_g, fmt="o", ms=4, label="calibrated K2")
     ax.plot(grid, fit.spline()(grid), lw=1, label="cubic spline")
@@ -360,8 +361,9 @@ def _sweep_plot(s: Suppression) -> str:
         title="Quadratic term against the angle servo's digital offset (seed 004 Fig. 10)",
     )
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
-    return svg(fig)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig
 
 
 def report_html(s: Suppression, title: str) -> str:
@@ -386,7 +388,7 @@ def report_html(s: Suppression, title: str) -> str:
     fit = s.sweep
     parts = [
         "<h2>Offset sweep (seed 004 section 5.1)</h2>",
-        _sweep_plot(s),
+        svg(sweep_figure(s)),
         mapping_table(
             {
                 "best offset, spline + line search (arcsec)": (

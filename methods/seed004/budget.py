@@ -12,7 +12,7 @@ x +- u. Both calibrations see the same station, so their shared Type B rows stay
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -24,15 +24,24 @@ from methods.seed000.identify import identify
 from methods.seed004.analysis import Calibration, Suppression, correction, correction_parameters
 from station.session import PointRecord, Session, StationInfo
 
+Output = Callable[[float, float], tuple[str, str, float, float, float]]  # (kz, kzz) -> name, unit, y, dy/dkz, dy/dkzz
 
-def _pooled_budget(
+
+def k2_output(name: str) -> Output:
+    """K2 = kzz / kz, in 1/g0."""
+    return lambda kz, kzz: (name, "1/g0", kzz / kz, -kzz / kz**2, 1.0 / kz)
+
+
+def _chained(
     station: StationInfo,
     points: Sequence[PointRecord],
     cal: Calibration,
     refs: Mapping[str, Reference],
     timer_rows: bool,
-) -> tuple[Budget, float, float, int, int]:
-    """Seed 000's budget of one calibration, its fit at the pooled rate noise; kz, kzz and their places."""
+    outputs: Sequence[Output],
+) -> Budget:
+    """Seed 000's budget of one calibration, its fit at the pooled rate noise, carried by the chain rule to each
+    output y(kz, kzz) (GUM 5.1.2)."""
     session = Session(station, list(points))
     result = identify(session)
     full = seed000_budget(session, result, {}, refs, timer_rows=timer_rows)
@@ -40,56 +49,41 @@ def _pooled_budget(
     dof = cal.noise_dof or cal.dof
     full = with_fit(full, unit_cov * cal.noise_radps**2, dof, f"rate noise pooled over {dof} dof (seed 000 eq. 21)")
     i, j = result.names.index("kz"), result.names.index("kzz")
-    return full, float(result.values[i]), float(result.values[j]), i, j
-
-
-def calibration_budget(
-    station: StationInfo,
-    points: Sequence[PointRecord],
-    cal: Calibration,
-    name: str,
-    references: Mapping[str, Reference] | None = None,
-    *,
-    timer_rows: bool = True,
-) -> Budget:
-    """The budget of K2 = kzz / kz of one calibration (named `name`), its fit at the pooled rate noise."""
-    refs = references if references is not None else default_references()
-    full, kz, kzz, i, j = _pooled_budget(station, points, cal, refs, timer_rows)
-    jac = np.zeros((1, len(full.names)))
-    jac[0, i], jac[0, j] = -kzz / kz**2, 1.0 / kz
-    return transformed(full, (name,), np.array([kzz / kz]), jac, {name: "1/g0"})
+    rows = [out(float(result.values[i]), float(result.values[j])) for out in outputs]
+    jac = np.zeros((len(rows), len(full.names)))
+    for r, (_, _, _, d_kz, d_kzz) in enumerate(rows):
+        jac[r, i], jac[r, j] = d_kz, d_kzz
+    return transformed(full, tuple(r[0] for r in rows), np.array([r[2] for r in rows]), jac,
+                       {r[0]: r[1] for r in rows})  # fmt: skip
 
 
 def correction_budget(
     station: StationInfo,
     points: Sequence[PointRecord],
     cal: Calibration,
-    angular_momentum_kgm2ps: float,
-    radius_mm: float,
-    angle_deg: float,
-    references: Mapping[str, Reference] | None = None,
-    *,
-    timer_rows: bool = True,
+    correction_inputs: tuple[float, float, float],
+    refs: Mapping[str, Reference],
+    timer_rows: bool,
 ) -> Budget:
-    """The budget of (K2_at_best, removed_mass) from the calibration at the best offset (eqs. 21-22)."""
-    refs = references if references is not None else default_references()
-    full, kz, kzz, i, j = _pooled_budget(station, points, cal, refs, timer_rows)
+    """The budget of (K2_at_best, removed_mass) from the calibration at the best offset (eqs. 21-22); the
+    correction's inputs H, b and theta as given."""
+    angular_momentum_kgm2ps, radius_mm, angle_deg = correction_inputs
     mass = correction(cal, angular_momentum_kgm2ps, radius_mm, angle_deg).mass_mg
-    jac = np.zeros((2, len(full.names)))
-    jac[0, i], jac[0, j] = -kzz / kz**2, 1.0 / kz  # K2 = kzz / kz
-    jac[1, i], jac[1, j] = -2.0 * mass / kz, mass / kzz  # m = kzz H / kz^2 / (2 b^2 sin 2 theta), eqs. 21-22
-    both = transformed(full, ("K2_at_best", "removed_mass"), np.array([kzz / kz, mass]), jac,
-                       {"K2_at_best": "1/g0", "removed_mass": "mg"})  # fmt: skip
+
+    def mass_output(kz: float, kzz: float) -> tuple[str, str, float, float, float]:
+        """m = kzz H / kz^2 / (2 b^2 sin 2 theta) (eqs. 21-22)."""
+        return "removed_mass", "mg", mass, -2.0 * mass / kz, mass / kzz
+
+    both = _chained(station, points, cal, refs, timer_rows, [k2_output("K2_at_best"), mass_output])
     inputs = []
-    for key, name, label, unit in (
-        ("H", "angular_momentum_kgm2ps", "angular momentum H of the gyro (eq. 21)", "kg m^2/s"),
-        ("b", "end_radius_mm", "radius b of the removal points (eq. 22)", "mm"),
-        ("theta", "removal_angle_deg", "angle theta of the removal points (eq. 22)", "deg"),
+    for key, name, label, value in (
+        ("H", "angular_momentum_kgm2ps", "angular momentum H of the gyro (eq. 21)", angular_momentum_kgm2ps),
+        ("b", "end_radius_mm", "radius b of the removal points (eq. 22)", radius_mm),
+        ("theta", "removal_angle_deg", "angle theta of the removal points (eq. 22)", angle_deg),
     ):
         r = refs[name]
-        value = {"H": angular_momentum_kgm2ps, "b": radius_mm, "theta": angle_deg}[key]
         note = r.distribution + ("; d m / d theta = 0 at 45 deg (second order only)" if key == "theta" else "")
-        inputs.append(reference_input(key, label, value, r, unit=unit, note=note))
+        inputs.append(reference_input(key, label, value, r, note=note))
 
     def refit(x: Mapping[str, float]) -> np.ndarray:
         """K2 and the mass with eqs. 21-22 re-run at H, b, theta = x."""
@@ -108,21 +102,27 @@ def suppression_budget(
     timer_rows: bool = True,
 ) -> Budget | None:
     """The session's budget of K2_at_best, removed_mass and K2_after_removal (those the session has)."""
+    refs = references if references is not None else default_references()
     parts = []
     if at_best is not None:
-        parts.append(correction_budget(station, *at_best, *correction_inputs, references, timer_rows=timer_rows))
+        parts.append(correction_budget(station, *at_best, correction_inputs, refs, timer_rows))
     if after is not None:
-        parts.append(calibration_budget(station, *after, "K2_after_removal", references, timer_rows=timer_rows))
+        parts.append(_chained(station, *after, refs, timer_rows, [k2_output("K2_after_removal")]))
     if not parts:
         return None
     return parts[0] if len(parts) == 1 else stacked(parts[0], parts[1])
+
+
+def calibration_points(session: Session, cal: Calibration) -> list[PointRecord]:
+    """The points of one calibration: those of its group prefix."""
+    return [p for p in session.points if p.point_id.startswith(cal.prefix + "-")]
 
 
 def with_budget(session: Session, s: Suppression) -> Suppression:
     """The suppression with its Type B budget: each calibration by the points of its own prefix."""
 
     def with_points(cal: Calibration | None) -> tuple[list[PointRecord], Calibration] | None:
-        return None if cal is None else ([p for p in session.points if p.point_id.startswith(cal.prefix + "-")], cal)
+        return None if cal is None else (calibration_points(session, cal), cal)
 
     budget = suppression_budget(session.station, with_points(s.at_best), with_points(s.after),
                                 correction_parameters(session))  # fmt: skip

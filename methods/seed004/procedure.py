@@ -26,8 +26,10 @@ import numpy as np
 from engine.params import Param
 from engine.registry import Analysis, procedure
 from engine.steps import Checkpoint, MeasurePoint, Note, OperatorAction, Step
+from methods.common.session_certificate import certificate_files, result_provenance
 from methods.seed004 import analysis
 from methods.seed004.budget import with_budget
+from methods.seed004.certificate import certificate
 from models.nonlinear_error import ANGULAR_MOMENTUM_KGM2PS, END_RADIUS_M, MASS_REMOVAL
 from models.plan import multiposition_plan, point_id
 from station.records import Field, declare
@@ -257,7 +259,7 @@ def calibration(prefix: str, p: dict, window_s: float):
 
 
 def analyse_suppression(session: Session) -> Analysis:
-    """The sweep, the correction and the verification from the stored session, and its report."""
+    """The sweep, the correction and the verification from the stored session, its report and certificate."""
     s = with_budget(session, analysis.suppression(session))
     uid = session.meta.get("store_uid", "")
     title = f"Session {uid}: suppression of the quadratic term (seed 004)"
@@ -271,7 +273,11 @@ def analyse_suppression(session: Session) -> Analysis:
             "calibrations": [c.to_json() for c in s.calibrations],
         }
     }
-    return Analysis(results, analysis.report_html(s, title), analysis.summary(s))
+    results["suppression"]["provenance"] = result_provenance(session)
+    cert = certificate(session, s)
+    summary = analysis.summary(s) + ("" if cert else "\nno certificate: no calibration at the best offset or after")
+    files = {} if cert is None else certificate_files(cert, uid)
+    return Analysis(results, analysis.report_html(s, title), summary, files)
 
 
 @procedure(

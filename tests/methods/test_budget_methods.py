@@ -154,17 +154,14 @@ def imu_runs():
 
 def _observe(runs, site, accel: np.ndarray | None = None, bias_radps: np.ndarray | None = None):
     """Each run reduced (eqs. 17-22) with its accelerometers scaled by 1 + accel and a gyro bias added."""
-    from methods.seed002.analysis import RunRecord, observe_run
+    from methods.seed002.analysis import RunRecord, observation_values, observe_run
 
     accel = np.zeros(3) if accel is None else accel
     bias = np.zeros(3) if bias_radps is None else bias_radps
     out = []
     for _, r in runs:
         record = RunRecord.from_times(r.dtheta + bias * r.dt_s, r.dv * (1 + accel), r.dt_s, 0.0, r.t0_s, r.tk_s)
-        obs = observe_run(record, site)
-        out.append({"A": obs.A, "B": obs.B, "c_bn_t0": obs.c_bn_t0, "c_bn_tk": obs.c_bn_tk,
-                    "vibration_s": obs.duration_s, "align_s": record.i0 * record.dt_s,
-                    "mean_products": obs.mean_products})  # fmt: skip
+        out.append(observation_values(observe_run(record, site)) | {"align_s": record.i0 * record.dt_s})
     return out
 
 

