@@ -11,6 +11,7 @@ import pytest
 import models.measurement
 import models.session_sim
 from app.cli import main
+from gap import candidates as cl
 from gap.design import PointDesign
 from gap.forward import CALIBRATED, predict_full
 from gap.validate import (
@@ -20,6 +21,7 @@ from gap.validate import (
     out_of_library,
     scaled_injection,
     step_sequence,
+    within_bounds,
 )
 from models.config import NoiseModel
 from models.plan import seed000_plan
@@ -35,6 +37,27 @@ def design(seed000_session):
 def test_an_injection_has_the_snr_asked_for(design, twin, effect):
     params = scaled_injection(design, twin, effect, 10.0)
     assert effect_snr(design, twin, effect, params) == pytest.approx(10.0, rel=0.02)
+
+
+def test_an_injection_never_goes_beyond_the_plausible_bounds(design, twin):
+    """seed000 needs a waveform error of about 0.8 mm for SNR 10 (a constant amplitude error is what kz..k3
+    absorb); capped at the candidate's bounds (z0, z1 and |Zs1(w)| at every design frequency), the SNR reached
+    falls by the same factor (the signature is nearly linear in z0, z1: a 5 % tolerance)."""
+    asked = scaled_injection(design, twin, "waveform_fundamental", 10.0)
+    capped = within_bounds(design, "waveform_fundamental", asked)
+    w = 2 * np.pi * np.unique(design.freq_hz[design.vib])
+    share = {
+        fp.param: abs(capped[fp.param]) / fp.bound
+        for fp in cl.LIBRARY["waveform_fundamental"].free
+        if fp.param in capped
+    }
+    share["Zs1"] = float(np.max(np.abs(capped["z0"] + capped["z1"] * w))) / cl.ZS1_BOUND_M
+    assert max(share.values()) == pytest.approx(1.0, rel=1e-9), share  # the tightest bound is reached, none passed
+    factor = capped["z0"] / asked["z0"]
+    assert factor < 0.5
+    assert effect_snr(design, twin, "waveform_fundamental", capped) == pytest.approx(10.0 * factor, rel=0.05)
+    small = scaled_injection(design, twin, "cross_coupling", 10.0)  # kip of ~1e-6, far inside 1e-4
+    assert within_bounds(design, "cross_coupling", small) == small
 
 
 def test_an_out_of_library_term_reaches_the_simulated_rate_only_inside_its_context(twin):
