@@ -181,7 +181,9 @@ def _candidate_table(
                 entry["profiled_parameters"] = {
                     **s.profiled,
                     "method": "set by profile: a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50), then a fine one "
-                    "around its best point: the point whose kx column removes the most chi^2 (lateral_profile)",
+                    "around its best point: the point whose kx column removes the most chi^2 (lateral_profile); "
+                    "where the pulse record rejects it, the point of the rates' region (chi^2 within the 2-dof "
+                    "test at ALPHA of the best) whose fit the pulse test accepts best (lateral_pulse_profile)",
                 }
             G, entry["heldout_shrink"] = shrinks.get(name, (math.nan, None))
             entry["evidence"] = {

@@ -151,15 +151,13 @@ def _gain2(f_hz: np.ndarray, fr_hz: float, q: float) -> np.ndarray:
     return 1.0 / ((1.0 - r * r) ** 2 + (r / q) ** 2)
 
 
-def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] | None:
-    """fr and Q of a lateral resonance by profile: kx aO^2 has window mean kx L(f)^2 a^2 <sin^2>, so its
-    column at (fr, Q) is the linearisation's kx column with each vibration row scaled by L(f)^2 / L(f; twin)^2.
-    The (fr, Q) whose column, off the current model, removes the most chi^2 with kx within its plausible
-    bound is returned (None without one): first on the coarse grid, then on a fine one around its best
-    point (a sharp resonance falls between coarse points)."""
+def _lateral_gains(
+    lin: Linearisation, current: ModelFit, frs, qs, bounded: bool = True
+) -> list[tuple[float, float, float]]:
+    """(chi^2 removed, fr, Q) of the kx column at every (fr, Q) of the grid, off the current model: kx aO^2 has
+    window mean kx L(f)^2 a^2 <sin^2>, so its column at (fr, Q) is the linearisation's kx column with each
+    vibration row scaled by L(f)^2 / L(f; twin)^2. bounded: only where kx stays within its plausible bound."""
     key = "lateral_resonance.kx"
-    if key not in lin.columns:
-        return None
     d, ch = lin.ch.design, lin.ch
     fr0, q0 = lin.base_cfg.param("lateral_resonance", "fr"), lin.base_cfg.param("lateral_resonance", "Q")
     f = np.concatenate([d.freq_hz, np.zeros(ch.n_other)])
@@ -168,33 +166,74 @@ def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] |
     J = current.J[:, np.linalg.norm(current.J, axis=0) > 0]
     Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
     r = current.r_white
+    out = []
+    for fr in frs:
+        for q in qs:
+            c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
+            c = c - Q @ (Q.T @ c)
+            cc = float(c @ c)
+            if cc <= 0 or (bounded and abs(float(c @ r) / cc) > bound):  # kx beyond its plausible bound
+                continue
+            out.append((float(c @ r) ** 2 / cc, float(fr), float(q)))
+    return out
 
-    def best_of(frs, qs, bounded: bool) -> tuple[dict[str, float] | None, float]:
-        best, best_gain = None, 0.0
-        for fr in frs:
-            for q in qs:
-                c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
-                c = c - Q @ (Q.T @ c)
-                cc = float(c @ c)
-                if cc <= 0 or (bounded and abs(float(c @ r) / cc) > bound):  # kx beyond its plausible bound
-                    continue
-                gain = float(c @ r) ** 2 / cc
-                if gain > best_gain:
-                    best, best_gain = {"fr": float(fr), "Q": float(q)}, gain
-        return best, best_gain
+
+def lateral_profile(lin: Linearisation, current: ModelFit) -> dict[str, float] | None:
+    """fr and Q of a lateral resonance by profile (_lateral_gains): the (fr, Q) whose column removes the most
+    chi^2 with kx within its plausible bound (None without one): first on the coarse grid, then on a fine one
+    around its best point (a sharp resonance falls between coarse points)."""
+    if "lateral_resonance.kx" not in lin.columns:
+        return None
+
+    def best_of(frs, qs, bounded: bool) -> dict[str, float] | None:
+        gains = _lateral_gains(lin, current, frs, qs, bounded)
+        if not gains:
+            return None
+        _, fr, q = max(gains)
+        return {"fr": fr, "Q": q}
 
     step = LATERAL_FR_HZ[1] / LATERAL_FR_HZ[0]
     q_fine = np.geomspace(LATERAL_Q[0], LATERAL_Q[-1], 31)
     # The region from the coarse grid whatever kx (a sharp peak may need the fine grid to come within
     # bounds), then the fine grid within bounds; failing that, the coarse grid within bounds.
     for bounded in (False, True):
-        coarse, _ = best_of(LATERAL_FR_HZ, LATERAL_Q, bounded)
+        coarse = best_of(LATERAL_FR_HZ, LATERAL_Q, bounded)
         if coarse is None:
             continue
-        fine, _ = best_of(np.geomspace(coarse["fr"] / step, coarse["fr"] * step, 21), q_fine, True)
+        fine = best_of(np.geomspace(coarse["fr"] / step, coarse["fr"] * step, 21), q_fine, True)
         if fine is not None:
             return fine
     return None
+
+
+# The rates cannot tell apart the (fr, Q) whose chi^2 removed is within the 2-dof test at ALPHA of the best;
+# among them the pulse record chooses (their 2nd harmonic kx L(f)^2 a^2 / 2 per frequency measures L(f)).
+LATERAL_REGION_CHI2 = float(stats.chi2.isf(ALPHA, 2))
+LATERAL_PULSE_TRIES = 12
+LATERAL_REGION_GRID = (np.geomspace(0.5, 100.0, 81), np.geomspace(LATERAL_Q[0], LATERAL_Q[-1], 15))
+
+
+def lateral_pulse_profile(
+    lin: Linearisation,
+    current: ModelFit,
+    names: Sequence[str],
+    drop: frozenset[str],
+    over: Mapping[str, Mapping[str, float]],
+    level: float,
+) -> tuple[dict[str, float], ModelFit] | None:
+    """fr and Q chosen by the pulse record within the rates' region (LATERAL_REGION_CHI2): up to
+    LATERAL_PULSE_TRIES of its points, spread over it by rank, each fitted with `names`; the one whose
+    fit the pulse test accepts with the highest p-value (at least level), or None."""
+    gains = sorted(_lateral_gains(lin, current, *LATERAL_REGION_GRID), reverse=True)
+    region = [g for g in gains if g[0] > gains[0][0] - LATERAL_REGION_CHI2] if gains else []
+    best: tuple[float, dict[str, float], ModelFit] | None = None
+    for _, fr, q in region[:: max(1, math.ceil(len(region) / LATERAL_PULSE_TRIES))]:
+        o = {"fr": fr, "Q": q}
+        fit = fit_model(lin, names, drop=drop, fixed_override={**over, "lateral_resonance": o})
+        det = pulse_goodness_of_fit(lin.ch, fit) if fit.dof_rate > 0 else None
+        if det is not None and det.p_value >= level and (best is None or det.p_value > best[0]):
+            best = (det.p_value, o, fit)
+    return None if best is None else (best[1], best[2])
 
 
 def _step(
@@ -229,6 +268,16 @@ def _step(
     scored.sort(key=lambda s: s.bic)
     limit = ALPHA / max(len(scored), 1)
     ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
+    lateral = next((s for s in ok if s.name == "lateral_resonance" and s.name not in profiled), None)
+    if lateral is not None and _rejected_by_pulses(lin, lateral, pulse_level):
+        # The rates' fr, Q rejected by the pulses: the pulses choose within what the rates cannot tell apart.
+        over = {n: v for n, v in profiled.items() if n in chosen}
+        alt = lateral_pulse_profile(lin, current, [*chosen, lateral.name], drop, over, pulse_level)
+        if alt is not None:
+            sc = score(current, alt[1], lateral.name, n_rate, n_other, w_radps)
+            sc.profiled = alt[0]
+            scored = sorted([sc if s is lateral else s for s in scored], key=lambda s: s.bic)
+            ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
     if not ok:
         return scored, None
     # The pulse record rejecting all of them may show a second effect still missing (a pair): the rates' best.
