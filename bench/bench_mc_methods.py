@@ -16,18 +16,26 @@ headline coefficient the mean and spread of (k_hat - k) / u_c and the fraction o
   22-position equal-angle calibration, 2e-7 rad/s per window; drawn: the head's six angle-error harmonics, the
   head zero (the self-alignment's error, 8e-6 rad), the latitude. Headline: A's coefficients without
   (`uncompensated`) and with (`compensated_total`) the compensation.
+- 003-indep: the same budget without compensation on static rates from tests/indep's world (physics.md
+  implemented again, sharing no code with the twin): per session a random design (equal-angle or
+  equal-acceleration, 12-36 positions), an instrument of indep.generator.random_coefficients with a koq of
+  either sign (fitted with physics.md's static model, k3 included), white rate noise 5e-8 to 1e-6 rad/s, and
+  drawn as stated the head's harmonics k = 1..3, the head zero's error (8e-6 rad) and the latitude. Three
+  tallies: the budget as it was (eq. 48's sigma as Type A, k from t alone), with the Type A at the rate noise
+  alone but k from t, and as it is (Type A at the noise, k for the stated shapes).
 - 004: models.session_sim of the calibration at the best offset and the one after the removal (0, 180, 60 deg
   at 8, 9, 10 Hz, 5 dof each, noise pooled over the two: 10 dof); drawn: seed 000's inputs
   (bench_mc_seed000.drawn_twin) and H, b, theta of eqs. 21-22. Headline: K2 at the best offset and after, and
   the removed mass.
 
-    .venv/bin/python bench/bench_mc_methods.py --method 001|002|003|004|all [--n 200] [--seed 1]
+    .venv/bin/python bench/bench_mc_methods.py --method 001|002|003|003-indep|004|all [--n 200] [--seed 1]
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -95,7 +103,7 @@ def seed001(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
             head_error_rad=draw(rng, refs["tumble_head_angle_rad"], 8),
             voltmeter_gain=draw(rng, refs["voltmeter_gain"]), voltmeter_offset_v=draw(rng, refs["voltmeter_offset_v"]),
         )  # fmt: skip
-        _, points, _ = analyse_tumble(session, m.reference_c)
+        _, points, _ = analyse_tumble(session, m.reference_c, refs)
         tally.add(points[0].budget, np.array([truths[0][c] for c in CF_NAMES]))
     return tally
 
@@ -190,6 +198,47 @@ def seed003(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally, Tally
     return tallies
 
 
+def t_only(budget: Budget) -> Budget:
+    """The budget with every input taken normal: k from Student's t alone (the coverage rule before the shapes)."""
+    return replace(budget, sources=[replace(s, shape="normal") for s in budget.sources])
+
+
+def seed003_indep(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally, Tally, Tally]:
+    sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
+    from indep.generator import random_coefficients
+    from indep.world import Perturbation, StationConsts, Window
+
+    from methods.common.uncertainty import with_fit
+    from methods.seed003 import budget as gum
+    from methods.seed003.four_pose import harmonic_names
+    from methods.seed003.sequences import SCHEMES, sequence_deg
+    from methods.seed003.static_model import MODELS, fit_static
+    from station.session import StationInfo
+
+    station, terms, rng = StationInfo(), MODELS["physics"], np.random.default_rng(seed)
+    tallies = tuple(Tally(terms, [], [], []) for _ in range(3))
+    for _ in range(n):
+        co = replace(random_coefficients(rng), koq=float(rng.uniform(-2e-5, 2e-5)))
+        h = np.array([draw(rng, refs["index_harmonic_rad"]) for _ in harmonic_names(3)])
+        pe = Perturbation(
+            idx_c_rad=(*h[0::2], 0.0), idx_s_rad=(*h[1::2], 0.0), mount_rad=rng.normal(0.0, ZERO_SIGMA_RAD)
+        )
+        consts = StationConsts(latitude_deg=station.latitude_deg + float(draw(rng, refs["latitude_deg"])))
+        head_deg = np.array(sequence_deg(SCHEMES[rng.integers(len(SCHEMES))], int(rng.integers(12, 37))))
+        noise = math.exp(rng.uniform(math.log(5e-8), math.log(1e-6)))
+        rates = np.array([Window(co, pe, th, 0.0, 0.0, 0.0, st=consts).r_static for th in head_deg])
+        rates += rng.normal(0.0, noise, rates.size)
+        head = np.radians(head_deg)
+        fit = fit_static(head, rates, terms, station)
+        now = gum.uncompensated_budget(fit, head, head, rates, np.full(head.size, 600.0), station, 3, ZERO_SIGMA_RAD,
+                                       refs)  # fmt: skip
+        truth = np.array([co.k0 + co.ky, co.kz, co.kzz - co.ky, co.koq, co.k3])
+        tallies[0].add(t_only(with_fit(now, fit.cov, fit.dof, "eq. 48's sigma")), truth)
+        tallies[1].add(t_only(now), truth)
+        tallies[2].add(now, truth)
+    return tallies
+
+
 def seed004(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
     from bench_mc_seed000 import drawn_twin
 
@@ -222,7 +271,7 @@ def seed004(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--method", choices=("001", "002", "003", "004", "all"), default="all")
+    ap.add_argument("--method", choices=("001", "002", "003", "003-indep", "004", "all"), default="all")
     ap.add_argument("--n", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--normal", action="store_true", help="every Type B input normal, drawn and budgeted")
@@ -232,6 +281,7 @@ def main() -> None:
         "001": ("seed 001, eq. 6 at T1 (dof 43)", seed001),
         "002": ("seed 002, flexure coefficients (9 calibration runs, dof 6)", seed002),
         "003": ("seed 003, A's coefficients", seed003),
+        "003-indep": ("seed 003 without compensation, static rates from tests/indep", seed003_indep),
         "004": ("seed 004, K2 and removed mass (pooled dof 10)", seed004),
     }
     for key, (label, run) in runs.items():
@@ -240,7 +290,18 @@ def main() -> None:
         t0 = time.perf_counter()
         out = run(args.n, args.seed, refs)
         wall = time.perf_counter() - t0
-        if isinstance(out, tuple):
+        if key == "003-indep":
+            for tally, how in zip(
+                out,
+                (
+                    "as it was (eq. 48's sigma, k from t)",
+                    "Type A at the rate noise, k from t",
+                    "as it is (Type A at the noise, k for the stated shapes)",
+                ),
+                strict=True,
+            ):
+                tally.print(f"{label}: {how}", wall)
+        elif isinstance(out, tuple):
             out[0].print(f"{label} without compensation", wall)
             out[1].print(f"{label} with compensation (compensated_total)", wall)
         else:

@@ -28,12 +28,14 @@ from the chamber's product temperature) are fitted by weighted least squares on 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 
 from methods.common.least_squares import FitError, reliability
+from methods.common.references import Reference
 from methods.common.uncertainty import Budget, merged_json, transformed
 from methods.seed001.budget import eq6_budget
 from models.pendulous_accelerometer import CF_NAMES, branch_after_move
@@ -276,8 +278,9 @@ def ratios(cf: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return cf[RATIO_OF] / cf[1], jac @ cov @ jac.T
 
 
-def eight_point(block: Readings) -> EightPoint:
-    """The stroke fit and eq. 6 for the readings of one temperature."""
+def eight_point(block: Readings, references: Mapping[str, Reference] | None = None) -> EightPoint:
+    """The stroke fit and eq. 6 for the readings of one temperature (its budget from `references`, default the
+    shipped file)."""
     missing = sorted(set(range(1, POSITIONS + 1)) - set(block.J.tolist()))
     if missing:
         raise FitError(f"{block.setpoint_c[0]:g} C: no reading at position(s) J = {missing} (eq. 6 needs 1 .. 9)")
@@ -292,7 +295,7 @@ def eight_point(block: Readings) -> EightPoint:
     s_h, s_d = fit.sigmas[POSITIONS:] / abs(k1)
     mu, mu_c = reliability(fit.residuals, fit.sigma)
     budget = eq6_budget(CF_NAMES, cf, cf_cov, fit.dof, CF_UNITS, block.volts, block.J,
-                        lambda v: EQ6 @ linear_fit(X, v).values[:POSITIONS])  # fmt: skip
+                        lambda v: EQ6 @ linear_fit(X, v).values[:POSITIONS], references)  # fmt: skip
     return EightPoint(
         int(block.block[0]),
         float(block.setpoint_c[0]),
@@ -412,8 +415,11 @@ def temperature_model(points: list[EightPoint], reference_c: float) -> Temperatu
     )
 
 
-def analyse_tumble(session: Session, reference_c: float) -> tuple[Readings, list[EightPoint], TemperatureModel]:
-    """Every estimate of a tumble session: the readings, eq. 6 per temperature, eq. 4 across them."""
+def analyse_tumble(
+    session: Session, reference_c: float, references: Mapping[str, Reference] | None = None
+) -> tuple[Readings, list[EightPoint], TemperatureModel]:
+    """Every estimate of a tumble session: the readings, eq. 6 per temperature (budgets from `references`), eq. 4
+    across them."""
     r = readings(session)
-    points = [eight_point(r.of_block(b)) for b in r.blocks]
+    points = [eight_point(r.of_block(b), references) for b in r.blocks]
     return r, points, temperature_model(points, reference_c)

@@ -72,7 +72,9 @@ def rate_noise(fit: Fit, head_rad: np.ndarray, aligned_rad: np.ndarray, station:
     residuals, where eq. 48's sigma would take it for noise and count the same harmonics a second time through
     sigma^2 (X^T X)^-1 (the seed's harmonics at their u leave sigma at 6e-6 rad/s over 2e-7 of noise). So the
     residuals are fitted again with each Type B angle input's rate signature as a further column (each harmonic
-    at the head angles, and the head zero: the rate's slope itself); what is left is noise, n - rank dof."""
+    at the head angles, and the head zero: the rate's slope itself); what is left is noise, n - rank dof. With no
+    dof left (as many columns as windows) the noise cannot be told from the harmonics and eq. 48's sigma, an
+    upper bound, is kept."""
     slope = rate_slope_radps(aligned_rad, fit.values, fit.names, station)
     columns = np.column_stack([regressors(np.cos(aligned_rad), fit.names), slope,
                                slope[:, None] * harmonic_basis(head_rad, order)])  # fmt: skip
