@@ -135,7 +135,7 @@ def _dates(session: Session) -> list[tuple[str, str]]:
 
 
 def _budget_tables(parts: Sequence[Certified]) -> list[TableText]:
-    out = []
+    out: list[TableText] = []
     for part in parts:
         if part.table is None:
             continue

@@ -85,7 +85,7 @@ def _grid_point(x: np.ndarray, normal_variance: float, half_widths: np.ndarray, 
     return float(np.interp(0.5 * (1.0 + probability), F / F[-1], x))
 
 
-def coverage_point(normal_variance: float, half_widths: Sequence[float], probability: float) -> float:
+def coverage_point(normal_variance: float, half_widths: Sequence[float] | np.ndarray, probability: float) -> float:
     """q with P(|Y| <= q) = p for Y = N(0, normal_variance) + sum_i U(-a_i, a_i), all independent and in units of
     u_c (normal_variance + sum a_i^2 / 3 = 1), by numerical convolution (`_grid_point`) as a ratio to the normal's
     point on the same grid (which cancels the grid's own error); a box narrower than 4 grid steps joins the

@@ -81,7 +81,8 @@ def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float
     rows += [x + tail + "</tr>" for x in (ev, ev21, mu, muj)]
     notes = [
         "<p>u<sub>A</sub>: the fit's standard uncertainty (eq. 22, Type A); u<sub>c</sub>: combined with every Type B "
-        "input of the budget (GUM); ν<sub>eff</sub> by Welch-Satterthwaite; k from Student's t at 95 %. "
+        "input of the budget (GUM); ν<sub>eff</sub> by Welch-Satterthwaite; k from Student's t at 95 % (times the "
+        "shapes' factor where rectangular inputs dominate: methods.common.uncertainty). "
         "σ of one rate is the residual σ of the joint fit of all measured rates; eq. 21's σ is that of "
         "Y = vibration − static rate, which carries the static point's noise as well (about √2 larger). "
         "Eq. 28 is tested as the seed defines it, on the residuals of Y with N the number of test points; the joint "
