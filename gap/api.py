@@ -35,7 +35,7 @@ from gap.fit import Channels, Linearisation, ModelFit, evaluate, fit_model
 from gap.forward import CALIBRATED, predict
 from gap.heldout import Folds, HeldOut, heldout, shrink
 from gap.identifiability import IdentifiabilityReport, assess, seen_only_at_rest
-from gap.localise import detectors, maps, significant, standardised, where_text
+from gap.localise import Detector, detectors, maps, significant, standardised, where_text
 from gap.noise import (
     RATE_FORM_GRID,
     HonestNoise,
@@ -71,11 +71,12 @@ def _check_fittable(design: PointDesign) -> None:
         )
 
 
-def _rate_form(design: PointDesign, twin: TwinConfig) -> float:
-    """Constant fraction f of the rate variance (gap.noise) by the profile likelihood of the twin refitted.
+def _rate_form(design: PointDesign, twin: TwinConfig, model: TwinConfig | None = None) -> float:
+    """Constant fraction f of the rate variance (gap.noise) by the profile likelihood of the model refitted
+    (the twin's own, or the twin with the chosen effects: a strong gap in the residuals biases the form).
 
     l(f) = -(n / 2) ln(RSS_w(f) / n) + (1 / 2) sum ln w_i(f): the weights' shape, sigma0 profiled out."""
-    pred = predict(design, twin)
+    pred = predict(design, model or twin)
     y = design.rate_radps - pred.base_radps
     best, best_ll = 0.0, -math.inf
     for f in RATE_FORM_GRID:
@@ -92,18 +93,24 @@ def _rate_form(design: PointDesign, twin: TwinConfig) -> float:
 
 
 def _channels(
-    design: PointDesign, twin: TwinConfig, tn: TimingNoise, stated: StatedNoise, grating: GratingRecord | None
+    design: PointDesign,
+    twin: TwinConfig,
+    tn: TimingNoise,
+    stated: StatedNoise,
+    grating: GratingRecord | None,
+    model: TwinConfig | None = None,
 ) -> Channels:
     """Observations whitened by their noise: the stated noise where the session states it, else estimated
-    (the rate variance's form by likelihood, its level by the scatter of the twin refitted; timing first)."""
+    (the rate variance's form by likelihood, its level by the scatter of the model refitted, the twin's own
+    unless `model` is given; timing first)."""
     if stated.repeatability_radps is not None:
         sigma_w = stated.repeatability_radps
         weights = rate_weights(design, twin, tn.sigma_tau_s, sigma_w, constant_fraction=1.0)
         return Channels(design, twin, weights, sigma_w, tn.sigma_tau_s, grating, 1.0, True, tn.stated)
-    f = _rate_form(design, twin)
+    f = _rate_form(design, twin, model)
     weights = rate_weights(design, twin, constant_fraction=f)
     try:
-        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s, None, f), twin)
+        probe = evaluate(Channels(design, twin, weights, 1.0, tn.sigma_tau_s, None, f), model or twin)
     except FitError as exc:
         raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
     rss = float(np.sum(weights * probe.lin.residuals**2))
@@ -204,6 +211,7 @@ def _candidate_table(
 
 
 def _noise_json(
+    form_from: str,
     twin: TwinConfig,
     honest: HonestNoise,
     base: ModelFit,
@@ -219,6 +227,7 @@ def _noise_json(
         "model": "var(wbar_i) = sigma0^2 (f + (1 - f) T_ref / Tm_i) (f: a per-window repeatability; 1 - f: white "
         "rate noise over the window) + (|wbar_i| sigma_tau / Tm_i)^2 (the two time stamps of Tm)",
         "constant_fraction_f": ch.constant_fraction,
+        "constant_fraction_chosen_on": form_from,
         "stated_by_session": stated.to_json(),
         "rate_noise_known": ch.rate_sigma_known,
         "timing_noise_known": ch.tau_sigma_known,
@@ -263,22 +272,38 @@ def diagnose(
     stated = StatedNoise.from_meta(session.meta)
     tn = timing_noise(design, twin, stated)
     grating = GratingRecord.from_session(session, design, tn.sigma_tau_s / math.sqrt(2.0), stated.grating_noise_m)
-    ch = _channels(design, twin, tn, stated, grating)
     tick = stated.timer_resolution_s if stated.timer_resolution_s is not None else twin.noise.timer_tick_s
     sd_stamp = tn.sigma_tau_s / math.sqrt(2.0)
     pulses = PulseRecord.from_session(session, design, twin, sd_stamp, tick) if session.raw else None
-    ch = replace(ch, pulses=pulses)
-    lin = Linearisation(ch, cl.library(exclude=exclude))
-    base = fit_model(lin, [])
-    dof0 = base.dof_rate
-    ident = assess(lin, suggest=suggest and dof0 >= MIN_DOF, has_raw=bool(session.raw))
-    dets_before = detectors(ch, base)
-    if dof0 >= MIN_DOF:
+
+    def attribute(ch: Channels) -> tuple[ModelFit, IdentifiabilityReport, list[Detector], Selection]:
+        """The twin refitted, identifiability, its structure tests and the forward selection, on channels ch."""
+        lin = Linearisation(ch, cl.library(exclude=exclude))
+        base = fit_model(lin, [])
+        ident = assess(lin, suggest=suggest and base.dof_rate >= MIN_DOF, has_raw=bool(session.raw))
+        dets = detectors(ch, base)
+        if base.dof_rate < MIN_DOF:
+            return base, ident, dets, Selection([], [], base)
         # The pulse record rejects a candidate at the level the verdict tests it at (gap.verdict.residual_checks).
-        pulse_level = family_level(len(dets_before)) / max(len(dets_before), 1)
-        selection = forward_select(lin, base, ident.fittable(), ident.dropped, max_effects, pulse_level)
-    else:
-        selection = Selection([], [], base)
+        pulse_level = family_level(len(dets)) / max(len(dets), 1)
+        return (
+            base,
+            ident,
+            dets,
+            forward_select(lin, base, ident.fittable(), ident.dropped, max_effects, pulse_level),
+        )
+
+    ch = replace(_channels(design, twin, tn, stated, grating), pulses=pulses)
+    base, ident, dets_before, selection = attribute(ch)
+    form_from = "the twin refitted"
+    if selection.chosen and not ch.rate_sigma_known:
+        # The rate noise's form again from the model with the effects; where it differs, the attribution again.
+        model, first = selection.final.cfg, ", ".join(selection.effects)
+        if _rate_form(design, twin, model) != ch.constant_fraction:
+            ch = replace(_channels(design, twin, tn, stated, grating, model), pulses=pulses)
+            base, ident, dets_before, selection = attribute(ch)
+            form_from = f"the twin with {first} (the effects chosen with the twin's own form)"
+    dof0 = base.dof_rate
     final = selection.final
 
     # Localise: structure tests, then the honest noise, standardised residuals and maps.
@@ -353,7 +378,7 @@ def diagnose(
         gap_after=h_final,
         where=where,
         identifiability=ident,
-        noise=_noise_json(twin, honest, base, final, pe, checks, tn, design, ch, stated),
+        noise=_noise_json(form_from, twin, honest, base, final, pe, checks, tn, design, ch, stated),
         coefficients={"twin_refit": _coefficients(base), "with_effects": _coefficients(final)},
         twin_out=final.cfg if verdict.verdict == "explained" else twin,
         session_info=info,
