@@ -52,6 +52,7 @@ from gap.noise import (
 )
 from gap.rawstreams import GratingRecord, PulseRecord, raw_evidence, raw_summary_text
 from gap.report import GapReport, render
+from gap.subsets import best_subset
 from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, decide, family_level
 from methods.common.least_squares import FitError, fit_joint
 from models.config import TwinConfig, TwinConfigError, default_twin
@@ -286,12 +287,9 @@ def diagnose(
             return base, ident, dets, Selection([], [], base)
         # The pulse record rejects a candidate at the level the verdict tests it at (gap.verdict.residual_checks).
         pulse_level = family_level(len(dets)) / max(len(dets), 1)
-        return (
-            base,
-            ident,
-            dets,
-            forward_select(lin, base, ident.fittable(), ident.dropped, max_effects, pulse_level),
-        )
+        names, drop = ident.fittable(), ident.dropped
+        greedy = forward_select(lin, base, names, drop, max_effects, pulse_level)
+        return base, ident, dets, best_subset(lin, base, greedy, names, drop, max_effects, pulse_level)
 
     ch = replace(_channels(design, twin, tn, stated, grating), pulses=pulses)
     base, ident, dets_before, selection = attribute(ch)

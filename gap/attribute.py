@@ -87,7 +87,7 @@ def beyond_bounds(fit: ModelFit, name: str, w_radps: np.ndarray) -> list[str]:
     return out
 
 
-def _chi2_total(fit: ModelFit, s2_rate: float) -> float:
+def chi2_total(fit: ModelFit, s2_rate: float) -> float:
     return fit.rss_rate / s2_rate + fit.chi2_tau + fit.chi2_grating
 
 
@@ -134,6 +134,7 @@ class Selection:
     steps: list[list[Scored]]  # every candidate scored at each step, best BIC first
     final: ModelFit
     capped: bool = False  # a further effect would still be accepted beyond max_effects
+    alternatives: list[list[str]] = field(default_factory=list)  # other models reproducing it (gap.subsets)
 
     @property
     def effects(self) -> list[str]:
@@ -269,7 +270,7 @@ def _step(
     limit = ALPHA / max(len(scored), 1)
     ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
     lateral = next((s for s in ok if s.name == "lateral_resonance" and s.name not in profiled), None)
-    if lateral is not None and _rejected_by_pulses(lin, lateral, pulse_level):
+    if lateral is not None and rejected_by_pulses(lin, lateral, pulse_level):
         # The rates' fr, Q rejected by the pulses: the pulses choose within what the rates cannot tell apart.
         over = {n: v for n, v in profiled.items() if n in chosen}
         alt = lateral_pulse_profile(lin, current, [*chosen, lateral.name], drop, over, pulse_level)
@@ -281,16 +282,16 @@ def _step(
     if not ok:
         return scored, None
     # The pulse record rejecting all of them may show a second effect still missing (a pair): the rates' best.
-    best = next((s for s in ok if not _rejected_by_pulses(lin, s, pulse_level)), ok[0])
+    best = next((s for s in ok if not rejected_by_pulses(lin, s, pulse_level)), ok[0])
     s2 = best.fit.rss_rate / max(best.fit.dof_rate, 1)
-    chi_best = _chi2_total(best.fit, s2)
+    chi_best = chi2_total(best.fit, s2)
     # A rival reproduces the winner on every channel: the rates, timing and grating in the fit, the pulses tested.
-    alike = [s for s in scored if s is not best and s.plausible and _chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2]
-    best.rivals = [s.name for s in alike if not _rejected_by_pulses(lin, s, pulse_level)]
+    alike = [s for s in scored if s is not best and s.plausible and chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2]
+    best.rivals = [s.name for s in alike if not rejected_by_pulses(lin, s, pulse_level)]
     return scored, best
 
 
-def _rejected_by_pulses(lin: Linearisation, s: Scored, level: float) -> bool:
+def rejected_by_pulses(lin: Linearisation, s: Scored, level: float) -> bool:
     """Test the candidate's fit against the pulse record (if any); record and return a rejection below level."""
     if lin.ch.pulses is None:
         return False
@@ -307,10 +308,15 @@ def forward_select(
     drop: frozenset[str],
     max_effects: int = MAX_EFFECTS,
     pulse_level: float = ALPHA,
+    start: Sequence[Scored] = (),
+    first_step: list[Scored] | None = None,
 ) -> Selection:
-    """Greedy forward selection of effects over candidates `names`; pulse_level: that of the pulse test (_step)."""
-    current, chosen, steps = base, [], []
-    remaining = list(names)
+    """Greedy forward selection of effects over candidates `names`; pulse_level: that of the pulse test (_step).
+
+    start: effects already chosen (their last one's fit the current model), scored on the base as first_step."""
+    current = start[-1].fit if start else base
+    chosen, steps = list(start), [] if first_step is None else [first_step]
+    remaining = [n for n in names if n not in {s.name for s in start}]
     while remaining:
         profiled = {s.name: s.profiled for s in chosen if s.profiled}
         scored, best = _step(lin, current, [s.name for s in chosen], remaining, drop, profiled, pulse_level)

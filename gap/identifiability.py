@@ -179,6 +179,12 @@ class IdentifiabilityReport:
         kept = {k for c in self.candidates.values() for k in c.kept}
         return frozenset(p.key for c in self.candidates.values() for p in c.params if p.key not in kept)
 
+    def undetermined(self, name: str) -> list[str]:
+        """Parameters of candidate `name` that stay at the twin's value: absorbed by the calibrated terms,
+        degenerate with its fitted ones (only their combinations with those are fixed) or without a signature."""
+        c = self.candidates.get(name)
+        return [] if c is None else [p.key.split(".", 1)[1] for p in c.params if p.key not in c.kept]
+
     def fittable(self) -> list[str]:
         return [n for n, c in self.candidates.items() if c.kept]
 

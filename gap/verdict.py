@@ -59,6 +59,7 @@ class Verdict:
     partial: list[str] = field(default_factory=list)  # accepted, but the gap is not explained
     remaining: list[str] = field(default_factory=list)  # what is left after them
     ambiguous: list[str] = field(default_factory=list)  # effects this design cannot tell apart
+    undetermined: dict[str, list[str]] = field(default_factory=dict)  # parameters the design does not fix
 
     def to_json(self) -> dict:
         return {
@@ -68,6 +69,7 @@ class Verdict:
             "partial_effects": self.partial,
             "remaining": self.remaining,
             "ambiguous_effects": self.ambiguous,
+            "undetermined_parameters": self.undetermined,
         }
 
 
@@ -129,6 +131,14 @@ def _rest_only_text(rest_only: dict[str, list[str]]) -> str:
     )
 
 
+def _unpredictable_text(heldout_rows: tuple[int, int] | None) -> str:
+    n_twin, n_model = heldout_rows or (0, 0)
+    return (
+        f"{n_twin - n_model} of the {n_twin} held-out rows that the twin predicts cannot be predicted (only the "
+        "held-out points fix some of the effects' parameters)"
+    )
+
+
 def decide(
     dof: int,
     selection: Selection,
@@ -178,18 +188,21 @@ def decide(
         if rest_only:
             text = f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}"
             return Verdict("cannot_tell", [], text, ambiguous=effects)
-        if heldout_rows and heldout_rows[1] < (1.0 - MAX_UNPREDICTABLE) * heldout_rows[0]:
+        unpredictable = bool(heldout_rows and heldout_rows[1] < (1.0 - MAX_UNPREDICTABLE) * heldout_rows[0])
+        if unpredictable and len(effects) > 1:
             text = (
-                f"cannot tell with this design ({sh}): with {', '.join(effects)} {heldout_rows[0] - heldout_rows[1]} "
-                f"of the {heldout_rows[0]} held-out rows that the twin predicts cannot be predicted (only the "
-                "held-out points fix some of the effects' parameters), so no held-out test checks them; add "
-                "positions or frequencies"
+                f"cannot tell with this design ({sh}): with {', '.join(effects)} {_unpredictable_text(heldout_rows)}"
+                ", so no held-out test checks how the gap divides among them; add positions or frequencies"
             )
             return Verdict("cannot_tell", [], text, ambiguous=effects)
-        alike = _look_alikes(selection)
-        if alike:
-            named = list(dict.fromkeys([n for e in effects for n in [e, *alike.get(e, [])]]))
-            why = "; ".join(f"{e} from {', '.join(a)}" for e, a in alike.items())
+        alike, alternatives = _look_alikes(selection), selection.alternatives
+        if alike or alternatives:
+            named = [n for e in effects for n in [e, *alike.get(e, [])]] + [n for alt in alternatives for n in alt]
+            named = list(dict.fromkeys(named))
+            why = "; ".join(
+                [f"{e} from {', '.join(a)}" for e, a in alike.items()]
+                + [f"{' + '.join(effects)} from {' + '.join(alt)} (which reproduces it)" for alt in alternatives]
+            )
             tests = ident.separating_tests(named)
             sep = f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
             return Verdict(
@@ -199,7 +212,15 @@ def decide(
                 f"but this session cannot tell {why}{sep}",
                 ambiguous=named,
             )
-        return Verdict("explained", effects, f"explained by {', '.join(effects)} ({sh})")
+        undetermined = {e: ident.undetermined(e) for e in effects if ident.undetermined(e)}
+        text = f"explained by {', '.join(effects)} ({sh})"
+        if undetermined:
+            text += "; not determined by this design (absorbed, aliased with the fitted ones or unseen): " + (
+                "; ".join(f"{e} {', '.join(ps)}" for e, ps in undetermined.items())
+            )
+        if unpredictable:
+            text += f"; {_unpredictable_text(heldout_rows)}, so no held-out test checks the fitted parameters"
+        return Verdict("explained", effects, text, undetermined=undetermined)
     if effects:
         remaining += rejected
         return Verdict(

@@ -24,10 +24,7 @@ _spec.loader.exec_module(bench)
 if not (bench.DEVSET / "truth" / "_index.json").is_file():
     pytest.skip(f"no development set at {bench.DEVSET}", allow_module_level=True)
 
-KNOWN_MISSES: dict[str, str] = {
-    "26bfeb2a": "index_harmonics alone `cannot_tell` (8 harmonics on 6 positions: held-out positions unpredictable)",
-    "c05bc5fc": "mount_misalignment + bias_drift taken for index_harmonics alone (6 positions)",
-}
+KNOWN_MISSES: dict[str, str] = {}
 
 
 def _cases() -> list:
@@ -39,7 +36,7 @@ def _cases() -> list:
 
 @pytest.mark.parametrize("case_id", _cases())
 def test_devset_case_is_scored_right(case_id: str) -> None:
-    """One case against the set's rule (today: SNR >= 10 16 of 17, pairs 1 of 2, nulls 3 of 3, out-of-library
-    0 of 2 explained, below SNR 10 5 of 5)."""
+    """One case against the set's rule (today every case: SNR >= 10 17 of 17, pairs 2 of 2, nulls 3 of 3,
+    out-of-library 0 of 2 explained, below SNR 10 5 of 5)."""
     r = bench.run_case(case_id)
     assert bench.right(r), (r["truth"], r["verdict"], r["effects"], r["ambiguous"], r["partial"], r["text"])

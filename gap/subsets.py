@@ -1,0 +1,106 @@
+"""Models the greedy forward selection does not reach: a pair of effects against one candidate absorbing both.
+
+Forward selection (gap.attribute) adds at each step the candidate that lowers the BIC most. A candidate with
+many parameters can absorb two weaker effects at once and end the selection: on 6 positions the four index
+harmonics the design can fit take any static pattern over the positions, a mount tilt's and a bias drift's
+alike (../shared/gap-devset case c05bc5fc: index_harmonics chosen, BIC -1005.0, against -1008.6 for
+mount_misalignment + bias_drift).
+
+Every pair of the first step's POOL best candidates within their bounds is fitted jointly with the calibrated
+coefficients (gap.fit.fit_model). A pair is a model when each member is significant given the other (the
+test of gap.attribute.score at ALPHA / pairs, and a lower BIC), every parameter is within its plausible bound
+and the pulse record (when there is one) does not reject the fit. Among the greedy choice and these models
+the lowest BIC wins, and the selection continues from it; every other one that reproduces it on every
+channel (chi^2, rate rows in its sigma^2, within REPRODUCE_CHI2: the rule of a rival) is an alternative:
+the session cannot tell them apart (gap.verdict names them all).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from itertools import combinations
+
+import numpy as np
+
+from gap.attribute import (
+    ALPHA,
+    REPRODUCE_CHI2,
+    Scored,
+    Selection,
+    bic,
+    chi2_total,
+    forward_select,
+    rejected_by_pulses,
+    score,
+)
+from gap.fit import Linearisation, ModelFit, fit_model
+
+POOL = 5  # pairs are tried among this many of the first step's best accepted candidates
+
+
+def _pool(step: list[Scored]) -> list[Scored]:
+    """The POOL candidates of lowest BIC within their bounds (a member may be significant only given the other)."""
+    return [s for s in step if s.plausible][:POOL]
+
+
+def _pair(lin: Linearisation, a: Scored, b: Scored, drop: frozenset[str], level: float, n_pairs: int):
+    """The pair (a, b) as a model: (its Scored members, a first, and its fit), or None (gap.subsets docstring)."""
+    over = {s.name: s.profiled for s in (a, b) if s.profiled}
+    fit = fit_model(lin, [a.name, b.name], drop=drop, fixed_override=over)
+    if fit.dof_rate <= 0:
+        return None
+    d = lin.ch.design
+    w_radps = 2 * math.pi * np.unique(d.freq_hz[d.vib])
+    n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
+    a_given_b = score(b.fit, fit, a.name, n_rate, n_other, w_radps)
+    b_given_a = score(a.fit, fit, b.name, n_rate, n_other, w_radps)
+    limit = ALPHA / max(n_pairs, 1)
+    if any(s.p_value >= limit or s.dbic >= 0 or not s.plausible for s in (a_given_b, b_given_a)):
+        return None
+    if rejected_by_pulses(lin, b_given_a, level):
+        return None
+    b_given_a.profiled = dict(b.profiled)
+    return [a, b_given_a], fit
+
+
+def best_subset(
+    lin: Linearisation,
+    base: ModelFit,
+    greedy: Selection,
+    names: Sequence[str],
+    drop: frozenset[str],
+    max_effects: int,
+    level: float,
+) -> Selection:
+    """The greedy selection, or the pair model of lower BIC continued by forward selection; either way with
+    the models that reproduce it as its alternatives (gap.subsets docstring). level: the pulse test's."""
+    if not greedy.chosen or not greedy.steps or max_effects < 2:
+        return greedy
+    first = greedy.steps[0]
+    pool = _pool(first)
+    n_pairs = len(pool) * (len(pool) - 1) // 2
+    n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
+    models: list[tuple[list[Scored], ModelFit]] = [(greedy.chosen, greedy.final)]
+    seen = {frozenset(greedy.effects)}
+    for a, b in combinations(pool, 2):
+        if frozenset((a.name, b.name)) in seen:
+            continue
+        pair = _pair(lin, a, b, drop, level, n_pairs)
+        if pair is not None:
+            models.append(pair)
+    if len(models) == 1:
+        return greedy
+    models.sort(key=lambda m: bic(m[1], n_rate, n_other))
+    best_members, best_fit = models[0]
+    s2 = best_fit.rss_rate / max(best_fit.dof_rate, 1)
+    chi_best = chi2_total(best_fit, s2)
+    alternatives = [
+        [s.name for s in members] for members, fit in models[1:] if chi2_total(fit, s2) - chi_best < REPRODUCE_CHI2
+    ]
+    if best_members is greedy.chosen:
+        out = greedy
+    else:
+        out = forward_select(lin, base, names, drop, max_effects, level, start=best_members, first_step=first)
+    out.alternatives = alternatives
+    return out
