@@ -69,9 +69,27 @@ def run_case(case_id: str, devset: Path = DEVSET) -> dict:
             for t in tests
             if t["p_value"] is not None and t["p_value"] < 1e-3
         ],
+        "parameters": _parameters(j["candidates"], rep.effects + rep.verdict.ambiguous + rep.verdict.partial, truth),
         "n_points": j["session"]["n_points"],
         "cpu_s": round(time.process_time() - c0, 2),
     }
+
+
+def _parameters(candidates: list[dict], named: list[str], truth: dict) -> dict:
+    """Each named effect's fitted parameters where the truth injected that effect: value, sd, the truth's value
+    of the same name (None where its parameters differ: lateral L0 against our kx) and the difference in sd."""
+    out: dict = {}
+    for c in candidates:
+        injected = truth["effects"].get(c["name"])
+        if c["name"] not in named or injected is None:
+            continue
+        out[c["name"]] = {k: _compared(v, c["uncertainty"][k], injected.get(k)) for k, v in c["parameters"].items()}
+    return out
+
+
+def _compared(value: float, sd: float, true: float | None) -> dict:
+    z = None if true is None or not sd else round((value - true) / sd, 2)
+    return {"value": value, "sd": sd, "truth": true, "z": z}
 
 
 def kind(r: dict) -> str:

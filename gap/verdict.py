@@ -12,14 +12,17 @@ ALPHA with a Bonferroni correction inside it:
 "explained": effects were accepted, after them no residual check is
 significant, the held-out gap shrank by at least
 MIN_SHRINK (when there was a held-out gap to shrink), and each effect is one
-this design can tell from the others: not collinear with another candidate
-(gap.identifiability) and without a rival of nearly equal BIC, and none of its
-significant parameters is one that only the static points see where the
-session has no pulse record to test it (gap.identifiability.seen_only_at_rest).
+this design can tell from the others: no rival reproducing its fit within its bounds on
+every channel (gap.attribute), no alternative model reproducing the chosen set (gap.subsets),
+and none of its significant parameters is one that only the static points see where the
+session has no pulse record to test it (gap.identifiability.seen_only_at_rest). Parameters
+the design does not fix (absorbed, aliased, unseen) are named as undetermined; one effect
+whose held-out points alone fix some of its parameters is still `explained`, and says so.
 "cannot_tell": the design leaves fewer than MIN_DOF residual degrees of
 freedom after the calibrated terms, or the effects that explain the gap are
-ones this design cannot tell apart (it names them all, and the test points
-that would separate them), or one it sees only at rest (the table's rest
+ones this design cannot tell apart (it names them all with their look-alikes and
+alternatives, and the test points that would separate them), or several whose split
+only the held-out points fix, or one it sees only at rest (the table's rest
 value, which out-of-library motions share). Otherwise "unexplained", naming
 what was found and what remains, and which test rejected the library's best
 candidate (its parameters' bounds, or the pulse record).
@@ -131,6 +134,50 @@ def _rest_only_text(rest_only: dict[str, list[str]]) -> str:
     )
 
 
+def _accepted_verdict(
+    selection: Selection,
+    ident: IdentifiabilityReport,
+    sh: str,
+    rest_only: dict[str, list[str]],
+    heldout_rows: tuple[int, int] | None,
+) -> Verdict:
+    """The verdict once the chosen effects leave no residual check significant: `explained`, or `cannot_tell`
+    naming the effects with every look-alike and alternative model that reproduces them (gap.verdict docstring);
+    one effect whose parameters the design does not all fix is `explained` with those marked undetermined."""
+    effects = selection.effects
+    alike, alternatives = _look_alikes(selection), selection.alternatives
+    named = [n for e in effects for n in [e, *alike.get(e, [])]] + [n for alt in alternatives for n in alt]
+    named = list(dict.fromkeys(named))
+    tests = ident.separating_tests(named) if len(named) > 1 or rest_only or alternatives else []
+    sep = f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
+    if rest_only:
+        return Verdict("cannot_tell", [], f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}{sep}",
+                       ambiguous=named)  # fmt: skip
+    unpredictable = bool(heldout_rows and heldout_rows[1] < (1.0 - MAX_UNPREDICTABLE) * heldout_rows[0])
+    if unpredictable and len(effects) > 1:
+        text = (
+            f"cannot tell with this design ({sh}): with {', '.join(effects)} {_unpredictable_text(heldout_rows)}"
+            f", so no held-out test checks how the gap divides among them; add positions or frequencies{sep}"
+        )
+        return Verdict("cannot_tell", [], text, ambiguous=named)
+    if alike or alternatives:
+        why = "; ".join(
+            [f"{e} from {', '.join(a)}" for e, a in alike.items()]
+            + [f"{' + '.join(effects)} from {' + '.join(alt)} (which reproduces it)" for alt in alternatives]
+        )
+        text = f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, but this session "
+        return Verdict("cannot_tell", [], f"{text}cannot tell {why}{sep}", ambiguous=named)
+    undetermined = {e: ident.undetermined(e) for e in effects if ident.undetermined(e)}
+    text = f"explained by {', '.join(effects)} ({sh})"
+    if undetermined:
+        text += "; not determined by this design (absorbed, aliased with the fitted ones or unseen): " + (
+            "; ".join(f"{e} {', '.join(ps)}" for e, ps in undetermined.items())
+        )
+    if unpredictable:
+        text += f"; {_unpredictable_text(heldout_rows)}, so no held-out test checks the fitted parameters"
+    return Verdict("explained", effects, text, undetermined=undetermined)
+
+
 def _unpredictable_text(heldout_rows: tuple[int, int] | None) -> str:
     n_twin, n_model = heldout_rows or (0, 0)
     return (
@@ -185,42 +232,7 @@ def decide(
         remaining.append(f"held-out gap with the effects {g:.3g} = {g / se:.1f} se (> {HELDOUT_AFTER_SE:g} se)")
     if effects and not remaining:
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
-        if rest_only:
-            text = f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}"
-            return Verdict("cannot_tell", [], text, ambiguous=effects)
-        unpredictable = bool(heldout_rows and heldout_rows[1] < (1.0 - MAX_UNPREDICTABLE) * heldout_rows[0])
-        if unpredictable and len(effects) > 1:
-            text = (
-                f"cannot tell with this design ({sh}): with {', '.join(effects)} {_unpredictable_text(heldout_rows)}"
-                ", so no held-out test checks how the gap divides among them; add positions or frequencies"
-            )
-            return Verdict("cannot_tell", [], text, ambiguous=effects)
-        alike, alternatives = _look_alikes(selection), selection.alternatives
-        if alike or alternatives:
-            named = [n for e in effects for n in [e, *alike.get(e, [])]] + [n for alt in alternatives for n in alt]
-            named = list(dict.fromkeys(named))
-            why = "; ".join(
-                [f"{e} from {', '.join(a)}" for e, a in alike.items()]
-                + [f"{' + '.join(effects)} from {' + '.join(alt)} (which reproduces it)" for alt in alternatives]
-            )
-            tests = ident.separating_tests(named)
-            sep = f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
-            return Verdict(
-                "cannot_tell",
-                [],
-                f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, "
-                f"but this session cannot tell {why}{sep}",
-                ambiguous=named,
-            )
-        undetermined = {e: ident.undetermined(e) for e in effects if ident.undetermined(e)}
-        text = f"explained by {', '.join(effects)} ({sh})"
-        if undetermined:
-            text += "; not determined by this design (absorbed, aliased with the fitted ones or unseen): " + (
-                "; ".join(f"{e} {', '.join(ps)}" for e, ps in undetermined.items())
-            )
-        if unpredictable:
-            text += f"; {_unpredictable_text(heldout_rows)}, so no held-out test checks the fitted parameters"
-        return Verdict("explained", effects, text, undetermined=undetermined)
+        return _accepted_verdict(selection, ident, sh, rest_only or {}, heldout_rows)
     if effects:
         remaining += rejected
         return Verdict(
