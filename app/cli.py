@@ -174,7 +174,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         finally:
             if controller.busy:
                 controller.abort()
-                controller.wait(30.0)
+                controller.wait(timeout_s=30.0)
             server.close()
     return 0
 

@@ -84,7 +84,7 @@ def watch(controller: StationController, plan: Plan, err: TextIO | None = None, 
                bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} station-s [{elapsed}<{remaining}{postfix}]")  # fmt: skip
     next_line = PLAIN_STEP
     with bar:
-        while (outcome := controller.wait(0.2)) is None:
+        while (outcome := controller.wait(timeout_s=0.2)) is None:
             st = controller.status()
             if st["state"] in FINAL_STATES:
                 break  # measuring is over; the analysis runs in its child process
@@ -103,7 +103,7 @@ def watch(controller: StationController, plan: Plan, err: TextIO | None = None, 
         if st["state"] == State.FINISHED and analysed:
             print("analysis and report: fitting and writing the HTML report (in a child process) ...", file=err,
                   flush=True)  # fmt: skip
-        while (outcome := controller.wait(1.0)) is None:
+        while (outcome := controller.wait(timeout_s=1.0)) is None:
             if tty:
                 print(f"\ranalysis and report: {time.perf_counter() - t0:.0f} s", end="", file=err, flush=True)
         if outcome.analysis is not None:

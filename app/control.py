@@ -46,6 +46,7 @@ from devices.errors import DriverError
 from engine.context import ValidationError
 from engine.params import ParameterError
 from engine.registry import ProcedureError
+from station.clock import host_clock
 from station.control_channel import (
     CONTROL_ACTIONS,
     DEFAULT_IDENTITY,
@@ -91,6 +92,7 @@ class ControlServer:
         self._sock.bind(endpoint)
         self.endpoint = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self._stop = threading.Event()
+        self._served = host_clock().event()
         self._thread = threading.Thread(target=self._serve, name="control", daemon=True)
         self._handlers: dict[str, Callable[[dict], Any]] = {
             "status": lambda a: controller.status(),
@@ -112,7 +114,8 @@ class ControlServer:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2.0)
+        if self._thread.is_alive():
+            self._served.wait(timeout_s=2.0)
         self._sock.close()
 
     def _start(self, a: dict) -> dict:
@@ -184,17 +187,18 @@ class ControlServer:
                 log.error("control %s by %s not recorded: %s", cmd, who, exc)
 
     def _serve(self) -> None:
-        poller = zmq.Poller()
-        poller.register(self._sock, zmq.POLLIN)
-        while not self._stop.is_set():
-            if not poller.poll(100):
-                continue
-            frames = self._sock.recv_multipart()
-            try:
-                reply = self.handle_frames(frames)
-            except Exception as exc:  # the channel outlives any request
-                log.exception("control request failed")
-                reply = _error("InternalError", f"{type(exc).__name__}: {exc}")
-            self._sock.send(json.dumps(json_safe(reply)).encode())
-
-
+        try:
+            poller = zmq.Poller()
+            poller.register(self._sock, zmq.POLLIN)
+            while not self._stop.is_set():
+                if not poller.poll(100):
+                    continue
+                frames = self._sock.recv_multipart()
+                try:
+                    reply = self.handle_frames(frames)
+                except Exception as exc:  # the channel outlives any request
+                    log.exception("control request failed")
+                    reply = _error("InternalError", f"{type(exc).__name__}: {exc}")
+                self._sock.send(json.dumps(json_safe(reply)).encode())
+        finally:
+            self._served.set()

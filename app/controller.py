@@ -23,7 +23,6 @@ import logging
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from engine.runner import Engine, State
 from engine.supervisor import QUICK_STOP_BOUND_S, MotionSupervisor, SafeState
+from station.clock import ClockEvent
 from station.control_channel import ControlError
 from station.session_lock import INTERRUPTED, recover_interrupted
 from station.store import SessionStore
@@ -73,12 +73,14 @@ class StationController:
         self.model = model
         self.reports_dir = Path(reports_dir)
         self.publish: Publisher = publish or (lambda topic, msg: None)
-        self.supervisor = MotionSupervisor(hardware).start()
+        self._link = hardware.clock.link  # what the CLI and the panel wait on: the station's link time
+        self.supervisor = MotionSupervisor(hardware, clock=self._link).start()
         self.engine = Engine(hardware, store, self.publish, self.supervisor)
         self._lock = threading.Lock()
         self._worker: threading.Thread | None = None
         self._outcome: RunOutcome | None = None
         self._started = threading.Event()
+        self._worker_ended = self._link.event()
         self.after_run: list[Callable[[RunOutcome], None]] = []  # called in the worker once a run has ended
         self._start_error: BaseException | None = None
         self.interrupted = recover_interrupted(store)
@@ -87,7 +89,7 @@ class StationController:
         """End any run (abort, wait at most timeout_s), then stop supervising: what every exit path calls."""
         if self.busy:
             self.abort()
-            self.wait(timeout_s)
+            self.wait(timeout_s=timeout_s)
         self.supervisor.close()
 
     # ---- library and planning ------------------------------------------------------------
@@ -120,6 +122,7 @@ class StationController:
             self._outcome = None
             self._start_error = None
             self._started.clear()
+            self._worker_ended.clear()
             self._worker = threading.Thread(
                 target=self._run, args=(spec, plan, instrument_serial, resume_uid), name="engine", daemon=True
             )
@@ -144,15 +147,15 @@ class StationController:
         """The outcome once the run has ended (None while it runs); never None once its worker is gone."""
         worker = self._worker
         if worker is not None:
-            deadline = None if timeout_s is None else time.monotonic() + timeout_s
+            deadline_s = None if timeout_s is None else self._link.now_s() + timeout_s
             while worker.is_alive() and self._outcome is None:  # a stuck worker's outcome may come from the supervisor
-                left = 0.05 if deadline is None else min(0.05, deadline - time.monotonic())
-                if left <= 0:
+                left_s = 0.05 if deadline_s is None else min(0.05, deadline_s - self._link.now_s())
+                if left_s <= 0:
                     break
-                worker.join(left)
+                self._worker_ended.wait(timeout_s=left_s)
             if not worker.is_alive() and self._outcome is None:  # lost: the supervisor's on_lost writes the outcome
                 bound_s = self.supervisor.bound_s + QUICK_STOP_BOUND_S + 1.0
-                self.supervisor.wait_lost(bound_s if timeout_s is None else min(timeout_s, bound_s))
+                self.supervisor.wait_lost(timeout_s=bound_s if timeout_s is None else min(timeout_s, bound_s))
         return self._outcome
 
     def run(self, procedure: str, params: dict[str, Any], **kw: Any) -> RunOutcome:
@@ -188,12 +191,13 @@ class StationController:
         return p | self.hw.status() | {"busy": self.busy, "freq_hz": self.engine.freq_hz,
                                        "index_deg": self.engine.position_deg}  # fmt: skip
 
-    def beacon(self, period_s: float = 0.2) -> threading.Event:
-        """Publish `status` every period_s of wall time (the panel's heartbeat) until the returned event is set."""
-        stop = threading.Event()
+    def beacon(self, period_s: float = 0.2) -> ClockEvent:
+        """Publish `status` every period_s of link (wall) time (the panel's heartbeat) until the returned event is
+        set."""
+        stop = self._link.event()
 
         def loop() -> None:
-            while not stop.wait(period_s):
+            while not stop.wait(timeout_s=period_s):
                 self.publish("status", self.status())
 
         threading.Thread(target=loop, name="status-beacon", daemon=True).start()
@@ -218,6 +222,12 @@ class StationController:
             self._outcome = RunOutcome(uid, State.FAILED, None, None, list(self.engine.progress.faults))
 
     def _run(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
+        try:
+            self._measure_and_analyse(spec, plan, serial, resume_uid)
+        finally:
+            self._worker_ended.set()  # wakes wait() at once
+
+    def _measure_and_analyse(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
         engine = self.engine
         me = threading.current_thread()
         opened = False

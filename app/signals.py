@@ -18,13 +18,13 @@ from __future__ import annotations
 import signal
 import sys
 import threading
-import time
 from collections.abc import Callable
 from types import FrameType
 from typing import TextIO
 
 from app.controller import StationController
 from engine.runner import FINAL_STATES, State
+from station.clock import host_clock
 
 PAUSE_WAIT_POLL_S = 0.1
 
@@ -80,7 +80,7 @@ class RunSignals:
         while (state := self.controller.engine.progress.state) not in (State.PAUSED, *FINAL_STATES):
             if self.aborted_by is not None:
                 return
-            time.sleep(PAUSE_WAIT_POLL_S)
+            host_clock().sleep_s(PAUSE_WAIT_POLL_S)
         if state != State.PAUSED or self.aborted_by is not None:
             return
         try:

@@ -7,12 +7,13 @@ bytes and hands them to `on_bytes`, calls `on_poll(now_s)` with the station
 time, and drains the output queue into the pty.
 
 Time. Every time stamp comes from `clock.now_s()` (the world's clock, wall or
-virtual); the thread only *wakes* on wall time (`poll_wall_s`, the select
+virtual); the thread only *wakes* on the link clock (`clock.link`, the wall
+clock for wall and wall-paced virtual clocks: `poll_wall_s`, the select
 timeout), so it never sleeps in station time and a VirtualClock running
 faster than real time simply makes each poll cover more station time.
 
-Rate limit. Output is paced like a UART at `baud` in wall time (baud/10 bytes
-per wall second, token bucket of `burst_wall_s`) and queued in a bounded
+Rate limit. Output is paced like a UART at `baud` in link-clock (wall) time
+(baud/10 bytes per second, token bucket of `burst_wall_s`) and queued in a bounded
 transmit FIFO (`fifo_bytes`). Streaming emulators ask `tx_room()` before
 producing and drop what does not fit, counting it in their own sequence
 numbers, as a real interface board whose FIFO overflows would; so a fast
@@ -30,7 +31,6 @@ import enum
 import os
 import select
 import threading
-import time
 import tty
 
 from station.clock import Clock
@@ -130,6 +130,7 @@ class PtyEmulator:
         burst_wall_s: float = 0.02,
     ) -> None:
         self.clock = clock
+        self._link_clock = clock.link
         self.baud = baud
         self.poll_wall_s = poll_wall_s
         self.fifo_bytes = fifo_bytes
@@ -139,13 +140,14 @@ class PtyEmulator:
         self._tx = bytearray()
         self._line_buf = b""
         self._tokens = self._burst_bytes
-        self._last_wall = time.monotonic()
+        self._last_link_s = self._link_clock.now_s()
         self._master: int | None = None
         self._slave: int | None = None
         self._port = ""
         self._stop = threading.Event()
         self._disconnect_now = threading.Event()
         self._thread: threading.Thread | None = None
+        self._finished = self._link_clock.event()
         self.connected = False
         self.error: BaseException | None = None  # an exception that killed the worker
 
@@ -176,7 +178,7 @@ class PtyEmulator:
         """Stop the worker and close the pty (idempotent)."""
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout_s)
+            self._finished.wait(timeout_s=timeout_s)
         self._close_fds()
 
     def __enter__(self) -> PtyEmulator:
@@ -220,10 +222,14 @@ class PtyEmulator:
         """Free bytes in the transmit FIFO."""
         return self.fifo_bytes - len(self._tx)
 
+    def _refill(self) -> None:
+        """Add the tokens the line earned since the last refill (link-clock time, the UART's pace)."""
+        now_s = self._link_clock.now_s()
+        self._tokens = min(self._burst_bytes, self._tokens + (now_s - self._last_link_s) * self._bytes_per_wall_s)
+        self._last_link_s = now_s
+
     def _drain(self) -> None:
-        now = time.monotonic()
-        self._tokens = min(self._burst_bytes, self._tokens + (now - self._last_wall) * self._bytes_per_wall_s)
-        self._last_wall = now
+        self._refill()
         n = min(len(self._tx), int(self._tokens))
         if n <= 0 or self._master is None:
             return
@@ -258,7 +264,7 @@ class PtyEmulator:
                         data = b""
                     except OSError:
                         # EIO should not happen while we hold the slave; back off, keep serving.
-                        time.sleep(self.poll_wall_s)
+                        self._link_clock.sleep_s(self.poll_wall_s)
                         data = b""
                     if data:
                         self.on_bytes(data)
@@ -266,15 +272,13 @@ class PtyEmulator:
                 if self._tx:
                     self._drain()
                 else:
-                    self._tokens = min(
-                        self._burst_bytes,
-                        self._tokens + (time.monotonic() - self._last_wall) * self._bytes_per_wall_s,
-                    )
-                    self._last_wall = time.monotonic()
+                    self._refill()
         except BaseException as exc:  # keep the cause for tests; the driver sees a dead link
             self.error = exc
             self._close_fds()
             raise
+        finally:
+            self._finished.set()
 
     # ---- line protocols
 

@@ -2,10 +2,10 @@
 
 One place for what all serial drivers do the same way:
 
-- `SerialLink`: opens the port with pyserial exactly as for real hardware
-  (`exclusive=True`, so a second opener fails), reads in bounded chunks
-  (`in_waiting` plus a short pyserial timeout, looped up to a wall-clock
-  deadline: a read never blocks forever) and turns every pyserial/OS failure
+- `SerialLink`: opens the port through `serial.serial_for_url` exactly as for
+  real hardware (`exclusive=True`, so a second opener fails), reads what has
+  arrived or waits for the first byte with the remaining time as the port's
+  timeout (a read never blocks forever) and turns every pyserial/OS failure
   into a typed error from `devices.errors`.
 - `LineReader`: bounded ASCII line reads on top of a link (a partial line at
   the deadline is a truncated reply, not a hang).
@@ -24,8 +24,9 @@ Binary frame (little-endian)::
     5       n     payload
     5+n     2     CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF) over bytes 2 .. 4+n
 
-I/O timeouts are wall-clock seconds (the transport is real); station time
-stamps come from the device or from the station `Clock`.
+I/O timeouts count the seconds of the link clock (`Clock.link`: the wall clock
+for real and wall-paced simulated stations, as the transport is real); station
+time stamps come from the device or from the station `Clock`.
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ import math
 import struct
 import termios
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,7 +53,7 @@ from devices.errors import (
     DriverError,
     FrameError,
 )
-from station.clock import Clock, WallClock
+from station.clock import Clock, WallClock, host_clock
 
 # ---------------------------------------------------------------- the port
 
@@ -62,8 +62,8 @@ class SerialLink:
     """An open serial port with bounded reads and typed errors.
 
     `port` is a device path (/dev/ttyUSB0 or an emulator's /dev/pts/N); the
-    same code opens both. `poll_s` is pyserial's own read timeout, the
-    granularity at which a long wait re-checks its deadline.
+    same code opens both. `clock` is the link clock (`Clock.link`, the host's
+    wall clock by default) whose seconds the readers' deadlines count.
     """
 
     def __init__(
@@ -72,19 +72,14 @@ class SerialLink:
         port: str,
         baud: int,
         *,
+        clock: Clock | None = None,
         write_timeout_s: float = 1.0,
-        poll_s: float = 0.02,
     ) -> None:
         self.device = device
         self.port = port
+        self.clock: Clock = clock if clock is not None else host_clock()
         try:
-            self._ser = serial.Serial(
-                port,
-                baud,
-                timeout=poll_s,
-                write_timeout=write_timeout_s,
-                exclusive=True,
-            )
+            self._ser = serial.serial_for_url(port, baud, timeout=0, write_timeout=write_timeout_s, exclusive=True)
         except serial.SerialException as exc:
             if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY):
                 raise DriverError(device, f"serial port {port} is in use by another process ({exc})") from exc
@@ -110,17 +105,18 @@ class SerialLink:
 
     def read_some(self, wait_s: float) -> bytes:
         """Whatever has arrived, waiting at most `wait_s` for the first byte; b'' if none."""
-        deadline = time.monotonic() + max(wait_s, 0.0)
         try:
-            while True:
-                n = self._ser.in_waiting
-                data = self._ser.read(n if n > 0 else 1)
-                if data:
-                    n = self._ser.in_waiting
-                    return data + self._ser.read(n) if n else data
-                if time.monotonic() >= deadline:
-                    return b""
-        except (serial.SerialException, OSError, TypeError) as exc:
+            n = self._ser.in_waiting
+            if n:
+                return self._ser.read(n)
+            # Setting the timeout reconfigures the port (flock, tcgetattr): only when we must wait.
+            self._ser.timeout = max(wait_s, 0.0)
+            data = self._ser.read(1)
+            if not data:
+                return b""
+            n = self._ser.in_waiting
+            return data + self._ser.read(n) if n else data
+        except (serial.SerialException, OSError, TypeError, termios.error) as exc:  # tcgetattr on a vanished pty
             raise self._gone(exc) from exc
 
     def discard_input(self) -> None:
@@ -141,16 +137,18 @@ class SerialLink:
 
 class SerialDevice:
     """The port's life cycle that every serial driver shares: open and close (both idempotent), use as
-    a context manager, one transaction at a time under `_io`. A subclass names itself in DEVICE, may
-    talk to the device once the port is open (`_after_open`; a failure there closes the port again)
-    and say goodbye before it closes (`_before_close`, best effort). This class reads lines
-    (`lines`); FramedDevice reads binary frames (`framed`)."""
+    a context manager, one transaction at a time under `_io`, replies timed on the link clock of the
+    station clock `clock` (`_link_clock`). A subclass names itself in DEVICE, may talk to the device
+    once the port is open (`_after_open`; a failure there closes the port again) and say goodbye
+    before it closes (`_before_close`, best effort). This class reads lines (`lines`); FramedDevice
+    reads binary frames (`framed`)."""
 
     DEVICE = "serial device"
 
-    def __init__(self, port: str, baud: int) -> None:
+    def __init__(self, port: str, baud: int, *, clock: Clock | None = None) -> None:
         self.port = port
         self.baud = baud
+        self._link_clock: Clock = clock.link if clock is not None else host_clock()
         self._link: SerialLink | None = None
         self._lines: LineReader | None = None
         self._io = threading.Lock()
@@ -160,7 +158,7 @@ class SerialDevice:
         return self._link is not None
 
     def _connect(self) -> None:
-        self._link = SerialLink(self.DEVICE, self.port, self.baud)
+        self._link = SerialLink(self.DEVICE, self.port, self.baud, clock=self._link_clock)
         self._lines = LineReader(self._link)
 
     def _disconnect(self) -> None:
@@ -221,11 +219,12 @@ class LineReader:
     def read_line(self, timeout_s: float) -> bytes:
         """The next line without its terminator (trailing CR stripped).
 
-        Raises DeviceTimeout if nothing arrived within `timeout_s` (wall), and
+        Raises DeviceTimeout if nothing arrived within `timeout_s` (link clock), and
         FrameError if a partial line arrived and then stopped (truncated reply)
         or a line grew past `max_len` bytes.
         """
-        deadline = time.monotonic() + timeout_s
+        clock = self.link.clock
+        deadline_s = clock.now_s() + timeout_s
         while True:
             i = self._buf.find(self.terminator)
             if i >= 0:
@@ -236,8 +235,8 @@ class LineReader:
                 junk = bytes(self._buf[:64])
                 self._buf.clear()
                 raise FrameError(self.link.device, f"line longer than {self.max_len} bytes (starts {junk!r})")
-            left = deadline - time.monotonic()
-            if left <= 0:
+            left_s = deadline_s - clock.now_s()
+            if left_s <= 0:
                 if self._buf:
                     partial = bytes(self._buf)
                     self._buf.clear()
@@ -246,7 +245,7 @@ class LineReader:
                         f"truncated reply {partial!r}: no line end within {timeout_s:g} s",
                     )
                 raise DeviceTimeout(self.link.device, f"no reply within {timeout_s:g} s")
-            self._buf += self.link.read_some(left)
+            self._buf += self.link.read_some(left_s)
 
 
 # ---------------------------------------------------------------- binary frames
@@ -402,12 +401,13 @@ class FramedPort:
 
     Frames that arrive while a request waits for its reply (stream samples,
     events) are kept in a backlog and handed out by `poll_item` afterwards,
-    so a status query in the middle of a stream loses nothing.
+    so a status query in the middle of a stream loses nothing. `clock`: the
+    link clock, as for SerialLink.
     """
 
-    def __init__(self, device: str, port: str, baud: int) -> None:
+    def __init__(self, device: str, port: str, baud: int, *, clock: Clock | None = None) -> None:
         self.device = device
-        self.link = SerialLink(device, port, baud)
+        self.link = SerialLink(device, port, baud, clock=clock)
         self.parser = FrameParser(device)
         self._backlog: deque[Frame] = deque()
 
@@ -446,20 +446,21 @@ class FramedPort:
         no reply within timeout_s or a garbled reply.
         """
         label = what or f"command 0x{frame_type:02X}"
+        clock = self.link.clock
 
         def once() -> Frame:
             self.link.write(encode_frame(frame_type, payload))
-            deadline = time.monotonic() + timeout_s
+            deadline_s = clock.now_s() + timeout_s
             bad: FrameError | None = None
             while True:
                 item = self.parser.next_item()
                 if item is None:
-                    left = deadline - time.monotonic()
-                    if left <= 0:
+                    left_s = deadline_s - clock.now_s()
+                    if left_s <= 0:
                         if bad is not None:
                             raise type(bad)(self.device, f"{label}: reply damaged ({bad})")
                         raise DeviceTimeout(self.device, f"no reply to {label} within {timeout_s:g} s")
-                    self.fill(left)
+                    self.fill(left_s)
                 elif isinstance(item, FrameError):
                     bad = item  # maybe our reply, maybe stream debris: keep waiting
                 elif is_reply(item):
@@ -480,8 +481,8 @@ ANCHOR_SLACK_S = 1.0  # a device clock may run this far behind the host's when a
 class FramedDevice(SerialDevice):
     """A SerialDevice that speaks the binary frames of FramedPort."""
 
-    def __init__(self, port: str, baud: int) -> None:
-        super().__init__(port, baud)
+    def __init__(self, port: str, baud: int, *, clock: Clock | None = None) -> None:
+        super().__init__(port, baud, clock=clock)
         self._port: FramedPort | None = None
 
     @property
@@ -489,7 +490,7 @@ class FramedDevice(SerialDevice):
         return self._port is not None
 
     def _connect(self) -> None:
-        self._port = FramedPort(self.DEVICE, self.port, self.baud)
+        self._port = FramedPort(self.DEVICE, self.port, self.baud, clock=self._link_clock)
 
     def _disconnect(self) -> None:
         assert self._port is not None

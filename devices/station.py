@@ -21,7 +21,6 @@ import contextlib
 import dataclasses
 import logging
 import math
-import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,7 +51,10 @@ GRATING_ATTEMPTS = 3  # a host stall of a few hundred ms overflows the board's F
 # The display trace: at most this many grating samples per wall second over the line, so that a
 # fast virtual clock gets a thinned (equivalent-time) sample of the motion instead of a backlog.
 TRACE_SAMPLES_PER_WALL_S = 250.0
-TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often; each drain may wait 1 ms for bytes
+TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often than this
+# A drain waits this long for bytes: a window at 1000x may last 36 ms of wall time, and its only drain, at
+# the OPEN event, comes just after the stream starts (what the serial link's 20 ms poll used to grant).
+TRACE_WAIT_WALL_S = 0.02
 # Reference marks report each crossing as an ASCII line of about 35 bytes at 115 200 baud
 # (330 lines per wall second): at 10 Hz, station time may run at most 10x while they are timed.
 REFERENCE_MAX_SPEED = 10.0
@@ -193,9 +195,9 @@ class StationDevices:
         the grating streams a thinned display trace for the rest of the window,
         handed over on each board event.
         """
-        self.counter.arm(preset_pulses, stream_edges=stream_edges)
         trace = None
         try:
+            self.counter.arm(preset_pulses, stream_edges=stream_edges)  # in the try: a lost reply may leave it armed
             grating = self.capture_grating(grating_s) if grating_s > 0 else (np.empty(0), np.empty(0))
             if on_trace is not None:
                 trace = _DisplayTrace(self.grating, self.clock, on_trace)
@@ -346,17 +348,18 @@ class _DisplayTrace:
         divider = min(max(math.ceil(GRATING_RATE_HZ * speed / TRACE_SAMPLES_PER_WALL_S), 10), grating.max_divider)
         self.grating = grating
         self.sink = sink
+        self._link = clock.link  # the drain's pace is the line's
         self.errors = 0
-        self._last_drain = 0.0
+        self._last_drain = -math.inf
         grating.start_streaming(divider)
 
     def drain(self) -> None:
-        now = time.monotonic()
+        now = self._link.now_s()
         if now - self._last_drain < TRACE_DRAIN_WALL_S:
             return
         self._last_drain = now
         try:
-            block = self.grating.read_block(max_samples=5000, timeout_s=0.001)
+            block = self.grating.read_block(max_samples=5000, timeout_s=TRACE_WAIT_WALL_S)
         except DeviceTimeout:
             return  # nothing new yet
         except DriverError:

@@ -126,7 +126,7 @@ class Engine:
         supervisor: MotionSupervisor | None = None,
     ) -> None:
         self.hw = hardware
-        self.supervisor = supervisor or MotionSupervisor(hardware)
+        self.supervisor = supervisor or MotionSupervisor(hardware, clock=hardware.clock.link)
         self.clock = hardware.clock
         self.store = store
         self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user
@@ -135,7 +135,7 @@ class Engine:
         self._lock = threading.Lock()
         self._resume = threading.Event()
         self._resume.set()
-        self._acknowledged = threading.Event()
+        self._acknowledged = self.clock.link.event()  # a person acknowledges: waited on the link's (wall) time
         self._pause_requested = False
         self._abort_requested = False
         self._estop = False
@@ -237,7 +237,7 @@ class Engine:
             operator.perform(message, action)
             return
         self._set_state(State.WAITING_OPERATOR)
-        while not self._acknowledged.wait(0.1):
+        while not self._acknowledged.wait(timeout_s=0.1):
             self.check_abort()
         self.check_abort()
         self._set_state(State.RUNNING)
@@ -253,13 +253,13 @@ class Engine:
         """The on_event callback of a counter window: abort checks and throttled progress telemetry."""
         expected_s = self._estimates.get(key, math.nan)
         opened_s: list[float] = []
-        last_wall = [0.0]
+        last_wall = [-math.inf]
 
         def on_event(ev: Event) -> None:
             self.check_abort()
             if ev.kind == "open":
                 opened_s.append(ev.t_s)
-            now = time.monotonic()
+            now = self.clock.link.now_s()
             if ev.kind not in ("open", "close") and now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
                 return
             last_wall[0] = now
@@ -278,12 +278,12 @@ class Engine:
         """The on_trace callback of a window: grating samples published as a decimated displacement trace."""
         t_parts: list = []
         z_parts: list = []
-        last_wall = [0.0]
+        last_wall = [-math.inf]
 
         def on_trace(t_s, z_m) -> None:
             t_parts.append(t_s)
             z_parts.append(z_m)
-            now = time.monotonic()
+            now = self.clock.link.now_s()
             if now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
                 return
             last_wall[0] = now

@@ -24,23 +24,26 @@ that ticks every `TICK_S` of wall time. Three things go through it:
   its master is lost (CiA 402 0x6007, 0x605A), stops the crank: a live process
   whose supervision is gone no longer defeats the drive's watchdog.
 
-Bounds (wall time): tick 0.05 s; alive() false after STALE_S = 1 s without a tick; the
-drive's consumer then trips after 3 heartbeat periods (1.5 s on the simulated station).
+Bounds, in seconds of the supervisor's clock (the station clock's link: wall time on a real
+and on today's simulated station, station.clock): tick 0.05 s; alive() false once a tick has
+been stuck for STALE_S = 1 s (a thread that only waits its turn on a busy host is not hung);
+the drive's consumer then trips after 3 heartbeat periods (1.5 s on the simulated station).
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
+
+from station.clock import Clock, ClockEvent, host_clock
 
 log = logging.getLogger(__name__)
 
 TICK_S = 0.05  # wall seconds between supervisor ticks
-STALE_S = 1.0  # a supervisor that has not ticked for this long is not alive (its heartbeat stops)
+STALE_S = 1.0  # a supervisor stuck this long in one tick is not alive (its heartbeat stops)
 DEFAULT_SAFE_STOP_BOUND_S = 10.0  # wall seconds for hw.safe_stop() if the station states none
 QUICK_STOP_BOUND_S = 2.0  # wall seconds an emergency stop may take after a safe stop overran
 ABORT_GRACE_S = 5.0  # wall seconds an engine gets to end after an abort before the supervisor stops motion itself
@@ -78,17 +81,25 @@ class SafeState:
 class _Watch:
     thread: threading.Thread
     on_lost: Callable[[str, SafeState], None]
+    lost: ClockEvent
     released: bool = False
-    deadline_mono_s: float | None = None
+    deadline_s: float | None = None
     handled: bool = False
-    lost: threading.Event = field(default_factory=threading.Event)
 
 
 class MotionSupervisor:
     """The one supervisor of motion of a station (thread-safe)."""
 
-    def __init__(self, hardware: Any, *, bound_s: float | None = None, abort_grace_s: float = ABORT_GRACE_S) -> None:
+    def __init__(
+        self,
+        hardware: Any,
+        *,
+        bound_s: float | None = None,
+        abort_grace_s: float = ABORT_GRACE_S,
+        clock: Clock | None = None,
+    ) -> None:
         self.hw = hardware
+        self._clock = clock if clock is not None else host_clock()
         if bound_s is None:
             bound_s = hardware.safe_stop_bound_s() if isinstance(hardware, StatesStopBound) else None
         self.bound_s = DEFAULT_SAFE_STOP_BOUND_S if bound_s is None else float(bound_s)
@@ -96,15 +107,15 @@ class MotionSupervisor:
         self.last: SafeState | None = None
         self._lock = threading.Lock()
         self._watch: _Watch | None = None
-        self._stop = threading.Event()
+        self._stop = self._clock.event()
+        self._ended = self._clock.event()
         self._frozen = threading.Event()
-        self._last_tick_mono_s = time.monotonic()
+        self._tick_started_s: float | None = None  # set while a tick runs
         self._thread = threading.Thread(target=self._loop, name="motion-supervisor", daemon=True)
 
     # ---- life cycle ---------------------------------------------------------------------
 
     def start(self) -> MotionSupervisor:
-        self._last_tick_mono_s = time.monotonic()
         self._thread.start()
         if isinstance(self.hw, HeartbeatSource):
             self.hw.tie_heartbeat(self.alive)
@@ -116,14 +127,15 @@ class MotionSupervisor:
             self.hw.tie_heartbeat(lambda: True)
         self._stop.set()
         if self._thread.is_alive():
-            self._thread.join(timeout=1.0)
+            self._ended.wait(timeout_s=1.0)
 
     def alive(self) -> bool:
-        """The supervisor ticks: its thread runs and has ticked within STALE_S."""
-        return self._thread.is_alive() and time.monotonic() - self._last_tick_mono_s < STALE_S
+        """The supervisor ticks: its thread runs and no tick has been stuck for STALE_S."""
+        started_s = self._tick_started_s
+        return self._thread.is_alive() and (started_s is None or self._clock.now_s() - started_s < STALE_S)
 
     def freeze(self) -> None:
-        """Stop ticking without ending the thread: what a hung supervisor looks like (for fault tests)."""
+        """Hang in the next tick without ending the thread: what a hung supervisor looks like (for fault tests)."""
         self._frozen.set()
 
     # ---- runs ---------------------------------------------------------------------------
@@ -131,7 +143,7 @@ class MotionSupervisor:
     def watch(self, thread: threading.Thread, on_lost: Callable[[str, SafeState], None]) -> None:
         """Supervise a run's engine thread until release(); on_lost(reason, safe_state) if it is lost."""
         with self._lock:
-            self._watch = _Watch(thread, on_lost)
+            self._watch = _Watch(thread, on_lost, lost=self._clock.event())
 
     def release(self, thread: threading.Thread | None = None) -> None:
         """The run ended through its own path (its outcome recorded, its devices stopped)."""
@@ -144,21 +156,22 @@ class MotionSupervisor:
     def expect_end(self, within_s: float | None = None) -> None:
         """An abort or signal was sent: the run must end within within_s (default ABORT_GRACE_S) of wall time."""
         with self._lock:
-            if self._watch is not None and self._watch.deadline_mono_s is None:
-                self._watch.deadline_mono_s = time.monotonic() + (self.abort_grace_s if within_s is None else within_s)
+            if self._watch is not None and self._watch.deadline_s is None:
+                self._watch.deadline_s = self._clock.now_s() + (self.abort_grace_s if within_s is None else within_s)
 
-    def wait_lost(self, timeout_s: float) -> bool:
+    def wait_lost(self, *, timeout_s: float) -> bool:
         """True once a watched run was found lost and its devices brought to a safe state (for tests)."""
         w = self._watch
-        return w.lost.wait(timeout_s) if w is not None else False
+        return w.lost.wait(timeout_s=timeout_s) if w is not None else False
 
     # ---- safe states ----------------------------------------------------------------------
 
     def safe_state(self, reason: str) -> SafeState:
         """hw.safe_stop() within bound_s, else (or if it raises) hw.emergency_stop(); the record of which."""
-        t0 = time.monotonic()
+        t0 = self._clock.now_s()
         errors: list[str] = []
         done = threading.Event()
+        ended = self._clock.event()
 
         def stop() -> None:
             try:
@@ -167,14 +180,15 @@ class MotionSupervisor:
                 errors.append(f"safe stop failed: {type(exc).__name__}: {exc}")
             else:
                 done.set()
+            finally:
+                ended.set()
 
-        helper = threading.Thread(target=stop, name="safe-stop", daemon=True)
-        helper.start()
-        helper.join(self.bound_s)
+        threading.Thread(target=stop, name="safe-stop", daemon=True).start()
+        ended.wait(timeout_s=self.bound_s)
         if done.is_set():
-            state = SafeState(reason, "safe stop", time.monotonic() - t0, tuple(errors))
+            state = SafeState(reason, "safe stop", self._clock.now_s() - t0, tuple(errors))
         else:
-            if helper.is_alive():
+            if not ended.is_set():
                 errors.append(f"safe stop not done within {self.bound_s:g} s")
             state = self._emergency(reason, t0, errors)
         self.last = state
@@ -183,7 +197,7 @@ class MotionSupervisor:
 
     def emergency_state(self, reason: str) -> SafeState:
         """hw.emergency_stop() now (motion only; callable from any thread); its record."""
-        state = self._emergency(reason, time.monotonic(), [])
+        state = self._emergency(reason, self._clock.now_s(), [])
         self.last = state
         return state
 
@@ -192,19 +206,24 @@ class MotionSupervisor:
             self.hw.emergency_stop()
         except Exception as exc:  # the stops of every device are best effort; say what failed
             errors.append(f"emergency stop: {type(exc).__name__}: {exc}")
-        return SafeState(reason, "emergency stop", time.monotonic() - t0, tuple(errors))
+        return SafeState(reason, "emergency stop", self._clock.now_s() - t0, tuple(errors))
 
     # ---- the tick -----------------------------------------------------------------------------
 
     def _loop(self) -> None:
-        while not self._stop.wait(TICK_S):
-            if self._frozen.is_set():
-                continue
-            self._last_tick_mono_s = time.monotonic()
-            try:
-                self._tick()
-            except Exception:  # the supervisor must outlive any of its own errors
-                log.exception("motion supervisor tick failed")
+        try:
+            while not self._stop.wait(timeout_s=TICK_S):
+                self._tick_started_s = self._clock.now_s()
+                if self._frozen.is_set():
+                    self._stop.wait()  # hung: the tick never ends
+                    return
+                try:
+                    self._tick()
+                except Exception:  # the supervisor must outlive any of its own errors
+                    log.exception("motion supervisor tick failed")
+                self._tick_started_s = None
+        finally:
+            self._ended.set()
 
     def _tick(self) -> None:
         with self._lock:
@@ -213,7 +232,7 @@ class MotionSupervisor:
                 return
             if not w.thread.is_alive():
                 reason = f"engine thread {w.thread.name!r} ended without recording its outcome"
-            elif w.deadline_mono_s is not None and time.monotonic() > w.deadline_mono_s:
+            elif w.deadline_s is not None and self._clock.now_s() > w.deadline_s:
                 reason = f"engine did not end within {self.abort_grace_s:g} s of an abort"
             else:
                 return
@@ -226,7 +245,7 @@ class MotionSupervisor:
             state = self.emergency_state(reason)
         else:  # gone: the window is aborted and the crank ramped, then everything is stopped and held
             state = self.safe_state(reason)
-            held = self._emergency(reason, time.monotonic(), list(state.errors))
+            held = self._emergency(reason, self._clock.now_s(), list(state.errors))
             state = SafeState(reason, f"{state.how}, then held", state.took_s + held.took_s, held.errors)
             self.last = state
         try:

@@ -25,6 +25,8 @@ import tty
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, TypeVar
 
+from station.clock import WallClock, host_clock
+
 STEP_TIMEOUT_S = 2.0  # wall time the far end waits for a driver's command
 QUIET_S = 0.05  # after the transcript: a driver writing more within this fails the test
 D = TypeVar("D", bound=contextlib.AbstractContextManager)
@@ -44,6 +46,11 @@ class FrozenClock:
 
     def advance_s(self, duration_s: float) -> None:
         self.t_s += duration_s
+
+    @property
+    def link(self) -> WallClock:
+        """Replies are timed on the host's wall clock, as on a wall-paced simulated station."""
+        return host_clock()
 
 
 def _read_exactly(fd: int, n: int, timeout_s: float) -> bytes:

@@ -23,7 +23,6 @@ import hashlib
 import hmac
 import secrets
 import threading
-import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Annotated
@@ -31,6 +30,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, Security
 from fastapi.security import APIKeyCookie, APIKeyHeader
 
+from station.clock import host_clock
 from web.users import LiveUsers, User
 
 SESSION_COOKIE = "panel_session"
@@ -46,7 +46,7 @@ THROTTLE_KEYS = 10_000  # names and addresses remembered at most (the oldest for
 class LoginSession:
     user: User
     csrf: str = field(default_factory=lambda: secrets.token_urlsafe(32))
-    last_seen: float = field(default_factory=time.monotonic)
+    last_seen: float = field(default_factory=lambda: host_clock().now_s())
 
 
 def _digest(token: str) -> str:
@@ -73,7 +73,7 @@ class LoginSessions:
     def get(self, token: str | None) -> LoginSession | None:
         if not token:
             return None
-        now = time.monotonic()
+        now = host_clock().now_s()
         with self._lock:
             session = self._by_digest.get(_digest(token))
             if session is None:
@@ -129,7 +129,7 @@ class LoginThrottle:
 
     def retry_after_s(self, user: str, address: str | None) -> float:
         """0 if a login may be tried; otherwise seconds until the oldest failure counted leaves the window."""
-        now = time.monotonic()
+        now = host_clock().now_s()
         wait = 0.0
         with self._lock:
             for key in self.keys(user, address):
@@ -149,7 +149,7 @@ class LoginThrottle:
             return first
 
     def failed(self, user: str, address: str | None) -> None:
-        now = time.monotonic()
+        now = host_clock().now_s()
         with self._lock:
             for key in self.keys(user, address):
                 times = self._recent(key, now)

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import contextlib
 import struct
-import time
 from collections.abc import Callable
 
 import numpy as np
@@ -104,7 +103,7 @@ class CounterTimer(FramedDevice):
         clock: Clock | None = None,
         max_preset: int = MAX_PRESET,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.timeout_s = timeout_s
         self.silence_s = silence_s
         self.retries = retries
@@ -185,14 +184,14 @@ class CounterTimer(FramedDevice):
     def next_event(self) -> Event:
         """The next board event; DeviceTimeout after silence_s without any frame."""
         fp = self.framed
-        deadline = time.monotonic() + self.silence_s
+        deadline_s = self._link_clock.now_s() + self.silence_s
         while True:
             item = fp.poll_item()
             if item is None:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     raise DeviceTimeout(DEVICE, f"board silent for {self.silence_s:g} s (no heartbeat)")
-                fp.fill(left)
+                fp.fill(left_s)
                 continue
             if isinstance(item, FrameError):
                 if self._window is not None and self._opened and not self._closed:
@@ -258,15 +257,15 @@ class CounterTimer(FramedDevice):
         """Collect the armed window's events until DONE and return the result.
 
         Bounded: DeviceTimeout if the board falls silent (silence_s) or, when
-        given, the whole wait exceeds timeout_s of wall time (the board is then
+        given, the whole wait exceeds timeout_s of link-clock time (the board is then
         left as it is: abort() it if wanted).
         """
         w = self._window
         if w is None:
             raise DriverError(DEVICE, "no window armed")
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline_s = None if timeout_s is None else self._link_clock.now_s() + timeout_s
         while True:
-            if deadline is not None and time.monotonic() > deadline:
+            if deadline_s is not None and self._link_clock.now_s() > deadline_s:
                 raise DeviceTimeout(DEVICE, f"window not done within {timeout_s:g} s")
             ev = self.next_event()
             if on_event is not None:

@@ -33,7 +33,6 @@ repeated RD is simply a newer reading with its own time stamp); faults are not.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 from devices.errors import DeviceFault, DeviceTimeout, FrameError
@@ -83,7 +82,7 @@ class Gradiometer(SerialDevice):
     ) -> None:
         if not 1 <= address <= 99:
             raise ValueError(f"gradiometer address {address!r}: allowed 1 .. 99")
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.address = address
         self.timeout_s = timeout_s
         self.retries = retries
@@ -96,13 +95,13 @@ class Gradiometer(SerialDevice):
         with self._io:
             lines.clear()  # a partial line left by a failed attempt
             lines.link.write(encode_line("#", self.address, command))
-            deadline = time.monotonic() + self.timeout_s
+            deadline_s = self._link_clock.now_s() + self.timeout_s
             while True:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     raise DeviceTimeout(DEVICE, f"no reply to {command} within {self.timeout_s:g} s")
                 try:
-                    line = lines.read_line(left)
+                    line = lines.read_line(left_s)
                 except DeviceTimeout:
                     raise DeviceTimeout(DEVICE, f"no reply to {command} within {self.timeout_s:g} s") from None
                 address, reply, fields = decode_line(line)

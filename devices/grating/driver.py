@@ -37,7 +37,6 @@ Disconnected. START/STOP/STATUS are idempotent, so they are retried.
 from __future__ import annotations
 
 import contextlib
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -125,7 +124,7 @@ class GratingReadHead(FramedDevice):
         clock: Clock | None = None,
         max_divider: int = 5000,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.timeout_s = timeout_s
         self.retries = retries
         self.max_divider = max_divider
@@ -237,7 +236,7 @@ class GratingReadHead(FramedDevice):
             pending, self._pending = self._pending, None
             raise pending
         timeout_s = self.timeout_s if timeout_s is None else timeout_s
-        deadline = time.monotonic() + timeout_s
+        deadline_s = self._link_clock.now_s() + timeout_s
         period_ticks = TICKS_PER_CYCLE * self._divider
         seqs: list[int] = []
         times: list[float] = []
@@ -263,12 +262,12 @@ class GratingReadHead(FramedDevice):
             if item is None:
                 if seqs:
                     break
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     if self._in_signal_loss:
                         raise self._signal_fault()
                     raise DeviceTimeout(DEVICE, f"no sample within {timeout_s:g} s")
-                fp.fill(left)
+                fp.fill(left_s)
                 host_s = self._unwrap.clock.now_s()
                 continue
             err: DriverError | None = None

@@ -33,7 +33,6 @@ retried.
 from __future__ import annotations
 
 import contextlib
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -127,7 +126,7 @@ class StrapdownImu(FramedDevice):
     ) -> None:
         if rate_hz not in RATES_HZ:
             raise LimitError(DEVICE, "rate not supported", field="rate_hz", value=rate_hz, allowed=str(RATES_HZ))
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.rate_hz = rate_hz
         self.timeout_s = timeout_s
         self.silence_s = silence_s
@@ -213,7 +212,7 @@ class StrapdownImu(FramedDevice):
         if info is None:
             raise DriverError(DEVICE, "not open")
         wait_s = self.silence_s if timeout_s is None else timeout_s
-        deadline = time.monotonic() + wait_s
+        deadline_s = self._link_clock.now_s() + wait_s
         fp = self.framed
         payloads: list[bytes] = []
         while len(payloads) < max_samples:
@@ -221,10 +220,10 @@ class StrapdownImu(FramedDevice):
             if item is None:
                 if payloads:
                     break
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     raise DeviceTimeout(DEVICE, f"no sample within {wait_s:g} s (stream silent)")
-                fp.fill(left)
+                fp.fill(left_s)
                 continue
             if isinstance(item, Frame) and item.type == SAMPLE and len(item.payload) != SAMPLE_DTYPE.itemsize:
                 item = FrameError(DEVICE, f"sample frame of {len(item.payload)} bytes")

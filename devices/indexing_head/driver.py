@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import contextlib
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -90,7 +89,7 @@ class IndexingHead(SerialDevice):
     ) -> None:
         if not min_deg < max_deg:
             raise ValueError(f"min_deg {min_deg} must be < max_deg {max_deg}")
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.device = device
         self.axis = axis
         self.counts_per_deg = counts_per_deg
@@ -116,13 +115,13 @@ class IndexingHead(SerialDevice):
             self._msg_id = (self._msg_id + 1) % 100
             mid = self._msg_id
             lines.link.write(encode_command(self.device, self.axis, mid, command))
-            deadline = time.monotonic() + self.timeout_s
+            deadline_s = self._link_clock.now_s() + self.timeout_s
             while True:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     raise DeviceTimeout(DEVICE, f"no reply to {command or 'status'!r}")
                 try:
-                    line = lines.read_line(left)
+                    line = lines.read_line(left_s)
                 except DeviceTimeout:
                     raise DeviceTimeout(
                         DEVICE, f"no reply to {command or 'status'!r} within {self.timeout_s:g} s"

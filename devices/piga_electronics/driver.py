@@ -59,7 +59,7 @@ class PigaElectronics(SerialDevice):
         poll_s: float = 0.2,
         clock: Clock | None = None,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.offset_max_arcsec = offset_max_arcsec
         self.lock_timeout_s = lock_timeout_s
         self.timeout_s = timeout_s

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -99,7 +98,7 @@ class ReferenceMarks(SerialDevice):
         retries: int = 2,
         clock: Clock | None = None,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.timeout_s = timeout_s
         self.silence_s = silence_s
         self.retries = retries
@@ -125,13 +124,13 @@ class ReferenceMarks(SerialDevice):
 
         def once() -> list[str]:
             self.lines.link.write(encode_line(cmd))
-            deadline = time.monotonic() + self.timeout_s
+            deadline_s = self._link_clock.now_s() + self.timeout_s
             while True:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     raise DeviceTimeout(DEVICE, f"no reply to {cmd} within {self.timeout_s:g} s")
                 try:
-                    line = self.lines.read_line(left)
+                    line = self.lines.read_line(left_s)
                     fields = decode_line(line)
                 except DeviceTimeout:
                     raise DeviceTimeout(DEVICE, f"no reply to {cmd} within {self.timeout_s:g} s") from None
@@ -184,22 +183,22 @@ class ReferenceMarks(SerialDevice):
         )
 
     def next_crossing(self, timeout_s: float = 15.0) -> Crossing:
-        """The next reference crossing, waiting at most timeout_s (wall).
+        """The next reference crossing, waiting at most timeout_s (link clock).
 
         Raises DeviceTimeout if the device falls silent for silence_s or no
         crossing comes within timeout_s, DeviceFault while the alarm is active.
         """
-        deadline = time.monotonic() + timeout_s
+        deadline_s = self._link_clock.now_s() + timeout_s
         while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
+            left_s = deadline_s - self._link_clock.now_s()
+            if left_s <= 0:
                 if self.alarm:
                     raise self._alarm_fault()
                 raise DeviceTimeout(DEVICE, f"no reference crossing within {timeout_s:g} s (table at rest?)")
             try:
-                line = self._backlog.popleft() if self._backlog else self.lines.read_line(min(left, self.silence_s))
+                line = self._backlog.popleft() if self._backlog else self.lines.read_line(min(left_s, self.silence_s))
             except DeviceTimeout:
-                if left <= self.silence_s:
+                if left_s <= self.silence_s:
                     continue  # the overall deadline decides
                 raise DeviceTimeout(DEVICE, f"device silent for {self.silence_s:g} s (no heartbeat)") from None
             fields = decode_line(line)

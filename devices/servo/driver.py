@@ -34,7 +34,6 @@ from __future__ import annotations
 import logging
 import math
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
@@ -42,7 +41,6 @@ from typing import Any, cast
 import can
 import canopen
 from canopen.emcy import EmcyError
-from canopen.nmt import NmtError
 from canopen.pdo import PdoMap
 from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
@@ -76,7 +74,7 @@ from devices.servo.protocol import (
     state_of,
 )
 from engine.protocols import ServoReading
-from station.clock import Clock, WallClock
+from station.clock import Clock, TimerHandle, WallClock
 
 log = logging.getLogger(__name__)
 
@@ -170,15 +168,17 @@ class ServoLimits:
 
 
 class _TpdoCache:
-    """Last value, reception count and station time of every TPDO-mapped object."""
+    """Last value, reception count and station time of every TPDO-mapped object; receptions are awaited
+    on the link clock (station.clock)."""
 
     def __init__(self, clock: Clock) -> None:
         self._clock = clock
-        self._cond = threading.Condition()
+        self._link = clock.link
+        self._cond = self._link.condition()
         self._values: dict[int, int] = {}
         self._seq: dict[int, int] = {}
         self._t_s: dict[int, float] = {}
-        self.last_rx_mono_s = time.monotonic()
+        self.last_rx_link_s = self._link.now_s()
 
     def on_pdo(self, pdo_map: PdoMap) -> None:
         t_s = self._clock.now_s()
@@ -187,17 +187,17 @@ class _TpdoCache:
                 self._values[var.index] = int(var.raw)
                 self._seq[var.index] = self._seq.get(var.index, 0) + 1
                 self._t_s[var.index] = t_s
-            self.last_rx_mono_s = time.monotonic()
+            self.last_rx_link_s = self._link.now_s()
             self._cond.notify_all()
 
     def seq(self, index: int) -> int:
         with self._cond:
             return self._seq.get(index, 0)
 
-    def wait(self, index: int, after_seq: int, timeout_s: float) -> tuple[int, int, float] | None:
-        """(value, seq, t_s) of the first reception numbered after after_seq, or None."""
+    def reception(self, index: int, after_seq: int, *, timeout_s: float) -> tuple[int, int, float] | None:
+        """(value, seq, t_s) of the first reception numbered after after_seq, or None after timeout_s."""
         with self._cond:
-            if not self._cond.wait_for(lambda: self._seq.get(index, 0) > after_seq, timeout_s):
+            if not self._cond.wait_for(lambda: self._seq.get(index, 0) > after_seq, timeout_s=timeout_s):
                 return None
             return self._values[index], self._seq[index], self._t_s[index]
 
@@ -215,24 +215,26 @@ class VibrationTableServo:
         self._cfg = servo
         self._limits = limits
         self._clock = clock if clock is not None else WallClock()
+        self._link = self._clock.link  # times the bus protocol: heartbeats, their watchdog, every reply timeout
         self._tpdo = _TpdoCache(self._clock)
         self._network: canopen.Network | None = None
         self._node: BaseNode402 | None = None
-        self._hb_thread: threading.Thread | None = None
-        self._hb_stop = threading.Event()
+        self._hb_timer: TimerHandle | None = None
         self.master_alive: Callable[[], bool] = lambda: True  # the heartbeat goes out only while this holds
         self._hb_period_s = servo.heartbeat_ms / 1000.0
         self._hb_timeout_s = HEARTBEAT_FACTOR * self._hb_period_s
-        self._hb_last_mono_s = time.monotonic()
+        self._hb_last_link_s = self._link.now_s()
+        self._hb_heard = self._link.event()
+        self._watchdog_lock = threading.Lock()
+        self._watchdog: TimerHandle | None = None
+        self._watching = False
         self._pdo_silence_s = self._hb_timeout_s
         self._qs_decel_hz_per_s = 0.0
         self._cw_lock = threading.Lock()
         self._err_lock = threading.Lock()
         self._link_error: DriverError | None = None
         self._fault: DeviceFault | None = None
-        self._error_event = threading.Event()
-        self._closing = threading.Event()
-        self._monitor: threading.Thread | None = None
+        self._error_event = self._link.event()
 
     # ---- life cycle -------------------------------------------------------------------
 
@@ -257,7 +259,6 @@ class VibrationTableServo:
         self._tpdo = _TpdoCache(self._clock)  # a new session: nothing stale, nothing latched
         self._link_error = self._fault = None
         self._error_event.clear()
-        self._closing.clear()
         try:
             bus = can.Bus(interface=cfg.interface, channel=cfg.channel)
         except (can.CanError, OSError, ValueError) as e:
@@ -282,21 +283,20 @@ class VibrationTableServo:
         node.nmt.add_heartbeat_callback(self._on_heartbeat)
 
         self._sdo_read(0x1000)  # the drive answers
+        self._hb_heard.clear()
         self._sdo_write(0x1017, self._cfg.heartbeat_ms)
-        try:
-            node.nmt.wait_for_heartbeat(timeout=self._hb_timeout_s)
-        except NmtError as e:
+        if not self._hb_heard.wait(timeout_s=self._hb_timeout_s):
             raise DeviceTimeout(
                 self.DEVICE,
                 f"no heartbeat within {self._hb_timeout_s:g} s",
                 field="0x1017",
                 value=self._cfg.heartbeat_ms,
                 allowed="a drive producing its heartbeat",
-            ) from e
-        # our heartbeat (NMT state 0x05, OPERATIONAL), consumed by the drive through 0x1016
-        self._hb_stop.clear()
-        self._hb_thread = threading.Thread(target=self._produce_heartbeat, name="servo-master-heartbeat", daemon=True)
-        self._hb_thread.start()
+            )
+        # our heartbeat (NMT state 0x05, OPERATIONAL), consumed by the drive through 0x1016: a timer of the
+        # link clock for as long as the driver is connected, supervised run or not
+        self._produce_heartbeat()
+        self._hb_timer = self._link.call_every(self._hb_period_s, self._produce_heartbeat)
         self._configure_master_loss()
         consumer_ms = round(HEARTBEAT_FACTOR * self._cfg.heartbeat_ms)
         self._sdo_write(0x1016, (MASTER_NODE_ID << 16) | consumer_ms, subindex=1)
@@ -319,16 +319,15 @@ class VibrationTableServo:
         self._select_profile_velocity()
         qs_decel = self._sdo_read(0x6085)
         self._qs_decel_hz_per_s = qs_decel * ACCEL_UNIT_HZ_PER_S
-        self._monitor = threading.Thread(target=self._watchdog, name="servo-watchdog", daemon=True)
-        self._monitor.start()
+        with self._watchdog_lock:
+            self._watching = True
+            self._arm_watchdog()
 
     def close(self) -> None:
         """Bring the crank to rest and disable (best effort), stop heartbeats, leave the bus."""
         if self._network is None:
             return
-        self._closing.set()
-        if self._monitor is not None:
-            self._monitor.join(timeout=1.0)
+        self._stop_watchdog()
         if self._link_error is None and self._node is not None:
             try:
                 if self.state in ("OPERATION ENABLED", "QUICK STOP ACTIVE"):
@@ -339,10 +338,10 @@ class VibrationTableServo:
         self._disconnect()
 
     def _disconnect(self) -> None:
-        if self._hb_thread is not None:
-            self._hb_stop.set()
-            self._hb_thread.join(timeout=1.0)
-            self._hb_thread = None
+        self._stop_watchdog()
+        if self._hb_timer is not None:
+            self._hb_timer.cancel()
+            self._hb_timer = None
         if self._network is not None:
             self.network.disconnect()
             self._network = None
@@ -374,7 +373,7 @@ class VibrationTableServo:
 
     def watch(self, duration_s: float) -> None:
         """Supervise the drive for duration_s; raise the first error as soon as it is latched."""
-        self._error_event.wait(duration_s)
+        self._error_event.wait(timeout_s=duration_s)
         self.check()
 
     def _latch(self, err: DriverError) -> None:
@@ -399,18 +398,19 @@ class VibrationTableServo:
         )
 
     def _on_heartbeat(self, nmt_state: int) -> None:
-        self._hb_last_mono_s = time.monotonic()
+        with self._watchdog_lock:
+            self._hb_last_link_s = self._link.now_s()
+            if self._watching:
+                self._arm_watchdog()
+        self._hb_heard.set()
 
     def _produce_heartbeat(self) -> None:
-        """The master heartbeat, every period while master_alive() holds; silent otherwise."""
-        while True:
-            try:
-                if self.master_alive():
-                    self.network.send_message(0x700 + MASTER_NODE_ID, bytes([0x05]))
-            except (can.CanError, RuntimeError, AttributeError) as e:  # bus gone or network closed
-                log.warning("%s: master heartbeat not sent: %s", self.DEVICE, e)
-            if self._hb_stop.wait(self._hb_period_s):
-                return
+        """One master heartbeat, if master_alive() holds; silent otherwise."""
+        try:
+            if self.master_alive():
+                self.network.send_message(0x700 + MASTER_NODE_ID, bytes([0x05]))
+        except (can.CanError, RuntimeError, AttributeError, Disconnected) as e:  # bus gone or network closed
+            log.warning("%s: master heartbeat not sent: %s", self.DEVICE, e)
 
     def _configure_master_loss(self) -> None:
         """0x6007 and 0x605A written, then read back: the drive must stop on its own if the master is lost."""
@@ -433,15 +433,30 @@ class VibrationTableServo:
         """0x6007 and 0x605A as the drive holds them now (SDO reads)."""
         return {"0x6007": self._sdo_read(0x6007), "0x605A": self._sdo_read(0x605A)}
 
-    def _watchdog(self) -> None:
-        poll_s = min(0.025, self._hb_period_s / 4)
-        while not self._closing.wait(poll_s):
-            now_s = time.monotonic()
-            silent_s = now_s - self._hb_last_mono_s
-            if silent_s <= self._hb_timeout_s:
-                continue
+    def _arm_watchdog(self) -> None:
+        """The heartbeat watchdog: a deadline timer, moved on by every heartbeat (hold _watchdog_lock)."""
+        if self._watchdog is not None:
+            self._watchdog.cancel()
+        self._watchdog = self._link.call_at(self._hb_last_link_s + self._hb_timeout_s, self._heartbeat_overdue)
+
+    def _stop_watchdog(self) -> None:
+        with self._watchdog_lock:
+            self._watching = False
+            if self._watchdog is not None:
+                self._watchdog.cancel()
+                self._watchdog = None
+
+    def _heartbeat_overdue(self) -> None:
+        """No heartbeat for HEARTBEAT_FACTOR periods: latch BusOff (the TPDOs are silent too) or a lost
+        heartbeat, and send a quick stop; once."""
+        with self._watchdog_lock:
+            now_s = self._link.now_s()
+            silent_s = now_s - self._hb_last_link_s
+            if not self._watching or silent_s < self._hb_timeout_s:
+                return  # closed, or a heartbeat came in while this timer fell due
+            self._watching = False
             allowed = f"<= {self._hb_timeout_s * 1000:.0f} ms ({HEARTBEAT_FACTOR} periods)"
-            if now_s - self._tpdo.last_rx_mono_s > self._pdo_silence_s:
+            if now_s - self._tpdo.last_rx_link_s > self._pdo_silence_s:
                 err: DriverError = BusOff(
                     self.DEVICE,
                     "node silent (no heartbeat, no TPDO): bus-off or cable cut",
@@ -457,13 +472,12 @@ class VibrationTableServo:
                     value=round(silent_s * 1000),
                     allowed=allowed,
                 )
-            self._latch(err)
-            log.error("%s; quick stop sent", err)
-            try:
-                self._send_controlword(CW_QUICK_STOP)
-            except DriverError as e:
-                log.error("%s: quick stop after heartbeat loss failed: %s", self.DEVICE, e)
-            return
+        self._latch(err)
+        log.error("%s; quick stop sent", err)
+        try:
+            self._send_controlword(CW_QUICK_STOP)
+        except DriverError as e:
+            log.error("%s: quick stop after heartbeat loss failed: %s", self.DEVICE, e)
 
     # ---- commands ---------------------------------------------------------------------
 
@@ -545,11 +559,11 @@ class VibrationTableServo:
         self._send_controlword(CW_DISABLE_VOLTAGE)
         seq = self._tpdo.seq(0x6041)
         self._send_controlword(CW_FAULT_RESET)
-        deadline = time.monotonic() + timeout_s
+        deadline_s = self._link.now_s() + timeout_s
         sw = None
         while True:
-            remaining_s = deadline - time.monotonic()
-            got = self._tpdo.wait(0x6041, seq, max(remaining_s, 0.0))
+            remaining_s = deadline_s - self._link.now_s()
+            got = self._tpdo.reception(0x6041, seq, timeout_s=max(remaining_s, 0.0))
             if got is not None:
                 sw, seq, _ = got
                 if not sw & SW_FAULT:
@@ -596,9 +610,9 @@ class VibrationTableServo:
         with self._cw_lock:
             mode_var.raw = MODE_PROFILE_VELOCITY
             self._transmit(mode_var.pdo_parent)
-        deadline = time.monotonic() + STATE_TIMEOUT_S
-        while time.monotonic() < deadline:
-            got = self._tpdo.wait(0x6061, seq, deadline - time.monotonic())
+        deadline_s = self._link.now_s() + STATE_TIMEOUT_S
+        while self._link.now_s() < deadline_s:
+            got = self._tpdo.reception(0x6061, seq, timeout_s=deadline_s - self._link.now_s())
             if got is None:
                 break
             if got[0] == MODE_PROFILE_VELOCITY:
@@ -653,11 +667,11 @@ class VibrationTableServo:
     ) -> ServoReading:
         """Wait for a velocity TPDO within AT_SPEED_TOL_HZ of freq_hz with done(statusword); supervised: a latched
         error ends the wait at once."""
-        deadline = time.monotonic() + timeout_s
+        deadline_s = self._link.now_s() + timeout_s
         actual_hz = None
         while True:
-            remaining_s = deadline - time.monotonic()
-            got = self._tpdo.wait(0x606C, seq, max(remaining_s, 0.0))
+            remaining_s = deadline_s - self._link.now_s()
+            got = self._tpdo.reception(0x606C, seq, timeout_s=max(remaining_s, 0.0))
             if supervised:
                 self.check()
             if got is not None:
@@ -686,10 +700,10 @@ class VibrationTableServo:
     def _transition(self, cw: int, expected: str) -> None:
         seq = self._tpdo.seq(0x6041)
         self._send_controlword(cw)
-        deadline = time.monotonic() + STATE_TIMEOUT_S
+        deadline_s = self._link.now_s() + STATE_TIMEOUT_S
         state = "UNKNOWN"
-        while (remaining_s := deadline - time.monotonic()) > 0:
-            got = self._tpdo.wait(0x6041, seq, remaining_s)
+        while (remaining_s := deadline_s - self._link.now_s()) > 0:
+            got = self._tpdo.reception(0x6041, seq, timeout_s=remaining_s)
             if got is None:
                 break
             sw, seq, _ = got
@@ -717,7 +731,7 @@ class VibrationTableServo:
         return self._fresh(0x6041, self._tpdo.seq(0x6041), "statusword TPDO")[0]
 
     def _fresh(self, index: int, after_seq: int, what: str) -> tuple[int, int, float]:
-        got = self._tpdo.wait(index, after_seq, self._cfg.timeout_s)
+        got = self._tpdo.reception(index, after_seq, timeout_s=self._cfg.timeout_s)
         if got is None:
             self.check()
             raise DeviceTimeout(

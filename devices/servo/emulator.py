@@ -18,10 +18,9 @@ SDOs; this module adds what a drive does on its own (see field notes):
   driver writes it), 1 fault (EMCY 0x8130, crank braked on 0x6085), 2 disable
   voltage (crank braked on 0x6084), 3 quick stop (as 0x605A says).
 
-Two clocks: `clock` (the station clock, real or virtual) time-stamps everything
-physical (crank commands, speed, phase); `bus_clock` times the bus protocol
-(event timers, heartbeat consumer) and must run in real time like the
-driver's own timeouts, so it defaults to a WallClock.
+Two time bases: `clock` (the station clock, real or virtual) time-stamps everything
+physical (crank commands, speed, phase); its link (`clock.link`, station.clock) times
+the bus protocol (event timers, heartbeat consumer), like the driver's own timeouts.
 
 The drive's feedback is assumed to carry the twin's frequency error: velocity
 0x606C and position 0x6064 report crank motion / (1 + eps_f), i.e. what the
@@ -67,7 +66,7 @@ from devices.servo.protocol import (
     VELOCITY_UNIT_HZ,
 )
 from models.crank import CrankModel
-from station.clock import Clock, WallClock
+from station.clock import Clock
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +112,6 @@ class ServoEmulator:
         clock: Clock,
         crank: CrankModel | None = None,
         interface: str = "virtual",
-        bus_clock: Clock | None = None,
         tick_s: float = 0.002,
     ) -> None:
         self.channel = channel
@@ -121,11 +119,12 @@ class ServoEmulator:
         self.interface = interface
         self._eds_path = Path(eds_path)
         self._clock = clock
-        self._bus_clock = bus_clock if bus_clock is not None else WallClock()
+        self._bus_clock = clock.link
         self.crank = crank if crank is not None else CrankModel(t0_s=clock.now_s())
         self._tick_s = tick_s
         self._lock = threading.RLock()
-        self._stopping = threading.Event()
+        self._stopping = self._bus_clock.event()
+        self._stopped = self._bus_clock.event()
         self._thread: threading.Thread | None = None
         self._network: canopen.Network | None = None
         self._node: canopen.LocalNode | None = None
@@ -194,13 +193,14 @@ class ServoEmulator:
         node.nmt.state = "INITIALISING"  # boot-up message
         node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat producer (0x1017)
         name = f"servo-emulator-{self.node_id}"
+        self._stopped.clear()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
         self._stopping.set()
         if self._thread is not None:
-            self._thread.join(timeout=2.0)
+            self._stopped.wait(timeout_s=2.0)
             self._thread = None
         if self._network is not None:
             self.node.nmt.stop_heartbeat()
@@ -434,12 +434,15 @@ class ServoEmulator:
 
     def _run(self) -> None:
         wait_s = 0.0
-        while not self._stopping.wait(wait_s):
-            try:
-                wait_s = self._tick()
-            except Exception:  # keep the drive alive, but never silently
-                log.exception("servo emulator: periodic work failed")
-                wait_s = self._tick_s
+        try:
+            while not self._stopping.wait(timeout_s=wait_s):
+                try:
+                    wait_s = self._tick()
+                except Exception:  # keep the drive alive, but never silently
+                    log.exception("servo emulator: periodic work failed")
+                    wait_s = self._tick_s
+        finally:
+            self._stopped.set()
 
     def _tick(self) -> float:
         """One round of periodic work; returns the wait until the next (<= tick_s)."""

@@ -42,6 +42,7 @@ from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError
 from devices.serial_port import SerialDevice, with_retries
 from devices.shaker.envelope import ShakerSection, check_ramp, check_random, check_sine
 from devices.shaker.protocol import DEVICE, MODES, STATES, decode_line, encode_line
+from station.clock import Clock
 
 
 @dataclass(frozen=True)
@@ -57,14 +58,24 @@ class ShakerStatus:
 
 
 class ShakerController(SerialDevice):
-    """Driver of the vibration controller; `limits` is the table's envelope (its config section)."""
+    """Driver of the vibration controller; `limits` is the table's envelope (its config section).
+
+    The controller keeps its own time; `clock`, the station clock, only times the replies (its link clock).
+    """
 
     DEVICE = DEVICE
 
     def __init__(
-        self, port: str, limits: ShakerSection, *, baud: int = 115_200, timeout_s: float = 0.5, retries: int = 2
+        self,
+        port: str,
+        limits: ShakerSection,
+        *,
+        baud: int = 115_200,
+        timeout_s: float = 0.5,
+        retries: int = 2,
+        clock: Clock | None = None,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.limits = limits
         self.timeout_s = timeout_s
         self.retries = retries

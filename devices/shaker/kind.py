@@ -16,8 +16,7 @@ from station.clock import Clock
 def open_shaker(section: ShakerSection, clock: Clock) -> ShakerController:
     if section.port is None:
         raise DriverError(DEVICE, "no serial port configured for [shaker]")
-    del clock  # the controller keeps its own time
-    shaker = ShakerController(section.port, section, baud=section.baud).open()
+    shaker = ShakerController(section.port, section, baud=section.baud, clock=clock).open()
     try:
         shaker.identify()
     except DriverError:

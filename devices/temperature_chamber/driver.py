@@ -24,7 +24,6 @@ effect and writes set absolute values, so repeating one is harmless.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 from devices.errors import DeviceFault, DeviceTimeout, DriverError, FrameError, LimitError
@@ -43,6 +42,7 @@ from devices.temperature_chamber.protocol import (
     encode_write,
     reply_length,
 )
+from station.clock import Clock
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,10 @@ class ChamberStatus:
 
 
 class TemperatureChamber(SerialDevice):
-    """Driver of the chamber controller; `set_*` refuse values outside the station's limits before sending."""
+    """Driver of the chamber controller; `set_*` refuse values outside the station's limits before sending.
+
+    `clock`, the station clock, only times the replies (its link clock).
+    """
 
     DEVICE = DEVICE
 
@@ -72,8 +75,9 @@ class TemperatureChamber(SerialDevice):
         time_constant_s: float = 600.0,  # the product's lag, for soak estimates
         timeout_s: float = 0.5,
         retries: int = 2,
+        clock: Clock | None = None,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.address = address
         self.setpoint_min_c = setpoint_min_c
         self.setpoint_max_c = setpoint_max_c
@@ -93,15 +97,15 @@ class TemperatureChamber(SerialDevice):
         with self._io:
             link.discard_input()
             link.write(message)
-            deadline = time.monotonic() + self.timeout_s
+            deadline_s = self._link_clock.now_s() + self.timeout_s
             buf = b""
             while (n := reply_length(buf)) is None:
-                left = deadline - time.monotonic()
-                if left <= 0:
+                left_s = deadline_s - self._link_clock.now_s()
+                if left_s <= 0:
                     if buf:
                         raise FrameError(DEVICE, f"{what}: truncated reply {buf!r} within {self.timeout_s:g} s")
                     raise DeviceTimeout(DEVICE, f"no reply to {what} within {self.timeout_s:g} s")
-                buf += link.read_some(left)
+                buf += link.read_some(left_s)
             return buf[:n]
 
     def read(self, mnemonic: str) -> str:

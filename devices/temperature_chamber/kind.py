@@ -37,6 +37,7 @@ def _open(section: TemperatureChamberSection, clock: Clock) -> TemperatureChambe
         section.port or "", baud=section.baud, address=section.address, setpoint_min_c=section.setpoint_min_c,
         setpoint_max_c=section.setpoint_max_c, ramp_max_c_per_min=section.ramp_max_c_per_min,
         stable_band_c=section.stable_band_c, time_constant_s=section.time_constant_s, timeout_s=section.timeout_s,
+        clock=clock,
     ).open()  # fmt: skip
 
 

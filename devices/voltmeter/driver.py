@@ -68,7 +68,7 @@ class Voltmeter(SerialDevice):
         retries: int = 2,
         clock: Clock | None = None,
     ) -> None:
-        super().__init__(port, baud)
+        super().__init__(port, baud, clock=clock)
         self.line_hz = line_hz
         self.timeout_s = timeout_s
         self.retries = retries

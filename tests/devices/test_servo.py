@@ -7,8 +7,9 @@ Tolerances and bounds, derived:
 - mid-ramp velocity: a TPDO is sampled at most one event period (10 ms) plus one emulator
   tick (2 ms) before the driver time-stamps it; with scheduling slack, 50 ms of ramp.
 - heartbeat loss: the consumer time is 3 x heartbeat_ms (of the simulated station's file)
-  after the last heartbeat, which came at most one period before the fault; the watchdog
-  polls every 25 ms. Bound 3 heartbeat periods + 0.025 + slack = 3 x HB_S + 0.2 s from the injection.
+  after the last heartbeat, which came at most one period before the fault; the driver's
+  watchdog is a deadline timer of the link clock at that instant. Bound 3 heartbeat periods +
+  slack = 3 x HB_S + 0.2 s from the injection.
 - SDO timeout: timeout_s per attempt, 2 attempts for reads, 1 for writes.
 """
 
