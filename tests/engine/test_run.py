@@ -13,7 +13,7 @@ from devices.servo.emulator import ServoEmulator
 from engine.runner import State
 from models.config import default_twin
 
-from .conftest import PROCEDURE, QUICK
+from .conftest import CONFIG, PROCEDURE, QUICK
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -139,6 +139,18 @@ def test_an_aborted_session_resumes_without_losing_or_repeating_points(make_rig)
     assert after[: len(before)] == before
     assert [p.sequence for p in after] == list(range(10))
     assert len({p.point_id for p in after}) == 10
+
+
+def test_sessions_run_back_to_back_without_a_reset(make_rig) -> None:
+    """The master heartbeat is a timer of the clock for as long as the driver is connected (issue 25): between
+    two sessions, with no run supervised, the drive keeps hearing its master and the next Start just works."""
+    rig = make_rig()
+    for _ in range(2):
+        out = rig.controller.run(PROCEDURE, QUICK)
+        assert out.state == State.FINISHED and out.faults == []
+        rig.sim.devices.servo.watch(3 * CONFIG.servo.heartbeat_ms / 1000 + 0.1)  # > the drive's consumer time
+        assert rig.controller.status()["drive_fault"] is None
+    assert [s["status"] for s in rig.store.sessions()] == ["finished", "finished"]
 
 
 def test_after_an_emergency_stop_a_reset_lets_the_next_run_start(make_rig) -> None:
