@@ -1,6 +1,6 @@
 """Serial transport benchmark: the real drivers against their emulators over ptys.
 
-    .venv/bin/python bench/bench_serial.py [--seconds 20] [--queries 1000]
+    .venv/bin/python bench/bench_serial.py [--seconds 20] [--queries 1000] [--status 2000]
 
 1. Sustained 5 kHz grating streaming at real time (VirtualClock speed 1, table
    vibrating at 10 Hz): samples received and lost (sequence/time-stamp gaps in
@@ -8,6 +8,12 @@
    driver's thread and of the whole process (driver + emulator + world).
 2. Indexing-head command round trip (`get pos`, a query, and `move abs`
    followed by `stop`) at 115200 baud: median and p99.
+3. Counter/timer STATUS round trip (a 17-byte reply at 921600 baud, 184 us of
+   line time) over a pty served by the emulator's thread and over a sim://
+   line (the emulator called in the driver's thread, the line paced in station
+   time): process CPU and wall per round trip. The sim:// line runs on a
+   VirtualClock at speed 1 (its line time is then wall time) and at speed 1000
+   (line time nearly free, as on a discrete-event clock).
 
 Prints a markdown table.
 """
@@ -21,6 +27,8 @@ import time
 
 import numpy as np
 
+from devices.counter_timer.driver import CounterTimer
+from devices.counter_timer.emulator import CounterEmulator
 from devices.grating.driver import GratingReadHead
 from devices.grating.emulator import GratingEmulator
 from devices.indexing_head.driver import IndexingHead
@@ -94,13 +102,37 @@ def bench_indexing(queries: int) -> dict[str, float]:
     }
 
 
+def bench_status(transport: str, speed: float, queries: int) -> dict[str, float]:
+    """CPU and wall per counter/timer STATUS round trip over `transport` ("pty" or "sim")."""
+    world = make_world(speed, 0.0)
+    emu = CounterEmulator(world)
+    port = emu.start() if transport == "pty" else emu.start_sim()
+    try:
+        with CounterTimer(port, clock=world.clock) as board:
+            for _ in range(50):  # warm up
+                board.status()
+            cpu0, wall0 = time.process_time(), time.perf_counter()
+            for _ in range(queries):
+                board.status()
+            cpu_s, wall_s = time.process_time() - cpu0, time.perf_counter() - wall0
+    finally:
+        emu.close()
+    return {"cpu_us": 1e6 * cpu_s / queries, "wall_us": 1e6 * wall_s / queries}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="grating streaming time (wall)")
     ap.add_argument("--queries", type=int, default=1000, help="indexing-head queries")
+    ap.add_argument("--status", type=int, default=2000, help="counter/timer STATUS round trips per transport")
     args = ap.parse_args()
     gr = bench_grating(args.seconds)
     ix = bench_indexing(args.queries)
+    status = {
+        "pty (emulator thread), speed 1": bench_status("pty", 1.0, args.status),
+        "sim:// (driver's thread), speed 1": bench_status("sim", 1.0, args.status),
+        "sim:// (driver's thread), speed 1000": bench_status("sim", 1000.0, args.status),
+    }
     rows = [
         ("grating: streaming time (wall)", f"{gr['wall_s']:.1f} s"),
         ("grating: samples received / expected", f"{gr['samples']} / {gr['expected']}"),
@@ -122,6 +154,13 @@ def main() -> None:
             f"indexing head: `move abs` round trip, median / p99 (n = {ix['n_move']})",
             f"{ix['move_median_ms']:.2f} / {ix['move_p99_ms']:.2f} ms",
         ),
+    ]
+    rows += [
+        (
+            f"counter/timer STATUS round trip over {name}: CPU / wall (n = {args.status})",
+            f"{st['cpu_us']:.0f} / {st['wall_us']:.0f} us",
+        )
+        for name, st in status.items()
     ]
     print("| measurement | value |")
     print("| --- | --- |")

@@ -22,18 +22,27 @@ virtual clock yields visible gaps, never an unbounded backlog or a flooded pty.
 Faults (`inject`) are armed from the test or control side and consumed by the
 emulator at its next opportunity; `disconnect()` closes the master, which the
 driver sees as an I/O error on its port, like a pulled USB cable.
+
+Instead of a pty, `start_sim()` puts the emulator on a `sim://` line
+(devices.sim_serial): no thread, the port's user calls the hooks, and the line
+is paced in station time. `next_due_s` tells that line when to poll again.
 """
 
 from __future__ import annotations
 
 import contextlib
 import enum
+import itertools
 import os
 import select
 import threading
 import tty
 
+from devices import sim_serial
 from station.clock import Clock
+
+SIM_POLL_S = 0.002  # station seconds between polls of an emulator on a sim:// line (the pty worker's poll)
+_sim_ids = itertools.count(1)
 
 
 class Fault(enum.Enum):
@@ -112,8 +121,9 @@ def truncate(frame: bytes) -> bytes:
 class PtyEmulator:
     """Base of a serial emulator behind a pty; subclasses implement the protocol.
 
-    Subclass hooks (run on the worker thread only, so they need no locking
-    among themselves): `on_bytes(data)`, `on_poll(now_s)`, `on_disconnect()`.
+    Subclass hooks (run on the worker thread only, or on a sim:// line under its
+    lock, so they need no locking among themselves): `on_bytes(data)`,
+    `on_poll(now_s)`, `on_disconnect()`, and `next_due_s(now_s)` for a sim:// line.
     Subclasses call `send(data)` and `tx_room()`.
     """
 
@@ -144,6 +154,7 @@ class PtyEmulator:
         self._master: int | None = None
         self._slave: int | None = None
         self._port = ""
+        self._sim_name = ""
         self._stop = threading.Event()
         self._disconnect_now = threading.Event()
         self._thread: threading.Thread | None = None
@@ -155,14 +166,14 @@ class PtyEmulator:
 
     @property
     def port(self) -> str:
-        """tty path the driver opens (valid after start())."""
+        """tty path or sim:// URL the driver opens (valid after start() or start_sim())."""
         if not self._port:
             raise RuntimeError(f"{self.name} not started")
         return self._port
 
     def start(self) -> str:
         """Open the pty and start the worker; returns the port path."""
-        if self._thread is not None:
+        if self._port:
             raise RuntimeError(f"{self.name} already started")
         master, slave = os.openpty()
         tty.setraw(slave)
@@ -174,12 +185,23 @@ class PtyEmulator:
         self._thread.start()
         return self._port
 
+    def start_sim(self, name: str | None = None) -> str:
+        """Serve a sim:// line instead of a pty (no thread); returns its URL (`port`)."""
+        if self._port:
+            raise RuntimeError(f"{self.name} already started")
+        self._sim_name = name or f"{self.name}-{next(_sim_ids)}"
+        self._port = sim_serial.register(self._sim_name, self)
+        self.connected = True
+        return self._port
+
     def close(self, timeout_s: float = 2.0) -> None:
         """Stop the worker and close the pty (idempotent)."""
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._finished.wait(timeout_s=timeout_s)
         self._close_fds()
+        if self._sim_name:
+            sim_serial.unregister(self._sim_name)
 
     def __enter__(self) -> PtyEmulator:
         self.start()
@@ -222,6 +244,16 @@ class PtyEmulator:
         """Free bytes in the transmit FIFO."""
         return self.fifo_bytes - len(self._tx)
 
+    def tx_pending(self) -> int:
+        """Bytes in the transmit FIFO."""
+        return len(self._tx)
+
+    def take_tx(self, n: int) -> bytes:
+        """Remove and return the first n bytes of the transmit FIFO (what a sim:// line carries)."""
+        data = bytes(self._tx[:n])
+        del self._tx[:n]
+        return data
+
     def _refill(self) -> None:
         """Add the tokens the line earned since the last refill (link-clock time, the UART's pace)."""
         now_s = self._link_clock.now_s()
@@ -240,12 +272,27 @@ class PtyEmulator:
         del self._tx[:written]
         self._tokens -= written
 
+    def _disconnect_due(self) -> bool:
+        return self._disconnect_now.is_set() or self.faults.take(Fault.DISCONNECT)
+
+    # ---- sim:// line
+
+    def sim_link_error(self) -> str | None:
+        """Why a sim:// port can no longer talk to the emulator (None while it can); a pending
+        disconnect happens now."""
+        if self._stop.is_set():
+            return f"{self.name} closed"
+        if self.connected and self._disconnect_due():
+            self.connected = False
+            self.on_disconnect()
+        return None if self.connected else f"{self.name} disconnected"
+
     # ---- worker
 
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                if self._disconnect_now.is_set() or self.faults.take(Fault.DISCONNECT):
+                if self._disconnect_due():
                     self._close_fds()
                     self.on_disconnect()
                     return
@@ -300,3 +347,8 @@ class PtyEmulator:
 
     def on_disconnect(self) -> None:
         """The link was closed by a DISCONNECT fault."""
+
+    def next_due_s(self, now_s: float) -> float:
+        """When a sim:// line should next call on_poll, if nothing else wakes it: by default a poll every
+        SIM_POLL_S; an emulator that knows when its output is due can say so."""
+        return now_s + SIM_POLL_S

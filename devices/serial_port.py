@@ -46,6 +46,7 @@ from typing import Self, TypeVar
 import numpy as np
 import serial
 
+from devices import sim_serial  # noqa: F401  (puts the sim:// URL handler on pyserial's path before any open)
 from devices.errors import (
     ChecksumError,
     DeviceTimeout,

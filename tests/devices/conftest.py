@@ -1,7 +1,9 @@
-"""Serial fixtures: a simulated world, each emulator behind a real pty, and its driver.
+"""Serial fixtures: a simulated world, each emulator behind a real pty or a sim:// line, and its driver.
 
-Nothing is mocked: the driver opens the emulator's tty path with pyserial as
-it would /dev/ttyUSB0. Each rig closes driver and emulator on teardown.
+Nothing is mocked: the driver opens the emulator's tty path or sim:// URL with
+pyserial as it would /dev/ttyUSB0. The counter/timer, reference-mark and
+indexing-head rigs run each of their tests on both transports (`transport`).
+Each rig closes driver and emulator on teardown.
 """
 
 from __future__ import annotations
@@ -18,12 +20,25 @@ from devices.grating.driver import GratingReadHead
 from devices.grating.emulator import GratingEmulator
 from devices.indexing_head.driver import IndexingHead
 from devices.indexing_head.emulator import IndexingEmulator
+from devices.pty_link import PtyEmulator
 from devices.reference_marks.driver import ReferenceMarks
 from devices.reference_marks.emulator import ReferenceEmulator
 from devices.world import SimStation
 from station.clock import VirtualClock
 
 CRANK_ACCEL_RADPS2 = 1e6  # effectively a step to the commanded speed
+TRANSPORTS = ("pty", "sim")
+
+
+@pytest.fixture(params=TRANSPORTS)
+def transport(request: pytest.FixtureRequest) -> str:
+    """The link between driver and emulator: a pty served by the emulator's thread, or a sim:// line."""
+    return str(request.param)
+
+
+def serve(emu: PtyEmulator, transport: str) -> str:
+    """Start the emulator on `transport`; the port its driver opens."""
+    return emu.start() if transport == "pty" else emu.start_sim()
 
 
 def make_world(speed: float = 1.0, vibrate_hz: float = 10.0, start_s: float = 0.0) -> SimStation:
@@ -60,18 +75,21 @@ def grating_rig(grating_rig_at) -> tuple[Any, GratingEmulator, GratingReadHead]:
 
 
 @pytest.fixture
-def reference_rig() -> Iterator[tuple[Any, ReferenceEmulator, ReferenceMarks]]:
+def reference_rig(transport: str) -> Iterator[tuple[Any, ReferenceEmulator, ReferenceMarks]]:
     world = make_world(speed=1.0, vibrate_hz=10.0)
-    with ReferenceEmulator(world) as emu:
-        ref = ReferenceMarks(emu.port, timeout_s=0.3, silence_s=1.5, clock=world.clock).open()
+    emu = ReferenceEmulator(world)
+    try:
+        ref = ReferenceMarks(serve(emu, transport), timeout_s=0.3, silence_s=1.5, clock=world.clock).open()
         try:
             yield world, emu, ref
         finally:
             ref.close()
+    finally:
+        emu.close()
 
 
 @pytest.fixture
-def counter_rig() -> Iterator[Callable[..., tuple[Any, CounterEmulator, CounterTimer]]]:
+def counter_rig(transport: str) -> Iterator[Callable[..., tuple[Any, CounterEmulator, CounterTimer]]]:
     opened: list[tuple[CounterEmulator, CounterTimer]] = []
 
     def make(
@@ -79,8 +97,7 @@ def counter_rig() -> Iterator[Callable[..., tuple[Any, CounterEmulator, CounterT
     ) -> tuple[Any, CounterEmulator, CounterTimer]:
         world = make_world(speed=speed, vibrate_hz=vibrate_hz, start_s=start_s)
         emu = CounterEmulator(world)
-        emu.start()
-        board = CounterTimer(emu.port, timeout_s=0.3, silence_s=1.5, clock=world.clock)
+        board = CounterTimer(serve(emu, transport), timeout_s=0.3, silence_s=1.5, clock=world.clock)
         opened.append((emu, board))
         board.open()
         return world, emu, board
@@ -92,11 +109,15 @@ def counter_rig() -> Iterator[Callable[..., tuple[Any, CounterEmulator, CounterT
 
 
 @pytest.fixture
-def index_rig() -> Iterator[tuple[Any, IndexingEmulator, IndexingHead]]:
+def index_rig(transport: str) -> Iterator[tuple[Any, IndexingEmulator, IndexingHead]]:
     world = make_world(speed=20.0, vibrate_hz=0.0)
-    with IndexingEmulator(world) as emu:
-        head = IndexingHead(emu.port, timeout_s=0.3, settle_time_s=0.2, poll_s=0.05, clock=world.clock).open()
+    emu = IndexingEmulator(world)
+    try:
+        port = serve(emu, transport)
+        head = IndexingHead(port, timeout_s=0.3, settle_time_s=0.2, poll_s=0.05, clock=world.clock).open()
         try:
             yield world, emu, head
         finally:
             head.close()
+    finally:
+        emu.close()

@@ -1,4 +1,4 @@
-"""Indexing head: Zaber-style codec, then the real driver against its emulator over a pty,
+"""Indexing head: Zaber-style codec, then the real driver against its emulator over a pty and a sim:// line,
 the head's motion coming from the world (speed from the world's configuration).
 """
 

@@ -1,5 +1,5 @@
 """Reference marks and frequency monitor: line codec, frequency stability, and the real
-driver against its emulator over a pty, the crossings coming from the world's crank.
+driver against its emulator over a pty and a sim:// line, the crossings coming from the world's crank.
 """
 
 from __future__ import annotations
