@@ -6,8 +6,9 @@ harmonics the design can fit take any static pattern over the positions, a mount
 alike (../shared/gap-devset case c05bc5fc: index_harmonics chosen, BIC -1005.0, against -1008.6 for
 mount_misalignment + bias_drift).
 
-Every pair of the first step's POOL best candidates within their bounds is fitted jointly with the calibrated
-coefficients (gap.fit.fit_model). A pair is a model when each member is significant given the other (the
+Every pair of the first step's POOL best candidates within their bounds that lower the BIC alone is fitted
+jointly with the calibrated coefficients (gap.fit.fit_model); pairs with the greedy's first choice are left
+out (its next step scored them). A pair is a model when each member is significant given the other (the
 test of gap.attribute.score at ALPHA / pairs, and a lower BIC), every parameter is within its plausible bound
 and the pulse record (when there is one) does not reject the fit. Among the greedy choice and these models
 the lowest BIC wins, and the selection continues from it; every other one that reproduces it on every
@@ -39,13 +40,15 @@ from gap.fit import Linearisation, ModelFit, fit_model
 POOL = 5  # pairs are tried among this many of the first step's best accepted candidates
 
 
-def _pool(step: list[Scored]) -> list[Scored]:
-    """The POOL candidates of lowest BIC within their bounds (a member may be significant only given the other)."""
-    return [s for s in step if s.plausible][:POOL]
+def _pool(step: list[Scored], skip: str) -> list[Scored]:
+    """The POOL candidates of lowest BIC within their bounds that lower the BIC alone (a member may be
+    significant only given the other), but `skip`: the greedy's first choice, whose pairs its next step scored."""
+    return [s for s in step if s.plausible and s.dbic < 0 and s.name != skip][:POOL]
 
 
-def _pair(lin: Linearisation, a: Scored, b: Scored, drop: frozenset[str], level: float, n_pairs: int):
-    """The pair (a, b) as a model: (its Scored members, a first, and its fit), or None (gap.subsets docstring)."""
+def _pair(lin: Linearisation, a: Scored, b: Scored, drop: frozenset[str], n_pairs: int):
+    """The pair (a, b) as a model: (its Scored members, a first, and its fit), or None (gap.subsets docstring;
+    the pulse test is left to the caller)."""
     over = {s.name: s.profiled for s in (a, b) if s.profiled}
     fit = fit_model(lin, [a.name, b.name], drop=drop, fixed_override=over)
     if fit.dof_rate <= 0:
@@ -57,8 +60,6 @@ def _pair(lin: Linearisation, a: Scored, b: Scored, drop: frozenset[str], level:
     b_given_a = score(a.fit, fit, b.name, n_rate, n_other, w_radps)
     limit = ALPHA / max(n_pairs, 1)
     if any(s.p_value >= limit or s.dbic >= 0 or not s.plausible for s in (a_given_b, b_given_a)):
-        return None
-    if rejected_by_pulses(lin, b_given_a, level):
         return None
     b_given_a.profiled = dict(b.profiled)
     return [a, b_given_a], fit
@@ -78,20 +79,14 @@ def best_subset(
     if not greedy.chosen or not greedy.steps or max_effects < 2:
         return greedy
     first = greedy.steps[0]
-    pool = _pool(first)
-    n_pairs = len(pool) * (len(pool) - 1) // 2
+    pool = _pool(first, greedy.effects[0])
+    pairs = [(a, b) for a, b in combinations(pool, 2) if {a.name, b.name} != set(greedy.effects)]
     n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
     models: list[tuple[list[Scored], ModelFit]] = [(greedy.chosen, greedy.final)]
-    seen = {frozenset(greedy.effects)}
-    for a, b in combinations(pool, 2):
-        if frozenset((a.name, b.name)) in seen:
-            continue
-        pair = _pair(lin, a, b, drop, level, n_pairs)
-        if pair is not None:
-            models.append(pair)
-    if len(models) == 1:
-        return greedy
+    models += [m for a, b in pairs if (m := _pair(lin, a, b, drop, len(pairs))) is not None]
     models.sort(key=lambda m: bic(m[1], n_rate, n_other))
+    # The pulse record (when there is one) tests every pair model; the greedy's choice met it in its own steps.
+    models = [m for m in models if m[0] is greedy.chosen or not rejected_by_pulses(lin, m[0][-1], level)]
     best_members, best_fit = models[0]
     s2 = best_fit.rss_rate / max(best_fit.dof_rate, 1)
     chi_best = chi2_total(best_fit, s2)
