@@ -2,8 +2,8 @@
 
 `register(name, emulator)` puts an emulator on a simulated line and returns its
 URL; `serial.serial_for_url("sim://<name>")` opens it (the handler is
-`devices.serial_handlers.protocol_sim`, on pyserial's search path once this
-module is imported), so a driver opens a device path, a pty or a sim:// URL
+`devices.protocol_sim`: the `devices` package is on pyserial's search path once
+this module is imported), so a driver opens a device path, a pty or a sim:// URL
 with the same code.
 
 The line (`SimLine`), in the station time of the emulator's clock:
@@ -28,25 +28,43 @@ import errno
 import math
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import serial
 
-if TYPE_CHECKING:
-    from devices.pty_link import PtyEmulator
+from station.clock import Clock
 
 SCHEME = "sim"
-HANDLER_PACKAGE = "devices.serial_handlers"
+HANDLER_PACKAGE = "devices"  # pyserial imports devices.protocol_sim for sim:// URLs
 CARRY_SLACK_BYTES = 1e-6  # a read woken at a byte's due time takes that byte despite rounding
 
 if HANDLER_PACKAGE not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append(HANDLER_PACKAGE)
 
 
+class SimEmulator(Protocol):
+    """What a line needs of its emulator (devices.pty_link.PtyEmulator provides it)."""
+
+    clock: Clock
+    baud: int
+
+    def on_bytes(self, data: bytes) -> None: ...
+
+    def on_poll(self, now_s: float) -> None: ...
+
+    def next_due_s(self, now_s: float) -> float: ...
+
+    def tx_pending(self) -> int: ...
+
+    def take_tx(self, n: int) -> bytes: ...
+
+    def sim_link_error(self) -> str | None: ...
+
+
 class SimLine:
     """The simulated serial line between the ports opened on `sim://<name>` and one emulator."""
 
-    def __init__(self, name: str, emulator: PtyEmulator) -> None:
+    def __init__(self, name: str, emulator: SimEmulator) -> None:
         self.name = name
         self.url = f"{SCHEME}://{name}"
         self.emulator = emulator
@@ -158,7 +176,7 @@ _lines: dict[str, SimLine] = {}
 _registry_lock = threading.Lock()
 
 
-def register(name: str, emulator: PtyEmulator) -> str:
+def register(name: str, emulator: SimEmulator) -> str:
     """Put `emulator` on the line `sim://<name>`; returns the URL."""
     if not name or any(c in name for c in "/?#:"):
         raise ValueError(f"bad sim:// line name {name!r}")
