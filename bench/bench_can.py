@@ -5,8 +5,12 @@ Measures
 - TPDO latency: from the emulator's send (the virtual bus stamps each frame) to a canopen
   subscriber callback on a third Bus, the path the driver's TPDO handling takes;
 - TPDO period: intervals between TPDO2 frames (event timer 10 ms in the EDS);
-- enable(): the three confirmed 402 transitions.
-Prints a markdown table. Usage: .venv/bin/python bench/bench_can.py [--n-sdo 2000] [--n-tpdo 500]
+- enable(): the three confirmed 402 transitions;
+- per transport (python-can's `virtual` bus with canopen's Notifier thread, against `station_sim`, which delivers
+  in the sender's thread): CPU (process time, every thread) and wall per CAN frame (send, then wait until the
+  receiving Notifier's listener has it) and per SDO round trip (expedited upload from a canopen RemoteNode to a
+  LocalNode, nothing else on the bus).
+Prints markdown tables. Usage: .venv/bin/python bench/bench_can.py [--n-sdo 2000] [--n-tpdo 500] [--n-frames 20000]
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import os
 import platform
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -29,6 +34,8 @@ from devices.servo.emulator import ServoEmulator
 from station.clock import WallClock
 
 CONFIG = Path(__file__).parents[1] / "config" / "station-sim.toml"
+EDS = Path(__file__).parents[1] / "config" / "eds" / "vibration_table_servo.eds"
+TRANSPORTS = ("virtual", "station_sim")
 
 
 def _ms(values_s: list[float]) -> tuple[float, float]:
@@ -60,10 +67,57 @@ def _tpdo_timing(channel: str, cob_id: int, n: int) -> tuple[list[float], list[f
     return latencies_s[1:], list(np.diff(stamps_s))
 
 
+def _per_item_us(n: int, run: Callable[[], None]) -> tuple[float, float]:
+    """(CPU, wall) in microseconds per item of run(), which handles n items."""
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    run()
+    return (time.process_time() - cpu0) / n * 1e6, (time.perf_counter() - wall0) / n * 1e6
+
+
+def _frame_cost_us(interface: str, n: int) -> tuple[float, float]:
+    """Send a frame and wait until the receiver's Notifier listener has it, n times."""
+    channel = f"bench-frame-{os.getpid()}-{interface}"
+    got = threading.Event()
+    with can.Bus(interface=interface, channel=channel) as tx, can.Bus(interface=interface, channel=channel) as rx:
+        msg = can.Message(arbitration_id=0x185, data=bytes(8), is_extended_id=False)
+        with can.Notifier(rx, [lambda _msg: got.set()], timeout=0.05):
+
+            def run() -> None:
+                for _ in range(n):
+                    got.clear()
+                    tx.send(msg)
+                    if not got.wait(5.0):
+                        raise SystemExit(f"{interface}: a frame was not delivered within 5 s")
+
+            return _per_item_us(n, run)
+
+
+def _sdo_cost_us(interface: str, n: int) -> tuple[float, float]:
+    """n expedited SDO uploads (0x1017) from a RemoteNode to a LocalNode."""
+    channel = f"bench-sdo-{os.getpid()}-{interface}"
+    drive, master = canopen.Network(), canopen.Network()
+    for network in (drive, master):
+        network.NOTIFIER_CYCLE = 0.05
+        network.connect(interface=interface, channel=channel)
+    try:
+        drive.create_node(5, str(EDS))
+        remote = master.add_node(5, str(EDS))
+
+        def run() -> None:
+            for _ in range(n):
+                remote.sdo.upload(0x1017, 0)
+
+        return _per_item_us(n, run)
+    finally:
+        master.disconnect()
+        drive.disconnect()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n-sdo", type=int, default=2000, help="SDO round trips")
     parser.add_argument("--n-tpdo", type=int, default=500, help="TPDOs (10 ms each)")
+    parser.add_argument("--n-frames", type=int, default=20000, help="frames per transport")
     args = parser.parse_args()
 
     cfg = load_station_config(CONFIG)
@@ -100,6 +154,13 @@ def main() -> None:
     print("|---|---:|---:|---:|")
     for name, n, median_ms, p99_ms in rows:
         print(f"| {name} | {n} | {median_ms:.3f} | {p99_ms:.3f} |")
+
+    print("\n| transport | frame CPU (us) | frame wall (us) | SDO round trip CPU (us) | SDO round trip wall (us) |")
+    print("|---|---:|---:|---:|---:|")
+    for interface in TRANSPORTS:
+        frame_cpu_us, frame_wall_us = _frame_cost_us(interface, args.n_frames)
+        sdo_cpu_us, sdo_wall_us = _sdo_cost_us(interface, args.n_sdo)
+        print(f"| {interface} | {frame_cpu_us:.1f} | {frame_wall_us:.1f} | {sdo_cpu_us:.1f} | {sdo_wall_us:.1f} |")
 
 
 if __name__ == "__main__":

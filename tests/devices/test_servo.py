@@ -1,5 +1,7 @@
 """Vibration-table servo driver against its emulator: real canopen on both sides of a
-python-can virtual bus (separate Bus objects on one private channel per test), nothing mocked.
+python-can bus (separate Bus objects on one private channel per test), nothing mocked. Every test
+runs on both transports (`interface`): python-can's `virtual` bus, whose Notifier threads hand
+each frame over, and `station_sim` (devices/sim_can.py), which delivers in the sender's thread.
 
 Tolerances and bounds, derived:
 - velocity: 0x606C counts 1e-6 rev/s (1 uHz); at steady speed the emulator reports the
@@ -9,7 +11,9 @@ Tolerances and bounds, derived:
 - heartbeat loss: the consumer time is 3 x heartbeat_ms (of the simulated station's file)
   after the last heartbeat, which came at most one period before the fault; the driver's
   watchdog is a deadline timer of the link clock at that instant. Bound 3 heartbeat periods +
-  slack = 3 x HB_S + 0.2 s from the injection.
+  slack = 3 x HB_S + SLACK_S from the injection.
+- SLACK_S (0.3 s): how late a thread may run on the shared, loaded machine; added to the wall-time bounds
+  of replies, heartbeat loss and ramps.
 - SDO timeout: timeout_s per attempt, 2 attempts for reads, 1 for writes.
 """
 
@@ -40,7 +44,7 @@ from devices.errors import (
 from devices.servo.driver import READ_ATTEMPTS, ServoLimits, VibrationTableServo
 from devices.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
 from models.crank import CrankModel
-from station.clock import Clock, VirtualClock, WallClock
+from station.clock import Clock, VirtualClock, WallClock, host_clock
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -48,10 +52,12 @@ CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim
 LIMITS = ServoLimits.from_config(CONFIG)
 TIMEOUT_S = 0.2  # SDO/TPDO timeout for the tests (the config's 0.5 s would only slow them)
 HB_S = CONFIG.servo.heartbeat_ms / 1000
-HB_DETECT_BOUND_S = 3 * HB_S + 0.2
+SLACK_S = 0.3  # how late a thread of the emulator or driver may run on the shared 2-core machine (load ~9 seen)
+HB_DETECT_BOUND_S = 3 * HB_S + SLACK_S
 VELOCITY_LSB_HZ = 1e-6
 RAMP_HZ_PER_S = LIMITS.ramp_max_hz_per_s
 TWO_PI = 2 * math.pi
+CAN_INTERFACES = ("virtual", "station_sim")
 
 
 @dataclass
@@ -64,12 +70,22 @@ class Rig:
     def crank_hz(self) -> float:
         return self.emu.crank.speed_radps(self.clock.now_s()) / TWO_PI
 
+    def frame_time_s(self) -> float:
+        """Now, on the time base of the frames' time stamps: `virtual` stamps time.time(), `station_sim` its
+        channel's clock (unbound here: the host's wall clock)."""
+        return time.time() if self.cfg.interface == "virtual" else host_clock().now_s()
+
 
 RigFactory = Callable[..., Rig]
 
 
+@pytest.fixture(params=CAN_INTERFACES)
+def interface(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
+
+
 @pytest.fixture
-def make_rig() -> Iterator[RigFactory]:
+def make_rig(interface: str) -> Iterator[RigFactory]:
     opened: list[Rig] = []
 
     def make(
@@ -80,7 +96,8 @@ def make_rig() -> Iterator[RigFactory]:
         limits: ServoLimits = LIMITS,
     ) -> Rig:
         clock = clock or WallClock()
-        cfg = dataclasses.replace(CONFIG.servo, channel=f"servo-test-{uuid.uuid4().hex[:8]}", timeout_s=TIMEOUT_S)
+        channel = f"servo-test-{uuid.uuid4().hex[:8]}"
+        cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=TIMEOUT_S)
         emu = ServoEmulator.from_config(cfg, clock, crank)
         emu.start()
         rig = Rig(emu, VibrationTableServo(cfg, limits, clock), clock, cfg)
@@ -132,7 +149,7 @@ def test_ramp_reaches_target_and_velocity_matches(rig: Rig) -> None:
     at_speed = rig.servo.set_frequency(f_hz)  # already commanded: waits for the end of the ramp
     assert at_speed is not None
     ramp_s = at_speed.t_s - t_cmd_s
-    assert f_hz / RAMP_HZ_PER_S <= ramp_s < f_hz / RAMP_HZ_PER_S + 0.1
+    assert f_hz / RAMP_HZ_PER_S <= ramp_s < f_hz / RAMP_HZ_PER_S + SLACK_S
     assert at_speed.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
     later = rig.servo.read()
     assert later.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
@@ -185,7 +202,7 @@ def test_fault_emcy_then_confirmed_reset_then_reenable(rig: Rig) -> None:
     t0 = time.monotonic()
     with pytest.raises(DeviceFault, match="0x2310"):
         rig.servo.watch(2.0)
-    assert time.monotonic() - t0 < 0.2
+    assert time.monotonic() - t0 < SLACK_S
     with pytest.raises(DeviceFault):
         rig.servo.set_frequency(2.0)  # latched until reset
     assert rig.emu.state == "FAULT"
@@ -252,12 +269,12 @@ def test_no_answer_gives_device_timeout_reads_retried_writes_not(rig: Rig) -> No
     with pytest.raises(DeviceTimeout, match="0x603F"):
         rig.servo.read_error_code()
     elapsed_s = time.monotonic() - t0
-    assert READ_ATTEMPTS * TIMEOUT_S * 0.9 < elapsed_s < READ_ATTEMPTS * TIMEOUT_S + 0.2
+    assert READ_ATTEMPTS * TIMEOUT_S * 0.9 < elapsed_s < READ_ATTEMPTS * TIMEOUT_S + SLACK_S
 
     t0 = time.monotonic()
     with pytest.raises(DeviceTimeout, match="not retried"):
         rig.servo.set_frequency(1.5)
-    assert time.monotonic() - t0 < TIMEOUT_S + 0.2
+    assert time.monotonic() - t0 < TIMEOUT_S + SLACK_S
     assert rig.crank_hz() == 0.0
 
 
@@ -278,7 +295,7 @@ def test_bus_off_is_detected_and_the_drive_stops_on_its_own(rig: Rig) -> None:
     t0 = time.monotonic()
     with pytest.raises(DeviceTimeout, match="0x1000"):
         rig.servo.open()
-    assert time.monotonic() - t0 < READ_ATTEMPTS * TIMEOUT_S + 0.2
+    assert time.monotonic() - t0 < READ_ATTEMPTS * TIMEOUT_S + SLACK_S
 
 
 @pytest.mark.parametrize(
@@ -300,7 +317,7 @@ def test_out_of_range_is_refused_before_anything_is_sent(
     rig = make_rig(limits=dataclasses.replace(LIMITS, accel_min_g=0.1, accel_max_g=10.0))
     rig.servo.enable()
     node_id = rig.cfg.node_id
-    with can.Bus(interface="virtual", channel=rig.cfg.channel) as sniffer:
+    with can.Bus(interface=rig.cfg.interface, channel=rig.cfg.channel) as sniffer:
         with pytest.raises(LimitError) as info:
             rig.servo.set_frequency(freq_hz, ramp_hz_per_s)
         time.sleep(0.05)
@@ -326,7 +343,7 @@ def test_quick_stop_brings_the_crank_to_rest(rig: Rig) -> None:
     reading = rig.servo.quick_stop()
     elapsed_s = time.monotonic() - t0
     qs_decel_hz_per_s = 10.0  # EDS default of 0x6085
-    assert 0.8 * 1.5 / qs_decel_hz_per_s < elapsed_s < 1.5 / qs_decel_hz_per_s + 0.2
+    assert 0.8 * 1.5 / qs_decel_hz_per_s < elapsed_s < 1.5 / qs_decel_hz_per_s + SLACK_S
     assert reading.freq_hz == 0.0
     assert rig.crank_hz() == 0.0
     assert rig.emu.state == rig.servo.state == "SWITCH ON DISABLED"
@@ -340,16 +357,16 @@ def test_emulator_honours_pdo_parameters_written_by_sdo(make_rig: RigFactory) ->
     """
     rig = make_rig(open_servo=False)
     node_id = rig.cfg.node_id
-    tool = canopen.Network(can.Bus(interface="virtual", channel=rig.cfg.channel))
+    tool = canopen.Network(can.Bus(interface=rig.cfg.interface, channel=rig.cfg.channel))
     tool.NOTIFIER_CYCLE = 0.05
     tool.connect()
     try:
         node = tool.add_node(node_id, str(rig.cfg.eds))
-        with can.Bus(interface="virtual", channel=rig.cfg.channel) as sniffer:
+        with can.Bus(interface=rig.cfg.interface, channel=rig.cfg.channel) as sniffer:
             time.sleep(0.1)  # PRE-OPERATIONAL
             node.sdo[0x1801][5].raw = 50  # TPDO2 every 50 ms
             node.sdo[0x1A01][0].raw = 1  # TPDO2 carries 0x606C only
-            t_start_s = time.time()
+            t_start_s = rig.frame_time_s()
             node.nmt.state = "OPERATIONAL"
             time.sleep(0.6)
             node.nmt.state = "PRE-OPERATIONAL"

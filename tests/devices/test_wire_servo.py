@@ -6,7 +6,8 @@ expedited download of 2 / 4 bytes, 0x60 download confirmed, 0x80 abort with a u3
 heartbeat on 0x705 (0x7F pre-operational, 0x05 operational); RPDO1 0x205 = controlword u16 + mode i8;
 TPDO1 0x185 = statusword u16 + mode display i8; TPDO2 0x285 = velocity i32 (1e-6 rev/s) + position i32.
 Statusword state bits (CiA 402): SWITCH ON DISABLED 0x0040, READY TO SWITCH ON 0x0031, OPERATION ENABLED
-0x0037, with bit 9 (remote) set by this drive; fault 0x0008.
+0x0037, with bit 9 (remote) set by this drive; fault 0x0008. Every bus test runs on python-can's `virtual` bus
+and on `station_sim` (devices/sim_can.py).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
@@ -24,13 +25,19 @@ from devices.config import load_station_config
 from devices.servo import protocol
 from devices.servo.driver import ServoLimits, VibrationTableServo
 from devices.servo.emulator import ServoEmulator
-from station.clock import WallClock
+from station.clock import WallClock, host_clock
 
 pytestmark = pytest.mark.timeout(30)
 
 CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
 H = bytes.fromhex
 WAIT_S = 2.0  # wall time a frame may take on the shared machine
+CAN_INTERFACES = ("virtual", "station_sim")
+
+
+@pytest.fixture(params=CAN_INTERFACES)
+def interface(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
 
 
 @pytest.fixture
@@ -39,8 +46,15 @@ def channel() -> str:
 
 
 @pytest.fixture
-def drive(channel: str) -> Iterator[ServoEmulator]:
-    cfg = dataclasses.replace(CONFIG.servo, channel=channel, timeout_s=0.3)
+def frame_time_s(interface: str) -> Callable[[], float]:
+    """Now, on the time base of the frames' time stamps: `virtual` stamps time.time(), `station_sim` its channel's
+    clock (unbound here: the host's wall clock)."""
+    return time.time if interface == "virtual" else host_clock().now_s
+
+
+@pytest.fixture
+def drive(interface: str, channel: str) -> Iterator[ServoEmulator]:
+    cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=0.3)
     emu = ServoEmulator.from_config(cfg, WallClock())
     emu.start()
     yield emu
@@ -48,13 +62,13 @@ def drive(channel: str) -> Iterator[ServoEmulator]:
 
 
 @pytest.fixture
-def bus(channel: str) -> Iterator[can.BusABC]:
-    with can.Bus(interface="virtual", channel=channel) as b:
+def bus(interface: str, channel: str) -> Iterator[can.BusABC]:
+    with can.Bus(interface=interface, channel=channel) as b:
         yield b
 
 
 def _next(bus: can.BusABC, arbitration_id: int, *, after: float | None = None) -> bytes:
-    """The data of the next frame with this id (received after `after`, a time.time() stamp, if given)."""
+    """The data of the next frame with this id (received after `after`, a `frame_time_s()`, if given)."""
     deadline = time.monotonic() + WAIT_S
     while time.monotonic() < deadline:
         msg = bus.recv(timeout=0.05)
@@ -101,16 +115,16 @@ def test_sdo_downloads_and_an_abort(drive: ServoEmulator, bus: can.BusABC) -> No
     assert _sdo(bus, H("40 5a 60 00 00 00 00 00")) == H("4b 5a 60 00 02 00 00 00")
 
 
-def test_nmt_pdos_and_heartbeat(drive: ServoEmulator, bus: can.BusABC) -> None:
+def test_nmt_pdos_and_heartbeat(drive: ServoEmulator, bus: can.BusABC, frame_time_s: Callable[[], float]) -> None:
     assert _next(bus, 0x705) in (H("7f"), H("00"))  # pre-operational (or its boot-up) before NMT start
     bus.send(can.Message(arbitration_id=0x000, data=H("01 05"), is_extended_id=False))  # NMT start node 5
-    assert _next(bus, 0x705, after=time.time()) == H("05")
+    assert _next(bus, 0x705, after=frame_time_s()) == H("05")
     assert _next(bus, 0x185) == H("40 02 00")  # statusword 0x0240, mode display 0
     assert _next(bus, 0x285) == H("00 00 00 00 00 00 00 00")  # at rest, phase 0
-    sent = time.time()
+    sent = frame_time_s()
     bus.send(can.Message(arbitration_id=0x205, data=H("06 00 03"), is_extended_id=False))  # shutdown, mode 3
     assert _next(bus, 0x185, after=sent + 0.05) == H("31 02 03")  # READY TO SWITCH ON, mode display 3
-    sent = time.time()
+    sent = frame_time_s()
     bus.send(can.Message(arbitration_id=0x205, data=H("0f 00 03"), is_extended_id=False))  # enable operation
     assert _next(bus, 0x185, after=sent + 0.05)[:2] in (H("37 02"), H("37 06"))  # OPERATION ENABLED (+ reached)
 
@@ -118,10 +132,12 @@ def test_nmt_pdos_and_heartbeat(drive: ServoEmulator, bus: can.BusABC) -> None:
 # ---------------------------------------------------------------- the driver's frames
 
 
-def test_driver_enable_and_set_frequency_frames(drive: ServoEmulator, bus: can.BusABC, channel: str) -> None:
+def test_driver_enable_and_set_frequency_frames(
+    drive: ServoEmulator, bus: can.BusABC, interface: str, channel: str
+) -> None:
     """enable(): controlword 0x0006, 0x0007, 0x000F by RPDO1 with mode 3; set_frequency(1 Hz, 0.5 Hz/s):
     0x6083 = 0x6084 = 500 000 (1e-6 rev/s^2), 0x60FF = 1 000 000 uHz by SDO; the reading is TPDO2's velocity."""
-    cfg = dataclasses.replace(CONFIG.servo, channel=channel, timeout_s=0.3)
+    cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=0.3)
     servo = VibrationTableServo(cfg, ServoLimits.from_config(CONFIG), WallClock())
     servo.open()
     try:
