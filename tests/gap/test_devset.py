@@ -4,8 +4,7 @@ README (bench/bench_gap_devset.py's `right`): a library effect at SNR >= 10 `exp
 naming it with a look-alike, a pair with both named, a null `no_gap`, an out-of-library effect never
 `explained`. Below SNR 10 the same rule is asserted where it is met today.
 
-Every case is asserted except KNOWN_MISSES, which are strict xfails (each with its cause, BENCHMARKS.md): a fix
-turns it into a failure until it is taken off the list.
+Every case is asserted (BENCHMARKS.md gives each one's cause where the diagnosis and the truth parted).
 """
 
 from __future__ import annotations
@@ -25,22 +24,13 @@ _spec.loader.exec_module(bench)
 if not (bench.DEVSET / "truth" / "_index.json").is_file():
     pytest.skip(f"no development set at {bench.DEVSET}", allow_module_level=True)
 
-KNOWN_MISSES: dict[str, str] = {}
-
 
 @functools.cache
 def _row(case_id: str) -> dict:
     return bench.run_case(case_id)
 
 
-def _cases() -> list:
-    return [
-        pytest.param(c, marks=pytest.mark.xfail(strict=True, reason=KNOWN_MISSES[c])) if c in KNOWN_MISSES else c
-        for c in bench.case_ids()
-    ]
-
-
-@pytest.mark.parametrize("case_id", _cases())
+@pytest.mark.parametrize("case_id", bench.case_ids())
 def test_devset_case_is_scored_right(case_id: str) -> None:
     """One case against the set's rule (today every case: SNR >= 10 17 of 17, pairs 2 of 2, nulls 3 of 3,
     out-of-library 0 of 2 explained, below SNR 10 5 of 5)."""
