@@ -6,7 +6,7 @@ SDOs; this module adds what a drive does on its own (see field notes):
 
 - copies received RPDOs into its object dictionary (NMT OPERATIONAL only);
 - transmits TPDOs from its object dictionary on their event timers
-  (0x1800+n sub 5, re-read whenever PDO parameters are written), only in
+  (0x1800+n sub 5, re-read when PDO parameters are written), only in
   NMT OPERATIONAL;
 - runs the 402 state machine (controlword 0x6040 -> statusword 0x6041), the mode
   of operation and its display (0x6060/0x6061), quick stop (option code 0x605A:
@@ -22,6 +22,13 @@ Two time bases: `clock` (the station clock, real or virtual) time-stamps everyth
 physical (crank commands, speed, phase); its link (`clock.link`, station.clock) times
 the bus protocol (event timers, heartbeat consumer), like the driver's own timeouts.
 
+No thread of its own: the drive acts in the threads that reach it (the bus's, for
+SDOs, RPDOs and the master's heartbeat) and in timers of the link clock: one
+`call_every` per TPDO event timer, and a deadline timer for the heartbeat consumer,
+moved on by every master heartbeat heard. The end of a quick stop is computed from
+the crank model whenever the drive's state is looked at (a statusword sent in a TPDO
+or read by SDO, the next controlword), so every statusword is true at its instant.
+
 The drive's feedback is assumed to carry the twin's frequency error: velocity
 0x606C and position 0x6064 report crank motion / (1 + eps_f), i.e. what the
 drive believes; only an independent sensor (the grating) sees the true motion.
@@ -35,6 +42,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from functools import partial
 from pathlib import Path
 from typing import Any, cast
 
@@ -66,7 +74,7 @@ from devices.servo.protocol import (
     VELOCITY_UNIT_HZ,
 )
 from models.crank import CrankModel
-from station.clock import Clock
+from station.clock import Clock, TimerHandle
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +120,6 @@ class ServoEmulator:
         clock: Clock,
         crank: CrankModel | None = None,
         interface: str = "virtual",
-        tick_s: float = 0.002,
     ) -> None:
         self.channel = channel
         self.node_id = node_id
@@ -121,11 +128,8 @@ class ServoEmulator:
         self._clock = clock
         self._bus_clock = clock.link
         self.crank = crank if crank is not None else CrankModel(t0_s=clock.now_s())
-        self._tick_s = tick_s
         self._lock = threading.RLock()
-        self._stopping = self._bus_clock.event()
-        self._stopped = self._bus_clock.event()
-        self._thread: threading.Thread | None = None
+        self._running = False  # timers act only while the emulator runs
         self._network: canopen.Network | None = None
         self._node: canopen.LocalNode | None = None
         # 402 device state
@@ -136,13 +140,13 @@ class ServoEmulator:
         self._error_register = 0
         self._fault_persistent = False
         self._params: dict[int, int] = {}  # 0x60FF, 0x607F, 0x6083, 0x6084, 0x6085, 0x6007, 0x605A
-        # bus-side state
-        self._pdo_config_dirty = True
+        # bus-side state (timers of the link clock)
         self._event_timer_s: dict[int, float] = {}
-        self._tpdo_due_s: dict[int, float] = {}
+        self._tpdo_timers: list[TimerHandle] = []
         self._hb_master_id = 0
         self._hb_timeout_s = 0.0
         self._hb_last_s: float | None = None
+        self._hb_deadline: TimerHandle | None = None
         # injected faults
         self._sdo_silent = False
         self._master_hb_ignored = False
@@ -188,20 +192,17 @@ class ServoEmulator:
         for index in (0x60FF, 0x607F, 0x6083, 0x6084, 0x6085, 0x6007, 0x605A):
             self._params[index] = int(cast(Any, node.sdo[index]).raw)
         with self._lock:
+            self._running = True
             self._configure_consumer(int(cast(Any, node.sdo)[0x1016][1].raw))
             self._load_pdo_config()
         node.nmt.state = "INITIALISING"  # boot-up message
         node.nmt.state = "PRE-OPERATIONAL"  # starts the heartbeat producer (0x1017)
-        name = f"servo-emulator-{self.node_id}"
-        self._stopped.clear()
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
 
     def stop(self) -> None:
-        self._stopping.set()
-        if self._thread is not None:
-            self._stopped.wait(timeout_s=2.0)
-            self._thread = None
+        with self._lock:  # a timer running now finishes first; none acts afterwards
+            self._running = False
+            self._cancel_tpdo_timers()
+            self._cancel_consumer()
         if self._network is not None:
             self.node.nmt.stop_heartbeat()
             self.network.disconnect()
@@ -220,6 +221,7 @@ class ServoEmulator:
     def state(self) -> str:
         """The 402 state, e.g. 'OPERATION ENABLED'."""
         with self._lock:
+            self._settle(self._clock.now_s())
             return self._state
 
     @property
@@ -234,6 +236,7 @@ class ServoEmulator:
         A persistent fault survives fault resets (its cause is still there).
         """
         with self._lock:
+            self._settle(self._clock.now_s())
             self._fault_persistent = persistent
             self._enter_fault(code)
 
@@ -279,11 +282,12 @@ class ServoEmulator:
         with self._lock:
             self._mode_frozen = True
 
-    # ---- object dictionary callbacks (run in the network's notifier thread) -----------
+    # ---- object dictionary callbacks (run in the thread that delivers the frame) --------
 
     def _on_read(self, index: int, subindex: int, od: ODVariable) -> int | None:
         with self._lock:
             t_s = self._clock.now_s()
+            self._settle(t_s)
             if index == 0x6041:
                 return self._statusword(t_s)
             if index == 0x6061:
@@ -307,7 +311,11 @@ class ServoEmulator:
         if 0x1400 <= index < 0x1C00:
             with self._lock:
                 self.node.data_store.setdefault(index, {})[subindex] = bytes(data)
-                self._pdo_config_dirty = True
+                if self._running:
+                    try:  # new mappings, cob ids and event timers take effect at once
+                        self._load_pdo_config()
+                    except Exception:  # a half-written mapping: the write is kept, the drive lives on
+                        log.exception("servo emulator: PDO configuration not loaded after writing 0x%04X", index)
             return
         value = od.decode_raw(data)
         if not isinstance(value, int):
@@ -318,6 +326,7 @@ class ServoEmulator:
             raise SdoAbortedError(SDO_ABORT_VALUE_TOO_HIGH)
         with self._lock:
             t_s = self._clock.now_s()
+            self._settle(t_s)
             if index == 0x6040:
                 self._on_controlword(value, t_s)
             elif index == 0x6060:
@@ -352,8 +361,14 @@ class ServoEmulator:
         with self._lock:
             if not (self._bus_off or self._master_hb_ignored):
                 self._hb_last_s = self._bus_clock.now_s()
+                self._arm_consumer()
 
     # ---- device behaviour (called with the lock held) ---------------------------------
+
+    def _settle(self, t_s: float) -> None:
+        """Quick stop option 1 or 2: once the crank is at rest, QUICK STOP ACTIVE -> SWITCH ON DISABLED."""
+        if self._state == QSA and self._params[0x605A] in (1, 2) and self.crank.at_speed(t_s):
+            self._state = SOD
 
     def _statusword(self, t_s: float) -> int:
         sw = STATE_STATUSWORD[self._state] | SW_REMOTE
@@ -412,6 +427,7 @@ class ServoEmulator:
         self._hb_master_id = master_id if time_ms else 0
         self._hb_timeout_s = time_ms / 1000.0
         self._hb_last_s = None  # monitoring starts with the first heartbeat heard
+        self._cancel_consumer()
         if self._hb_master_id:
             self.network.subscribe(0x700 + self._hb_master_id, self._on_master_heartbeat)
 
@@ -428,56 +444,59 @@ class ServoEmulator:
             for n, tpdo in node.tpdo.map.items()
             if tpdo.enabled and tpdo.trans_type in (254, 255)
         }
-        self._pdo_config_dirty = False
+        self._cancel_tpdo_timers()
+        self._tpdo_timers = [
+            self._bus_clock.call_every(period_s, partial(self._on_event_timer, n))
+            for n, period_s in self._event_timer_s.items()
+            if period_s > 0
+        ]
 
-    # ---- periodic work ----------------------------------------------------------------
+    # ---- timers of the link clock ------------------------------------------------------
 
-    def _run(self) -> None:
-        wait_s = 0.0
-        try:
-            while not self._stopping.wait(timeout_s=wait_s):
-                try:
-                    wait_s = self._tick()
-                except Exception:  # keep the drive alive, but never silently
-                    log.exception("servo emulator: periodic work failed")
-                    wait_s = self._tick_s
-        finally:
-            self._stopped.set()
+    def _cancel_tpdo_timers(self) -> None:
+        for timer in self._tpdo_timers:
+            timer.cancel()
+        self._tpdo_timers = []
 
-    def _tick(self) -> float:
-        """One round of periodic work; returns the wait until the next (<= tick_s)."""
-        now_s = self._bus_clock.now_s()
+    def _on_event_timer(self, n: int) -> None:
+        """TPDO n's event timer: transmit it in NMT OPERATIONAL, unless off the bus."""
         with self._lock:
-            t_s = self._clock.now_s()
-            if self._pdo_config_dirty:
-                self._load_pdo_config()
-            if self._state == QSA and self._params[0x605A] in (1, 2) and self.crank.at_speed(t_s):
-                self._state = SOD  # quick stop option 1 or 2: at rest -> SWITCH ON DISABLED
-            self._check_master_heartbeat(now_s)
-            if self._bus_off or self.node.nmt.state != "OPERATIONAL":
-                return self._tick_s
-            wait_s = self._tick_s
-            for n, period_s in self._event_timer_s.items():
-                if period_s <= 0:
-                    continue
-                due_s = self._tpdo_due_s.get(n, now_s)
-                if now_s >= due_s:
-                    self._transmit_tpdo(cast(Any, self.node.tpdo).map[n])
-                    due_s += period_s
-                    if due_s <= now_s:  # fell behind: no burst, restart the cycle
-                        due_s = now_s + period_s
-                    self._tpdo_due_s[n] = due_s
-                wait_s = min(wait_s, due_s - now_s)
-            return wait_s
+            if not self._running or self._bus_off or self.node.nmt.state != "OPERATIONAL":
+                return
+            tpdo = cast(Any, self.node.tpdo).map.get(n)
+            if tpdo is not None:
+                self._transmit_tpdo(tpdo)
 
     def _transmit_tpdo(self, tpdo: PdoMap) -> None:
         for var in tpdo:
             var.set_data(self.node.get_data(var.index, var.subindex))
         tpdo.transmit()
 
-    def _check_master_heartbeat(self, now_s: float) -> None:
-        if self._hb_last_s is None or now_s - self._hb_last_s <= self._hb_timeout_s:
-            return
+    def _arm_consumer(self) -> None:
+        """The heartbeat consumer's deadline: consumer time after the last master heartbeat heard."""
+        self._cancel_consumer()
+        if self._running and self._hb_master_id and self._hb_last_s is not None:
+            self._hb_deadline = self._bus_clock.call_at(
+                self._hb_last_s + self._hb_timeout_s, self._master_heartbeat_due
+            )
+
+    def _cancel_consumer(self) -> None:
+        if self._hb_deadline is not None:
+            self._hb_deadline.cancel()
+            self._hb_deadline = None
+
+    def _master_heartbeat_due(self) -> None:
+        with self._lock:
+            if not self._running or self._hb_last_s is None:
+                return  # stopped, or the consumer was reconfigured while this timer fell due
+            if self._bus_clock.now_s() - self._hb_last_s < self._hb_timeout_s:
+                return  # a heartbeat came in while this timer fell due (it armed the next deadline)
+            self._hb_deadline = None
+            self._master_heartbeat_lost()
+
+    def _master_heartbeat_lost(self) -> None:
+        """No master heartbeat for the consumer time: do what 0x6007 says."""
+        self._settle(self._clock.now_s())
         self._hb_last_s = None
         option = self._params[0x6007]
         log.warning("servo emulator: master heartbeat lost; abort connection option 0x6007 = %d", option)

@@ -43,8 +43,10 @@ from devices.errors import (
 )
 from devices.servo.driver import READ_ATTEMPTS, ServoLimits, VibrationTableServo
 from devices.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
+from devices.sim_can import bind_clock
 from models.crank import CrankModel
 from station.clock import Clock, VirtualClock, WallClock, host_clock
+from station.event_clock import EventClock
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -382,3 +384,35 @@ def test_emulator_honours_pdo_parameters_written_by_sdo(make_rig: RigFactory) ->
     assert {m.dlc for m in tpdo2} == {4}
     with pytest.raises(DriverError, match="0x6064"):
         rig.servo.open()
+
+
+@pytest.mark.parametrize("interface", ["station_sim"])  # `virtual` hands frames to threads no clock waits for
+def test_event_clock_ramp_takes_its_station_time(interface: str) -> None:
+    """Driver and emulator on a discrete-event clock: the ramp lasts |f| / ramp station seconds, to within
+    one TPDO event period (the statusword that reports it is sampled on the event timer's grid)."""
+    f_hz = 1.5
+    tpdo_period_s = 0.010  # TPDO1 event timer of the EDS
+    clock = EventClock()
+    channel = f"servo-test-{uuid.uuid4().hex[:8]}"
+    bind_clock(channel, clock)
+    cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=TIMEOUT_S)
+    try:
+        with clock.party("test"):
+            emu = ServoEmulator.from_config(cfg, clock)
+            emu.start()
+            servo = VibrationTableServo(cfg, LIMITS, clock)
+            try:
+                servo.open()
+                servo.enable()
+                t_cmd_s = clock.now_s()
+                at_speed = servo.set_frequency(f_hz)
+                ramp_s = at_speed.t_s - t_cmd_s
+                ramp_min_s = f_hz / RAMP_HZ_PER_S
+                assert ramp_min_s - 1e-9 <= ramp_s <= ramp_min_s + tpdo_period_s + 1e-9  # float rounding only
+                assert at_speed.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
+                assert emu.state == servo.state == "OPERATION ENABLED"
+            finally:
+                servo.close()
+                emu.stop()
+    finally:
+        bind_clock(channel, None)
