@@ -99,7 +99,7 @@ class SimLine:
         with self._lock:
             self._check()
             now_s = self.clock.now_s()
-            self._carry(now_s)
+            self._service(now_s)  # what was due before the command arrives happens first (a latched alarm)
             self.emulator.on_bytes(data)
             self._poll_due_s = now_s
         self._changed.set()

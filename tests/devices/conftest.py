@@ -1,8 +1,9 @@
 """Serial fixtures: a simulated world, each emulator behind a real pty or a sim:// line, and its driver.
 
 Nothing is mocked: the driver opens the emulator's tty path or sim:// URL with
-pyserial as it would /dev/ttyUSB0. The counter/timer, reference-mark and
-indexing-head rigs run each of their tests on both transports (`transport`).
+pyserial as it would /dev/ttyUSB0. Every device rig runs each of its tests on
+both transports (`transport`); a test about the wall-time pacing of the pty
+overrides it with `@pytest.mark.parametrize("transport", ["pty"])` and says why.
 Each rig closes driver and emulator on teardown.
 """
 
@@ -50,15 +51,14 @@ def make_world(speed: float = 1.0, vibrate_hz: float = 10.0, start_s: float = 0.
 
 
 @pytest.fixture
-def grating_rig_at() -> Iterator[Callable[..., tuple[Any, GratingEmulator, GratingReadHead]]]:
+def grating_rig_at(transport: str) -> Iterator[Callable[..., tuple[Any, GratingEmulator, GratingReadHead]]]:
     """Factory: grating rig on a world whose clock runs `speed` times real time."""
     opened: list[tuple[GratingEmulator, GratingReadHead]] = []
 
     def make(speed: float = 1.0, vibrate_hz: float = 10.0) -> tuple[Any, GratingEmulator, GratingReadHead]:
         world = make_world(speed=speed, vibrate_hz=vibrate_hz)
         emu = GratingEmulator(world)
-        emu.start()
-        head = GratingReadHead(emu.port, timeout_s=0.3, clock=world.clock)
+        head = GratingReadHead(serve(emu, transport), timeout_s=0.3, clock=world.clock)
         opened.append((emu, head))
         head.open()
         return world, emu, head

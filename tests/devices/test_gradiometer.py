@@ -1,4 +1,4 @@
-"""Gradiometer: line codec, then the real driver against its emulator over a pty, the tilt coming
+"""Gradiometer: line codec, then the real driver against its emulator over a pty and a sim:// line, the tilt coming
 from the world (the twin's parasitic rotation at the crank phase of each reading's time stamp).
 """
 
@@ -20,6 +20,8 @@ from models.config import default_twin
 from models.table_tilt import ARCSEC_RAD, TiltHarmonics
 from station.clock import VirtualClock
 
+from .conftest import serve
+
 pytestmark = pytest.mark.timeout(60)
 
 # Seed 000 Table 7's table top: ax0 16.58", axs1 -0.92", axc1 0.19" (eq. 34 on the table).
@@ -33,15 +35,18 @@ TIMEOUT_S = 0.3
 
 
 @pytest.fixture
-def rig() -> Iterator[tuple[SimStation, GradiometerEmulator, gm.Gradiometer]]:
+def rig(transport: str) -> Iterator[tuple[SimStation, GradiometerEmulator, gm.Gradiometer]]:
     world = SimStation(default_twin().with_effect("parasitic_rotation", **AX), VirtualClock(5.0), seed=4)
     world.crank.command_speed(2 * math.pi * CRANK_HZ, 1e6, world.clock.now_s())
-    with GradiometerEmulator(world, noise_arcsec=NOISE_ARCSEC, about_y=ABOUT_Y) as emu:
-        grad = gm.Gradiometer(emu.port, timeout_s=TIMEOUT_S, retries=0, clock=world.clock).open()
+    emu = GradiometerEmulator(world, noise_arcsec=NOISE_ARCSEC, about_y=ABOUT_Y)
+    try:
+        grad = gm.Gradiometer(serve(emu, transport), timeout_s=TIMEOUT_S, retries=0, clock=world.clock).open()
         try:
             yield world, emu, grad
         finally:
             grad.close()
+    finally:
+        emu.close()
 
 
 # ---------------------------------------------------------------- codec

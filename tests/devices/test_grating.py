@@ -1,4 +1,4 @@
-"""Grating read head: frame codecs, then the real driver against its emulator over a pty.
+"""Grating read head: frame codecs, then the real driver against its emulator over a pty and a sim:// line.
 
 The world-dependent tests use devices.world.SimStation with the table
 vibrating, so positions are checked against world.table_position_m at the
@@ -197,7 +197,7 @@ def test_samples_iterator(grating_rig) -> None:
 
 
 def test_session_of_streaming_loses_no_sample(grating_rig) -> None:
-    """40 000 frames (8 s at 5 kHz) through the pty: every seq and time stamp present."""
+    """40 000 frames (8 s at 5 kHz) through the line: every seq and time stamp present."""
     _, emu, head = grating_rig
     head.start_streaming()
     n = 40_000
@@ -210,6 +210,7 @@ def test_session_of_streaming_loses_no_sample(grating_rig) -> None:
     assert head.crc_errors == 0 and head.frame_errors == 0
 
 
+@pytest.mark.parametrize("transport", ["pty"])  # a sim:// line paces in station time: 10x is not too fast there
 def test_virtual_clock_faster_than_the_line_shows_gaps(grating_rig_at) -> None:
     """At 10x real time, 50 000 samples/s cannot fit through 3 Mbaud: the board drops,
     the driver counts exactly those gaps and every received stamp is on the 5 kHz grid."""

@@ -1,4 +1,4 @@
-"""Strapdown IMU: the real driver against its emulator over a pty: what a resting and a rocking IMU
+"""Strapdown IMU: the real driver against its emulator over a pty and a sim:// line: what a resting and a rocking IMU
 stream, gaps, and every fault becoming a typed error within a bounded time."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from devices.pty_link import Fault
 from models.shaker_motion import ShakerMotion, sine_drive
 from station.clock import speed_at_most
 
-from .conftest import make_world
+from .conftest import make_world, serve
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -26,13 +26,16 @@ Rig = tuple[object, ImuEmulator, StrapdownImu]
 
 
 @pytest.fixture
-def imu_rig() -> Iterator[Callable[..., Rig]]:
+def imu_rig(transport: str) -> Iterator[Callable[..., Rig]]:
     with contextlib.ExitStack() as stack:  # each rig: driver closed, then its emulator
 
         def make(speed: float = 5.0, silence_s: float = 0.5, fifo_bytes: int = FIFO_BYTES) -> Rig:
             world = make_world(speed=speed, vibrate_hz=0.0)
-            emu = stack.enter_context(ImuEmulator(world, fifo_bytes=fifo_bytes))
-            imu = StrapdownImu(emu.port, rate_hz=200, timeout_s=0.3, silence_s=silence_s, clock=world.clock)
+            emu = ImuEmulator(world, fifo_bytes=fifo_bytes)
+            stack.callback(emu.close)
+            imu = StrapdownImu(
+                serve(emu, transport), rate_hz=200, timeout_s=0.3, silence_s=silence_s, clock=world.clock
+            )
             stack.callback(imu.close)
             return world, emu, imu.open()
 
@@ -104,6 +107,7 @@ def test_a_gap_is_counted_and_a_recording_refuses_it(imu_rig) -> None:
         ImuRecording(imu.dt_s).add(block)
 
 
+@pytest.mark.parametrize("transport", ["pty"])  # a sim:// line paces in station time: 400x is not too fast there
 def test_a_line_faster_than_its_share_drops_samples_visibly(imu_rig) -> None:
     """At 400x real time 200 Hz frames need 3.2 MB/s, beyond the 3 Mbaud line: the IMU drops, the
     driver counts the gap; capped at max_lossless_speed the same stream loses nothing."""

@@ -1,6 +1,6 @@
-"""Electrodynamic shaker: the controller driver against its emulator over a pty: the test cycle on
-the world's slip table, the table's envelope refused before anything is sent, alarms, and every
-fault becoming a typed error within a bounded time."""
+"""Electrodynamic shaker: the controller driver against its emulator over a pty and a sim:// line: the
+test cycle on the world's slip table, the table's envelope refused before anything is sent, alarms, and
+every fault becoming a typed error within a bounded time."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from devices.shaker.emulator import ShakerEmulator
 from devices.shaker.envelope import G_STANDARD_MPS2, check_random, random_sigmas
 from models.shaker_motion import ShakerMotion
 
-from .conftest import make_world
+from .conftest import make_world, serve
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -29,14 +29,17 @@ TIMEOUT_S = 0.3
 
 
 @pytest.fixture
-def shaker_rig() -> Iterator[tuple[object, ShakerEmulator, ShakerController]]:
+def shaker_rig(transport: str) -> Iterator[tuple[object, ShakerEmulator, ShakerController]]:
     world = make_world(speed=10.0, vibrate_hz=0.0)
-    with ShakerEmulator(world, SECTION) as emu:
-        shaker = ShakerController(emu.port, SECTION, baud=SECTION.baud, timeout_s=TIMEOUT_S).open()
+    emu = ShakerEmulator(world, SECTION)
+    try:
+        shaker = ShakerController(serve(emu, transport), SECTION, baud=SECTION.baud, timeout_s=TIMEOUT_S).open()
         try:
             yield world, emu, shaker
         finally:
             shaker.close()
+    finally:
+        emu.close()
 
 
 def wait_for(shaker: ShakerController, state: str, within_s: float = 3.0) -> None:

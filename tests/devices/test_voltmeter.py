@@ -1,4 +1,4 @@
-"""Voltmeter: SCPI reply parsing, then the real driver against its emulator over a pty, reading the
+"""Voltmeter: SCPI reply parsing, then the real driver against its emulator over a pty and a sim:// line, reading the
 tumbled accelerometer of seed 001 at the head's angle and the chamber's temperature.
 """
 
@@ -21,6 +21,8 @@ from devices.world import SimStation
 from models.pendulous_accelerometer import AccelerometerModel, output_v
 from station.clock import VirtualClock
 
+from .conftest import serve
+
 pytestmark = pytest.mark.timeout(60)
 TIMEOUT_S = 0.3
 RETRIES = 2
@@ -37,14 +39,17 @@ def test_readings_are_parsed_strictly() -> None:
 
 
 @pytest.fixture
-def rig() -> Iterator[tuple[SimStation, VoltmeterEmulator, vm.Voltmeter]]:
+def rig(transport: str) -> Iterator[tuple[SimStation, VoltmeterEmulator, vm.Voltmeter]]:
     world = SimStation(clock=VirtualClock(100.0))
-    with VoltmeterEmulator(world) as emu:
-        meter = vm.Voltmeter(emu.port, timeout_s=TIMEOUT_S, retries=RETRIES, clock=world.clock).open()
+    emu = VoltmeterEmulator(world)
+    try:
+        meter = vm.Voltmeter(serve(emu, transport), timeout_s=TIMEOUT_S, retries=RETRIES, clock=world.clock).open()
         try:
             yield world, emu, meter
         finally:
             meter.close()
+    finally:
+        emu.close()
 
 
 def _head_at(world: SimStation, angle_deg: float) -> None:

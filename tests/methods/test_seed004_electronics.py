@@ -1,6 +1,6 @@
-"""PIGA electronics (seed 004): the line codec, then the real driver against its emulator over a pty, the
-emulator putting the float's kzz at the offset in force into the simulated world, and every fault becoming a
-typed error within a bounded time."""
+"""PIGA electronics (seed 004): the line codec, then the real driver against its emulator over a pty and a
+sim:// line, the emulator putting the float's kzz at the offset in force into the simulated world, and every
+fault becoming a typed error within a bounded time."""
 
 from __future__ import annotations
 
@@ -27,16 +27,25 @@ CONFIG = Path(__file__).parents[2] / "config" / "station-electronics-sim.toml"
 SETTLE_S = 2.0  # station seconds the emulated servo takes to follow an offset change
 
 
+@pytest.fixture(params=["pty", "sim"])
+def transport(request: pytest.FixtureRequest) -> str:
+    """The link to the emulator: a pty served by its thread, or a sim:// line (as in tests/devices/conftest.py)."""
+    return str(request.param)
+
+
 @pytest.fixture
-def rig() -> Iterator[tuple[SimStation, PigaElectronicsEmulator, PigaElectronics]]:
+def rig(transport: str) -> Iterator[tuple[SimStation, PigaElectronicsEmulator, PigaElectronics]]:
     world = SimStation(clock=VirtualClock(20.0))
-    with PigaElectronicsEmulator(world, settle_s=SETTLE_S) as emu:
-        driver = PigaElectronics(emu.port, offset_max_arcsec=10.0, timeout_s=0.3, poll_s=0.5,
-                                    clock=world.clock).open()  # fmt: skip
+    emu = PigaElectronicsEmulator(world, settle_s=SETTLE_S)
+    try:
+        port = emu.start() if transport == "pty" else emu.start_sim()
+        driver = PigaElectronics(port, offset_max_arcsec=10.0, timeout_s=0.3, poll_s=0.5, clock=world.clock).open()
         try:
             yield world, emu, driver
         finally:
             driver.close()
+    finally:
+        emu.close()
 
 
 # ---------------------------------------------------------------- codec
