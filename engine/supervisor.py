@@ -170,7 +170,6 @@ class MotionSupervisor:
         """hw.safe_stop() within bound_s, else (or if it raises) hw.emergency_stop(); the record of which."""
         t0 = self._clock.now_s()
         errors: list[str] = []
-        done = threading.Event()
         ended = self._clock.event()
 
         def stop() -> None:
@@ -178,14 +177,11 @@ class MotionSupervisor:
                 self.hw.safe_stop()
             except Exception as exc:  # any failure of the ramp is answered by the quick stop below
                 errors.append(f"safe stop failed: {type(exc).__name__}: {exc}")
-            else:
-                done.set()
             finally:
                 ended.set()
 
         threading.Thread(target=stop, name="safe-stop", daemon=True).start()
-        ended.wait(timeout_s=self.bound_s)
-        if done.is_set():
+        if ended.wait(timeout_s=self.bound_s) and not errors:
             state = SafeState(reason, "safe stop", self._clock.now_s() - t0, tuple(errors))
         else:
             if not ended.is_set():

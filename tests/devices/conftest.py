@@ -14,6 +14,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+from links import serve
 
 from devices.counter_timer.driver import CounterTimer
 from devices.counter_timer.emulator import CounterEmulator
@@ -21,25 +22,12 @@ from devices.grating.driver import GratingReadHead
 from devices.grating.emulator import GratingEmulator
 from devices.indexing_head.driver import IndexingHead
 from devices.indexing_head.emulator import IndexingEmulator
-from devices.pty_link import PtyEmulator
 from devices.reference_marks.driver import ReferenceMarks
 from devices.reference_marks.emulator import ReferenceEmulator
 from devices.world import SimStation
 from station.clock import VirtualClock
 
 CRANK_ACCEL_RADPS2 = 1e6  # effectively a step to the commanded speed
-TRANSPORTS = ("pty", "sim")
-
-
-@pytest.fixture(params=TRANSPORTS)
-def transport(request: pytest.FixtureRequest) -> str:
-    """The link between driver and emulator: a pty served by the emulator's thread, or a sim:// line."""
-    return str(request.param)
-
-
-def serve(emu: PtyEmulator, transport: str) -> str:
-    """Start the emulator on `transport`; the port its driver opens."""
-    return emu.start() if transport == "pty" else emu.start_sim()
 
 
 def make_world(speed: float = 1.0, vibrate_hz: float = 10.0, start_s: float = 0.0) -> SimStation:

@@ -9,6 +9,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from links import serve
 
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError
 from devices.gradiometer import driver as gm
@@ -19,8 +20,6 @@ from devices.world import SimStation
 from models.config import default_twin
 from models.table_tilt import ARCSEC_RAD, TiltHarmonics
 from station.clock import VirtualClock
-
-from .conftest import serve
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -10,6 +10,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
+from links import serve
 
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
 from devices.imu.driver import ImuRecording, StrapdownImu
@@ -18,7 +19,7 @@ from devices.pty_link import Fault
 from models.shaker_motion import ShakerMotion, sine_drive
 from station.clock import speed_at_most
 
-from .conftest import make_world, serve
+from .conftest import make_world
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -59,7 +59,6 @@ HB_DETECT_BOUND_S = 3 * HB_S + SLACK_S
 VELOCITY_LSB_HZ = 1e-6
 RAMP_HZ_PER_S = LIMITS.ramp_max_hz_per_s
 TWO_PI = 2 * math.pi
-CAN_INTERFACES = ("virtual", "station_sim")
 
 
 @dataclass
@@ -79,11 +78,6 @@ class Rig:
 
 
 RigFactory = Callable[..., Rig]
-
-
-@pytest.fixture(params=CAN_INTERFACES)
-def interface(request: pytest.FixtureRequest) -> str:
-    return str(request.param)
 
 
 @pytest.fixture

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from links import serve
 
 from devices.config import load_station_config
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
@@ -20,7 +21,7 @@ from devices.shaker.emulator import ShakerEmulator
 from devices.shaker.envelope import G_STANDARD_MPS2, check_random, random_sigmas
 from models.shaker_motion import ShakerMotion
 
-from .conftest import make_world, serve
+from .conftest import make_world
 
 pytestmark = pytest.mark.timeout(60)
 

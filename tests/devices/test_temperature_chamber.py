@@ -9,6 +9,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from links import serve
 from scipy.integrate import solve_ivp
 
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
@@ -19,8 +20,6 @@ from devices.temperature_chamber.emulator import PV_NOISE_C, ChamberEmulator, Ch
 from devices.world import SimStation
 from models.chamber_thermal import ramped_lag, time_to_band_s
 from station.clock import VirtualClock
-
-from .conftest import serve
 
 pytestmark = pytest.mark.timeout(60)
 TIMEOUT_S = 0.3

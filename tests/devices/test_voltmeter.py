@@ -11,6 +11,7 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from links import serve
 
 from devices.errors import DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
 from devices.pty_link import Fault
@@ -20,8 +21,6 @@ from devices.voltmeter.emulator import METER_NOISE_OF_RANGE, VoltmeterEmulator, 
 from devices.world import SimStation
 from models.pendulous_accelerometer import AccelerometerModel, output_v
 from station.clock import VirtualClock
-
-from .conftest import serve
 
 pytestmark = pytest.mark.timeout(60)
 TIMEOUT_S = 0.3

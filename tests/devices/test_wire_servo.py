@@ -32,12 +32,6 @@ pytestmark = pytest.mark.timeout(30)
 CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
 H = bytes.fromhex
 WAIT_S = 2.0  # wall time a frame may take on the shared machine
-CAN_INTERFACES = ("virtual", "station_sim")
-
-
-@pytest.fixture(params=CAN_INTERFACES)
-def interface(request: pytest.FixtureRequest) -> str:
-    return str(request.param)
 
 
 @pytest.fixture

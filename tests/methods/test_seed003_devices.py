@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from links import serve
 
 from app.controller import StationController
 from devices.config import ConfigError, load_station_config
@@ -22,7 +23,7 @@ from devices.counter_timer.emulator import CounterEmulator
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError
 from devices.indexing_head.driver import IndexingHead
 from devices.indexing_head.emulator import IndexingEmulator
-from devices.pty_link import Fault, PtyEmulator
+from devices.pty_link import Fault
 from devices.registry import device_kinds
 from devices.second_instrument.emulator import FIXTURE, INSTRUMENT_B, SEAT_ERRORS_RAD, DualFixture, InstrumentOnHead
 from devices.station import simulated_station
@@ -44,16 +45,6 @@ CONFIG_DIR = Path(__file__).parents[2] / "config"
 TWIN = TwinConfig.from_toml(CONFIG_DIR / "twin-seed003.toml")
 KIND = device_kinds()["second_instrument"]
 SILENCE_S = 3.0  # devices.counter_timer.driver default: a silent board is a DeviceTimeout after this
-
-
-@pytest.fixture(params=["pty", "sim"])
-def transport(request: pytest.FixtureRequest) -> str:
-    """The link to the emulator: a pty served by its thread, or a sim:// line (as in tests/devices/conftest.py)."""
-    return str(request.param)
-
-
-def serve(emulator: PtyEmulator, transport: str) -> str:
-    return emulator.start() if transport == "pty" else emulator.start_sim()
 
 
 @pytest.fixture

@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from links import serve
 
 from devices.config import ConfigError, load_station_config
 from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
@@ -27,18 +28,12 @@ CONFIG = Path(__file__).parents[2] / "config" / "station-electronics-sim.toml"
 SETTLE_S = 2.0  # station seconds the emulated servo takes to follow an offset change
 
 
-@pytest.fixture(params=["pty", "sim"])
-def transport(request: pytest.FixtureRequest) -> str:
-    """The link to the emulator: a pty served by its thread, or a sim:// line (as in tests/devices/conftest.py)."""
-    return str(request.param)
-
-
 @pytest.fixture
 def rig(transport: str) -> Iterator[tuple[SimStation, PigaElectronicsEmulator, PigaElectronics]]:
     world = SimStation(clock=VirtualClock(20.0))
     emu = PigaElectronicsEmulator(world, settle_s=SETTLE_S)
     try:
-        port = emu.start() if transport == "pty" else emu.start_sim()
+        port = serve(emu, transport)
         driver = PigaElectronics(port, offset_max_arcsec=10.0, timeout_s=0.3, poll_s=0.5, clock=world.clock).open()
         try:
             yield world, emu, driver
