@@ -379,74 +379,120 @@ def _median(xs: list) -> float | None:
     return float(np.median(xs)) if xs else None
 
 
+def _verdict_counts(rows: list[dict]) -> dict[str, int]:
+    """How many rows end in each verdict."""
+    return {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS}
+
+
+def _at(rows: list[dict], effect: str, snr: float) -> list[dict]:
+    """The rows of one injected effect at one SNR."""
+    return [r for r in rows if r["effect"] == effect and r["snr"] == snr]
+
+
+def _explained(r: dict) -> bool:
+    return r["verdict"] == "explained"
+
+
+def _wrong_effect_explained(r: dict) -> bool:
+    """Explained, but not by the injected effect first."""
+    return r["verdict"] == "explained" and r["effects"][:1] != [r["effect"]]
+
+
+def _effect_scores(rows: list[dict], effect: str) -> dict:
+    """The scores of one injected effect at one SNR."""
+    return {
+        "n": len(rows),
+        "top1": _top1(rows),
+        "named_or_in_group": _named_in_group(rows),
+        "verdicts": _verdict_counts(rows),
+        "wrong_effects": sorted({x for r in rows for x in r["effects"][:1] if x != effect}),
+        "median_shrink": _median([r["truth_shrink"] for r in rows]),
+        "identifiable_fraction": _rate(rows, lambda r: bool(r["truth_identifiable"])),
+    }
+
+
+def _per_effect(eff: list[dict], snrs: list[float]) -> dict:
+    """Every injected effect (in INJECTIONS' order), scored at each SNR it was injected at."""
+    out: dict = {}
+    for e in sorted({r["effect"] for r in eff}, key=list(INJECTIONS).index):
+        out[e] = {f"snr{snr:g}": _effect_scores(rows, e) for snr in snrs if (rows := _at(eff, e, snr))}
+    return out
+
+
+def _identifiable_split(rows: list[dict]) -> tuple[list[dict], list[dict]]:
+    """The rows whose injected effect the diagnosis reports identifiable, and the others."""
+    return [r for r in rows if r["truth_identifiable"]], [r for r in rows if not r["truth_identifiable"]]
+
+
+def _snr10_scores(at10: list[dict]) -> dict:
+    """Top-1 attribution at SNR 10, over the identifiable effects and over all, and the others named."""
+    ident10, not_ident10 = _identifiable_split(at10)
+    return {
+        "top1_at_snr10_identifiable": _top1(ident10),
+        "n_identifiable_at_snr10": len(ident10),
+        "top1_at_snr10_all_effects": _top1(at10),
+        "wrong_effect_explained_at_snr10": _rate(at10, _wrong_effect_explained),
+        "not_identifiable_at_snr10_named_or_in_group": _named_in_group(not_ident10),
+        "n_not_identifiable_at_snr10": len(not_ident10),
+        "identifiable_effects": sorted({r["effect"] for r in ident10}),
+    }
+
+
+def _null_scores(nulls: list[dict]) -> dict:
+    """False attribution and any gap declared on the null sessions."""
+    return {
+        "null_false_attribution": _rate(nulls, _attributed),
+        "null_any_gap": _rate(nulls, lambda r: r["verdict"] != "no_gap"),
+        "n_null": len(nulls),
+    }
+
+
+def _out_of_library_scores(ool: list[dict], snrs: list[float], look_alikes: dict, design: str) -> dict:
+    """Out-of-library cases explained, and each term's verdicts per SNR with its nearest library look-alike."""
+    return {
+        "out_of_library_explained_snr_ge10": _rate([r for r in ool if r["snr"] >= 10], _explained),
+        "out_of_library_explained_all": _rate(ool, _explained),
+        "out_of_library_by_effect": {
+            e: {f"snr{snr:g}": _verdict_counts(_at(ool, e, snr)) for snr in snrs}
+            | {"look_alike": look_alikes.get((design, e))}
+            for e in sorted({r["effect"] for r in ool})
+        },
+    }
+
+
+def _not_reached(rs: list[dict]) -> list[dict]:
+    """The effect cases whose injection, within the plausible bounds, fell short of their SNR (not scored)."""
+    return [
+        {k: r[k] for k in ("effect", "snr", "seed", "snr_reached", "verdict")}
+        for r in rs
+        if r["kind"] == "effect" and not _reached(r)
+    ]
+
+
+def _design_scores(rs: list[dict], design: str, look_alikes: dict) -> dict:
+    """The scores of one design's cases."""
+    of_kind = {k: [r for r in rs if r["kind"] == k] for k in ("null", "effect", "out_of_library", "leave_one_out")}
+    eff = [r for r in of_kind["effect"] if _reached(r)]
+    ool = of_kind["out_of_library"]
+    snrs = sorted({r["snr"] for r in eff + ool})
+    at10 = [r for r in eff if r["snr"] == 10]
+    return {
+        **_snr10_scores(at10),
+        **_null_scores(of_kind["null"]),
+        **_out_of_library_scores(ool, snrs, look_alikes, design),
+        "leave_one_out_explained": _rate(of_kind["leave_one_out"], _explained),
+        "median_heldout_shrink_snr10": _median([r["truth_shrink"] for r in at10]),
+        "median_heldout_shrink_snr10_identifiable": _median([r["truth_shrink"] for r in _identifiable_split(at10)[0]]),
+        "median_diagnosis_s": _median([r["elapsed_s"] for r in rs]),
+        "not_reached": _not_reached(rs),
+        "per_effect": _per_effect(eff, snrs),
+    }
+
+
 def summarise(results: list[dict], look_alikes: dict | None = None) -> dict:
     """The scores of issue 3 point 6, per design."""
-    out: dict = {}
-    for dn in sorted({r["design"] for r in results}):
-        rs = [r for r in results if r["design"] == dn]
-        nulls = [r for r in rs if r["kind"] == "null"]
-        eff = [r for r in rs if r["kind"] == "effect" and _reached(r)]
-        ool = [r for r in rs if r["kind"] == "out_of_library"]
-        loo = [r for r in rs if r["kind"] == "leave_one_out"]
-        snrs = sorted({r["snr"] for r in eff + ool})
-        per_effect = {}
-        for e in sorted({r["effect"] for r in eff}, key=list(INJECTIONS).index):
-            per_effect[e] = {}
-            for snr in snrs:
-                rows = [r for r in eff if r["effect"] == e and r["snr"] == snr]
-                if not rows:
-                    continue
-                per_effect[e][f"snr{snr:g}"] = {
-                    "n": len(rows),
-                    "top1": _top1(rows),
-                    "named_or_in_group": _named_in_group(rows),
-                    "verdicts": {v: sum(r["verdict"] == v for r in rows) for v in VERDICTS},
-                    "wrong_effects": sorted({x for r in rows for x in r["effects"][:1] if x != e}),
-                    "median_shrink": _median([r["truth_shrink"] for r in rows]),
-                    "identifiable_fraction": _rate(rows, lambda r: bool(r["truth_identifiable"])),
-                }
-        at10 = [r for r in eff if r["snr"] == 10]
-        ident10 = [r for r in at10 if r["truth_identifiable"]]
-        not_ident10 = [r for r in at10 if not r["truth_identifiable"]]
-        out[dn] = {
-            "top1_at_snr10_identifiable": _top1(ident10),
-            "n_identifiable_at_snr10": len(ident10),
-            "top1_at_snr10_all_effects": _top1(at10),
-            "wrong_effect_explained_at_snr10": _rate(
-                at10, lambda r: r["verdict"] == "explained" and r["effects"][:1] != [r["effect"]]
-            ),
-            "not_identifiable_at_snr10_named_or_in_group": _named_in_group(not_ident10),
-            "n_not_identifiable_at_snr10": len(not_ident10),
-            "identifiable_effects": sorted({r["effect"] for r in ident10}),
-            "null_false_attribution": _rate(nulls, _attributed),
-            "null_any_gap": _rate(nulls, lambda r: r["verdict"] != "no_gap"),
-            "n_null": len(nulls),
-            "out_of_library_explained_snr_ge10": _rate(
-                [r for r in ool if r["snr"] >= 10], lambda r: r["verdict"] == "explained"
-            ),
-            "out_of_library_explained_all": _rate(ool, lambda r: r["verdict"] == "explained"),
-            "out_of_library_by_effect": {
-                e: {
-                    f"snr{snr:g}": {
-                        v: sum(r["verdict"] == v for r in ool if r["effect"] == e and r["snr"] == snr) for v in VERDICTS
-                    }
-                    for snr in snrs
-                }
-                | {"look_alike": (look_alikes or {}).get((dn, e))}
-                for e in sorted({r["effect"] for r in ool})
-            },
-            "leave_one_out_explained": _rate(loo, lambda r: r["verdict"] == "explained"),
-            "median_heldout_shrink_snr10": _median([r["truth_shrink"] for r in at10]),
-            "median_heldout_shrink_snr10_identifiable": _median([r["truth_shrink"] for r in ident10]),
-            "median_diagnosis_s": _median([r["elapsed_s"] for r in rs]),
-            "not_reached": [
-                {k: r[k] for k in ("effect", "snr", "seed", "snr_reached", "verdict")}
-                for r in rs
-                if r["kind"] == "effect" and not _reached(r)
-            ],
-            "per_effect": per_effect,
-        }
-    return out
+    designs = sorted({r["design"] for r in results})
+    return {dn: _design_scores([r for r in results if r["design"] == dn], dn, look_alikes or {}) for dn in designs}
 
 
 def run(
