@@ -186,6 +186,55 @@ def _unpredictable_text(heldout_rows: tuple[int, int] | None) -> str:
     )
 
 
+def _too_few_dof(dof: int) -> Verdict:
+    """cannot_tell: the design leaves fewer than MIN_DOF residual degrees of freedom after the calibrated terms."""
+    return Verdict(
+        "cannot_tell",
+        [],
+        f"cannot tell with this design: only {dof} residual degrees of freedom "
+        f"remain after the bias k0 and the calibrated coefficients (need >= {MIN_DOF}); "
+        "add positions or frequencies",
+    )
+
+
+def _no_gap(noise_before: NoiseCheck) -> Verdict:
+    """no_gap, saying which noise reference the residual scatter was checked against."""
+    ref = (
+        f"; residual scatter consistent with the {noise_before.reference}"
+        if noise_before.reference != "none"
+        else "; no independent noise reference (no repeats, no noise stated by the session)"
+    )
+    return Verdict("no_gap", [], "no gap beyond noise: no library effect and no structure test is significant" + ref)
+
+
+def _left_after_effects(
+    selection: Selection,
+    dets_after: list[Detector],
+    noise_after: NoiseCheck,
+    shrink: float | None,
+    heldout_after: tuple[float, float] | None,
+) -> list[str]:
+    """What the chosen effects leave: significant residual checks, further effects beyond the maximum, a held-out
+    gap that shrank by less than MIN_SHRINK or stays above HELDOUT_AFTER_SE standard errors."""
+    remaining = residual_checks(dets_after, noise_after)
+    if selection.capped:
+        remaining.append("further library effects still significant beyond the maximum number added")
+    if not selection.effects:
+        return remaining
+    if shrink is not None and shrink < MIN_SHRINK:
+        remaining.append(f"held-out gap shrink only {shrink:.2f} (< {MIN_SHRINK})")
+    if heldout_after is not None and heldout_after[0] > HELDOUT_AFTER_SE * heldout_after[1]:
+        g, se = heldout_after
+        remaining.append(f"held-out gap with the effects {g:.3g} = {g / se:.1f} se (> {HELDOUT_AFTER_SE:g} se)")
+    return remaining
+
+
+def _partly_explained(effects: list[str], remaining: list[str]) -> Verdict:
+    """unexplained: the effects account for part of the gap, `remaining` names what is left."""
+    text = "not explained by the library: " + ", ".join(effects) + " account(s) for part of it, but "
+    return Verdict("unexplained", [], text + "; ".join(remaining), partial=effects, remaining=remaining)
+
+
 def decide(
     dof: int,
     selection: Selection,
@@ -203,47 +252,17 @@ def decide(
     rest_only: chosen effects' significant parameters seen only at rest, untested by a pulse record;
     heldout_rows: the held-out rows predictable by the twin and by the model with the effects."""
     if dof < MIN_DOF:
-        return Verdict(
-            "cannot_tell",
-            [],
-            f"cannot tell with this design: only {dof} residual degrees of freedom "
-            f"remain after the bias k0 and the calibrated coefficients (need >= {MIN_DOF}); "
-            "add positions or frequencies",
-        )
+        return _too_few_dof(dof)
     effects = selection.effects
     before = residual_checks(dets_before, noise_before)
     rejected = _rejected(selection)  # significant candidates that another test rejects: a gap all the same
     if not effects and not before and not rejected:
-        ref = (
-            f"; residual scatter consistent with the {noise_before.reference}"
-            if noise_before.reference != "none"
-            else "; no independent noise reference (no repeats, no noise stated by the session)"
-        )
-        return Verdict(
-            "no_gap", [], "no gap beyond noise: no library effect and no structure test is significant" + ref
-        )
-    remaining = residual_checks(dets_after, noise_after)
-    if selection.capped:
-        remaining.append("further library effects still significant beyond the maximum number added")
-    if effects and shrink is not None and shrink < MIN_SHRINK:
-        remaining.append(f"held-out gap shrink only {shrink:.2f} (< {MIN_SHRINK})")
-    if effects and heldout_after is not None and heldout_after[0] > HELDOUT_AFTER_SE * heldout_after[1]:
-        g, se = heldout_after
-        remaining.append(f"held-out gap with the effects {g:.3g} = {g / se:.1f} se (> {HELDOUT_AFTER_SE:g} se)")
+        return _no_gap(noise_before)
+    remaining = _left_after_effects(selection, dets_after, noise_after, shrink, heldout_after)
     if effects and not remaining:
         sh = f"held-out gap shrink {shrink:.2f}" if shrink is not None else "no held-out gap to shrink"
         return _accepted_verdict(selection, ident, sh, rest_only or {}, heldout_rows)
     if effects:
-        remaining += rejected
-        return Verdict(
-            "unexplained",
-            [],
-            "not explained by the library: "
-            + ", ".join(effects)
-            + " account(s) for part of it, but "
-            + "; ".join(remaining),
-            partial=effects,
-            remaining=remaining,
-        )
+        return _partly_explained(effects, remaining + rejected)
     before = before + rejected
     return Verdict("unexplained", [], "a gap that no library effect explains: " + "; ".join(before), remaining=before)
