@@ -23,8 +23,10 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -51,9 +53,9 @@ from gap.noise import (
     timing_rate_sd_radps,
 )
 from gap.rawstreams import GratingRecord, PulseRecord, raw_evidence, raw_summary_text
-from gap.report import GapReport, render
+from gap.report import GapReport, render, summary_text
 from gap.subsets import best_subset
-from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, decide, family_level
+from gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide, family_level
 from methods.common.least_squares import FitError, fit_joint
 from models.config import TwinConfig, TwinConfigError, default_twin
 from station.session import Session
@@ -253,6 +255,187 @@ def _noise_json(
     }
 
 
+@dataclass(frozen=True)
+class _Observations:
+    """What the diagnosis reads from a session: its design, the noise it states, the timing noise (estimated
+    first) and the raw records (the grating harmonics, the pulse edges) where it has them."""
+
+    design: PointDesign
+    stated: StatedNoise
+    tn: TimingNoise
+    grating: GratingRecord | None
+    pulses: PulseRecord | None
+
+    @classmethod
+    def of(cls, session: Session, twin: TwinConfig) -> _Observations:
+        """The session's observations; raises GapInputError where its geometry or design cannot be diagnosed."""
+        check_geometry(session, twin)
+        design = PointDesign.from_session(session)
+        _check_fittable(design)
+        stated = StatedNoise.from_meta(session.meta)
+        tn = timing_noise(design, twin, stated)
+        sd_stamp = tn.sigma_tau_s / math.sqrt(2.0)
+        grating = GratingRecord.from_session(session, design, sd_stamp, stated.grating_noise_m)
+        tick = stated.timer_resolution_s if stated.timer_resolution_s is not None else twin.noise.timer_tick_s
+        pulses = PulseRecord.from_session(session, design, twin, sd_stamp, tick) if session.raw else None
+        return cls(design, stated, tn, grating, pulses)
+
+    def channels(self, twin: TwinConfig, model: TwinConfig | None = None) -> Channels:
+        """The observations whitened by their noise (_channels), with the pulse record."""
+        return replace(_channels(self.design, twin, self.tn, self.stated, self.grating, model), pulses=self.pulses)
+
+
+_Attribution = tuple[ModelFit, IdentifiabilityReport, list[Detector], Selection]
+
+
+def _attribute(ch: Channels, exclude: Sequence[str], max_effects: int, suggest: bool, has_raw: bool) -> _Attribution:
+    """The twin refitted, identifiability, its structure tests and the forward selection, on channels ch."""
+    lin = Linearisation(ch, cl.library(exclude=exclude))
+    base = fit_model(lin, [])
+    ident = assess(lin, suggest=suggest and base.dof_rate >= MIN_DOF, has_raw=has_raw)
+    dets = detectors(ch, base)
+    if base.dof_rate < MIN_DOF:
+        return base, ident, dets, Selection([], [], base)
+    # The pulse record rejects a candidate at the level the verdict tests it at (gap.verdict.residual_checks).
+    pulse_level = family_level(len(dets)) / max(len(dets), 1)
+    names, drop = ident.fittable(), ident.dropped
+    greedy = forward_select(lin, base, names, drop, max_effects, pulse_level)
+    return base, ident, dets, best_subset(lin, base, greedy, names, drop, max_effects, pulse_level)
+
+
+def _attribution(
+    obs: _Observations, twin: TwinConfig, exclude: Sequence[str], max_effects: int, suggest: bool, has_raw: bool
+) -> tuple[Channels, _Attribution, str]:
+    """The attribution on channels of the twin's rate-noise form; where the model with the chosen effects gives the
+    form another value, the attribution again on channels of that form. Also which model the form was chosen on."""
+    attribute = partial(_attribute, exclude=exclude, max_effects=max_effects, suggest=suggest, has_raw=has_raw)
+    ch = obs.channels(twin)
+    found = attribute(ch)
+    selection = found[3]
+    if selection.chosen and not ch.rate_sigma_known:
+        # The rate noise's form again from the model with the effects; where it differs, the attribution again.
+        model, first = selection.final.cfg, ", ".join(selection.effects)
+        if _rate_form(obs.design, twin, model) != ch.constant_fraction:
+            ch = obs.channels(twin, model)
+            return ch, attribute(ch), f"the twin with {first} (the effects chosen with the twin's own form)"
+    return ch, found, "the twin refitted"
+
+
+def _honest_noise(ch: Channels, final: ModelFit, pe: PureError | None, dets_after: list[Detector]) -> HonestNoise:
+    """The rate noise sigma0: as the session states it, else from the pure error of repeats or the final model's
+    residuals less the structure its significant rate tests find (gap.noise.honest_noise)."""
+    if ch.rate_sigma_known:
+        return HonestNoise(ch.sigma0_radps, 0, "stated by the session (instrument_repeatability_radps)")
+    structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None and d.channel == "rate"]
+    return honest_noise(pe, final.r_white, ch.n_rate, final.dof_rate, ch.sigma0_radps, structure)
+
+
+def _heldout_gaps(
+    obs: _Observations, base: ModelFit, selection: Selection, kappa: float, sigma0_radps: float
+) -> tuple[HeldOut, HeldOut, dict[str, tuple[float, float | None]]]:
+    """The held-out gap of the twin, of the chosen model, and (gap, shrink) of each first-step candidate alone."""
+    folds = Folds.of(obs.design)
+
+    def ho(fit: ModelFit) -> HeldOut:
+        g_index = None if obs.grating is None else obs.grating.index
+        return heldout(fit.J, fit.r_white, obs.design, folds, kappa, sigma0_radps, obs.tn.sigma_tau_s, g_index)
+
+    h_base = ho(base)
+    h_final = ho(selection.final) if selection.chosen else h_base
+    shrinks = {}
+    for s in selection.steps[0] if selection.steps else []:
+        h = ho(s.fit)
+        shrinks[s.name] = (h.G, shrink(h_base, h))
+    return h_base, h_final, shrinks
+
+
+class _Residuals(NamedTuple):
+    """z of every point and of every period identity, twin refitted and with the chosen effects."""
+
+    z_before: np.ndarray
+    z_after: np.ndarray
+    tau_z_before: np.ndarray
+    tau_z_after: np.ndarray
+
+
+def _standardised_residuals(
+    base: ModelFit, final: ModelFit, chosen: bool, ch: Channels, kappa: float, sigma_tau_s: float
+) -> _Residuals:
+    """The standardised residuals before and after the chosen effects (the same arrays when none was added)."""
+    z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / sigma_tau_s
+    z_after, tau_z_after = z_before, tau_z_before  # the same arrays when no effect was added
+    if chosen:
+        z_after, tau_z_after = standardised(final, ch, kappa), final.tau_resid_s / sigma_tau_s
+    return _Residuals(z_before, z_after, tau_z_before, tau_z_after)
+
+
+def _verdict(
+    attribution: _Attribution,
+    dets_after: list[Detector],
+    checks: tuple[NoiseCheck, NoiseCheck],
+    h_base: HeldOut,
+    h_final: HeldOut,
+    rest_only: dict[str, list[str]],
+) -> Verdict:
+    """The verdict (gap.verdict.decide) on the attribution, the tests after it and the held-out gaps."""
+    base, ident, dets_before, selection = attribution
+    heldout_after, heldout_rows = (h_final.G, h_final.se), (h_base.n_rows, h_final.n_rows)
+    shrunk = shrink(h_base, h_final)
+    return decide(
+        base.dof_rate,
+        selection,
+        ident,
+        dets_before,
+        dets_after,
+        *checks,
+        shrunk,
+        heldout_after,
+        rest_only,
+        heldout_rows,
+    )
+
+
+def _where(
+    maps_before: dict, maps_after: dict | None, dets_before: list[Detector], dets_after: list[Detector], raw: dict
+) -> dict:
+    """Where the gap lies: in words before and after the effects, the maps, the structure tests, the raw streams."""
+    return {
+        "summary": where_text(maps_before, dets_before, family_level(len(dets_before)))
+        + (f" {raw_summary_text(raw)}." if raw else ""),
+        "after_effects": where_text(maps_after, dets_after, family_level(len(dets_after))) if maps_after else None,
+        "maps": maps_before,
+        "maps_after_effects": maps_after,
+        "structure_tests_before": [d.to_json() for d in dets_before],
+        "structure_tests_after": [d.to_json() for d in dets_after],
+        "raw_streams": raw or None,
+    }
+
+
+def _session_info(design: PointDesign, session: Session, dof0: int, exclude: Sequence[str]) -> dict:
+    """The session's design as diagnosed: points, positions, frequencies, raw streams, residual dof."""
+    return {
+        "n_points": design.n_points,
+        "n_vibration": int(design.vib.sum()),
+        "positions_deg": design.positions_deg,
+        "frequencies_hz": np.unique(design.freq_hz[design.vib]),
+        "raw_streams": len(session.raw),
+        "residual_dof": dof0,
+        "excluded_from_library": list(exclude),
+    }
+
+
+def _settings(max_effects: int, suggest: bool) -> dict:
+    """The diagnosis' thresholds and options, as the report states them."""
+    return {
+        "alpha": ALPHA,
+        "ambiguous_delta_bic": AMBIGUOUS_DBIC,
+        "max_effects": max_effects,
+        "min_dof": MIN_DOF,
+        "min_shrink": MIN_SHRINK,
+        "suggest_separating_points": suggest,
+    }
+
+
 def diagnose(
     session: Session,
     twin: TwinConfig,
@@ -267,133 +450,48 @@ def diagnose(
     search for separating test points (the slowest part of the identifiability check).
     """
     t_start = time.perf_counter()
-    check_geometry(session, twin)
-    design = PointDesign.from_session(session)
-    _check_fittable(design)
-    stated = StatedNoise.from_meta(session.meta)
-    tn = timing_noise(design, twin, stated)
-    grating = GratingRecord.from_session(session, design, tn.sigma_tau_s / math.sqrt(2.0), stated.grating_noise_m)
-    tick = stated.timer_resolution_s if stated.timer_resolution_s is not None else twin.noise.timer_tick_s
-    sd_stamp = tn.sigma_tau_s / math.sqrt(2.0)
-    pulses = PulseRecord.from_session(session, design, twin, sd_stamp, tick) if session.raw else None
-
-    def attribute(ch: Channels) -> tuple[ModelFit, IdentifiabilityReport, list[Detector], Selection]:
-        """The twin refitted, identifiability, its structure tests and the forward selection, on channels ch."""
-        lin = Linearisation(ch, cl.library(exclude=exclude))
-        base = fit_model(lin, [])
-        ident = assess(lin, suggest=suggest and base.dof_rate >= MIN_DOF, has_raw=bool(session.raw))
-        dets = detectors(ch, base)
-        if base.dof_rate < MIN_DOF:
-            return base, ident, dets, Selection([], [], base)
-        # The pulse record rejects a candidate at the level the verdict tests it at (gap.verdict.residual_checks).
-        pulse_level = family_level(len(dets)) / max(len(dets), 1)
-        names, drop = ident.fittable(), ident.dropped
-        greedy = forward_select(lin, base, names, drop, max_effects, pulse_level)
-        return base, ident, dets, best_subset(lin, base, greedy, names, drop, max_effects, pulse_level)
-
-    ch = replace(_channels(design, twin, tn, stated, grating), pulses=pulses)
-    base, ident, dets_before, selection = attribute(ch)
-    form_from = "the twin refitted"
-    if selection.chosen and not ch.rate_sigma_known:
-        # The rate noise's form again from the model with the effects; where it differs, the attribution again.
-        model, first = selection.final.cfg, ", ".join(selection.effects)
-        if _rate_form(design, twin, model) != ch.constant_fraction:
-            ch = replace(_channels(design, twin, tn, stated, grating, model), pulses=pulses)
-            base, ident, dets_before, selection = attribute(ch)
-            form_from = f"the twin with {first} (the effects chosen with the twin's own form)"
-    dof0 = base.dof_rate
+    obs = _Observations.of(session, twin)
+    design, tn = obs.design, obs.tn
+    ch, attribution, form_from = _attribution(obs, twin, exclude, max_effects, suggest, bool(session.raw))
+    base, ident, dets_before, selection = attribution
     final = selection.final
 
-    # Localise: structure tests, then the honest noise, standardised residuals and maps.
+    # Localise: the structure tests after the effects, then the honest noise.
     dets_after = detectors(ch, final)
     pe = pure_error(design, final.rate_resid_radps, ch.weights)
-    structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None and d.channel == "rate"]
-    if ch.rate_sigma_known:
-        honest = HonestNoise(ch.sigma0_radps, 0, "stated by the session (instrument_repeatability_radps)")
-    else:
-        honest = honest_noise(pe, final.r_white, ch.n_rate, final.dof_rate, ch.sigma0_radps, structure)
+    honest = _honest_noise(ch, final, pe, dets_after)
     kappa = honest.sigma0_radps / ch.sigma0_radps
     ident.noise_ratio = 1.0 / kappa
 
     # Shrink: the held-out gap of the twin, of each candidate alone, and of the chosen model.
-    folds = Folds.of(design)
-
-    def ho(fit: ModelFit) -> HeldOut:
-        g_index = None if grating is None else grating.index
-        return heldout(fit.J, fit.r_white, design, folds, kappa, honest.sigma0_radps, tn.sigma_tau_s, g_index)
-
-    h_base = ho(base)
-    h_final = ho(final) if selection.chosen else h_base
-    shrinks = {}
-    for s in selection.steps[0] if selection.steps else []:
-        h = ho(s.fit)
-        shrinks[s.name] = (h.G, shrink(h_base, h))
+    h_base, h_final, shrinks = _heldout_gaps(obs, base, selection, kappa, honest.sigma0_radps)
     checks = (_noise_check(base, pe, ch), _noise_check(final, pe, ch))
-    rest_only = seen_only_at_rest(final, ch) if pulses is None else {}
-    verdict = decide(
-        dof0,
-        selection,
-        ident,
-        dets_before,
-        dets_after,
-        *checks,
-        shrink(h_base, h_final),
-        (h_final.G, h_final.se),
-        rest_only,
-        (h_base.n_rows, h_final.n_rows),
-    )
+    rest_only = seen_only_at_rest(final, ch) if obs.pulses is None else {}
+    verdict = _verdict(attribution, dets_after, checks, h_base, h_final, rest_only)
 
-    z_before, tau_z_before = standardised(base, ch, kappa), base.tau_resid_s / tn.sigma_tau_s
-    z_after, tau_z_after = z_before, tau_z_before  # the same arrays when no effect was added
-    if selection.chosen:
-        z_after, tau_z_after = standardised(final, ch, kappa), final.tau_resid_s / tn.sigma_tau_s
+    # Report: standardised residuals, their maps and the raw streams' evidence.
+    res = _standardised_residuals(base, final, bool(selection.chosen), ch, kappa, tn.sigma_tau_s)
     raw = raw_evidence(session, design, base.refitted_cfg(), tn.sigma_tau_s / math.sqrt(2.0))
-    maps_before = maps(design, z_before, tau_z_before)
-    maps_after = maps(design, z_after, tau_z_after) if selection.chosen else None
-    where = {
-        "summary": where_text(maps_before, dets_before, family_level(len(dets_before)))
-        + (f" {raw_summary_text(raw)}." if raw else ""),
-        "after_effects": where_text(maps_after, dets_after, family_level(len(dets_after))) if maps_after else None,
-        "maps": maps_before,
-        "maps_after_effects": maps_after,
-        "structure_tests_before": [d.to_json() for d in dets_before],
-        "structure_tests_after": [d.to_json() for d in dets_after],
-        "raw_streams": raw or None,
-    }
-    info = {
-        "n_points": design.n_points,
-        "n_vibration": int(design.vib.sum()),
-        "positions_deg": design.positions_deg,
-        "frequencies_hz": np.unique(design.freq_hz[design.vib]),
-        "raw_streams": len(session.raw),
-        "residual_dof": dof0,
-        "excluded_from_library": list(exclude),
-    }
+    maps_before = maps(design, res.z_before, res.tau_z_before)
+    maps_after = maps(design, res.z_after, res.tau_z_after) if selection.chosen else None
     return GapReport(
         verdict=verdict,
         candidates=_candidate_table(selection, ident, shrinks, twin),
         gap_before=h_base,
         gap_after=h_final,
-        where=where,
+        where=_where(maps_before, maps_after, dets_before, dets_after, raw),
         identifiability=ident,
-        noise=_noise_json(form_from, twin, honest, base, final, pe, checks, tn, design, ch, stated),
+        noise=_noise_json(form_from, twin, honest, base, final, pe, checks, tn, design, ch, obs.stated),
         coefficients={"twin_refit": _coefficients(base), "with_effects": _coefficients(final)},
         twin_out=final.cfg if verdict.verdict == "explained" else twin,
-        session_info=info,
-        settings={
-            "alpha": ALPHA,
-            "ambiguous_delta_bic": AMBIGUOUS_DBIC,
-            "max_effects": max_effects,
-            "min_dof": MIN_DOF,
-            "min_shrink": MIN_SHRINK,
-            "suggest_separating_points": suggest,
-        },
+        session_info=_session_info(design, session, base.dof_rate, exclude),
+        settings=_settings(max_effects, suggest),
         elapsed_s=time.perf_counter() - t_start,
         design=design,
-        z_before=z_before,
-        z_after=z_after,
-        tau_z_before=tau_z_before,
-        tau_z_after=tau_z_after,
+        z_before=res.z_before,
+        z_after=res.z_after,
+        tau_z_before=res.tau_z_before,
+        tau_z_after=res.tau_z_after,
         raw=raw,
     )
 
@@ -459,60 +557,6 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.twin_out).write_text(report.twin_out.to_toml())
     print(summary_text(report))
     return 0
-
-
-def _value(v: float, sd: float, unit: str) -> str:
-    return f"{v:.4g} ± {sd:.2g} {unit}".rstrip()
-
-
-def summary_text(report: GapReport) -> str:
-    """A short human summary: verdict, effects with parameters and uncertainty, shrink, what is untestable."""
-    v = report.verdict
-    lines = [f"verdict: {v.verdict}", f"  {v.text}"]
-    named = v.effects or v.partial or v.ambiguous
-    for entry in report.candidates:
-        if entry["name"] not in named or not entry["parameters"]:
-            continue
-        params = ", ".join(
-            f"{k} = {_value(val, entry['uncertainty'][k], entry['units'].get(k, ''))}"
-            for k, val in entry["parameters"].items()
-        )
-        prof = {k: v for k, v in entry.get("profiled_parameters", {}).items() if k != "method"}
-        params += "".join(f", {k} = {val:.3g} (profiled)" for k, val in prof.items())
-        sh = entry["heldout_shrink"]
-        lines.append(f"  {entry['name']}: {params}" + (f" (held-out shrink alone {sh:.2f})" if sh is not None else ""))
-    sh = shrink(report.gap_before, report.gap_after)
-    lines.append(
-        f"held-out gap (mean z^2 - 1): before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g}"
-        + (f", shrink {sh:.2f}" if sh is not None and v.effects else "")
-        + f" (se if no gap {report.gap_before.se:.2g})"
-    )
-    tests = report.where["structure_tests_after" if v.effects or v.partial else "structure_tests_before"]
-    level = family_level(len(tests)) / max(len(tests), 1)  # the verdict's Bonferroni level
-    bad = [t for t in tests if t["p_value"] is not None and t["p_value"] < level]
-    if bad:
-        lines.append(
-            "tests that reject the model: "
-            + "; ".join(
-                f"{t['name']} ({t['channel']}, p = {t['p_value']:.1e})" + (f" at {t['at']}" if t["at"] else "")
-                for t in bad
-            )
-        )
-    untestable = [c for c in report.identifiability.candidates.values() if not c.identifiable]
-    if untestable:
-        lines.append("not testable in this design: " + ", ".join(c.name for c in untestable))
-    for c in untestable + [report.identifiability.candidates[n] for n in v.ambiguous]:
-        tests = sorted({s.test for p in c.params for s in p.separating if s.separates})
-        if tests:
-            lines.append(f"  {c.name} would be tested by: {'; '.join(tests)}")
-    noise = report.noise
-    known = [k for k, val in noise["stated_by_session"].items() if val is not None]
-    lines.append(
-        f"noise: sigma0 {noise['sigma0_radps']:.3g} rad/s ({noise['source']}); "
-        + (f"stated by the session: {', '.join(known)}" if known else "nothing stated by the session (estimated)")
-    )
-    lines.append(f"{report.session_info['n_points']} points, {report.elapsed_s:.1f} s")
-    return "\n".join(lines)
 
 
 if __name__ == "__main__":

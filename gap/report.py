@@ -1,5 +1,6 @@
-"""The report of a gap diagnosis: `GapReport` (what the diagnosis found, `to_json()` the OUT.json document) and
-`render(report)`, its self-contained HTML (inline SVG, nothing loaded from elsewhere).
+"""The report of a gap diagnosis: `GapReport` (what the diagnosis found, `to_json()` the OUT.json document),
+`render(report)`, its self-contained HTML (inline SVG, nothing loaded from elsewhere), and `summary_text(report)`,
+its short text summary (what `station gap` prints).
 
 Verdict, held-out gap before and after (metric defined), where the gap lies
 (maps of standardised residuals over position x frequency, run order with
@@ -19,9 +20,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from gap.design import PointDesign
-from gap.heldout import HeldOut
+from gap.heldout import HeldOut, shrink
 from gap.identifiability import IdentifiabilityReport
-from gap.verdict import Verdict
+from gap.verdict import Verdict, family_level
 from models.config import TwinConfig
 from station import htmlkit
 from station.htmlkit import esc, html_fragment, table
@@ -342,3 +343,78 @@ def render(report: GapReport) -> str:
         f"<pre>{esc(report.twin_out.to_toml())}</pre>",
     ]
     return htmlkit.document("Sim-to-real gap diagnosis", parts)
+
+
+# ----------------------------------------------------------------------------- text summary
+
+
+def _value(v: float, sd: float, unit: str) -> str:
+    return f"{v:.4g} ± {sd:.2g} {unit}".rstrip()
+
+
+def _effect_line(entry: dict) -> str:
+    """A named effect: its parameters with their uncertainty, those set by profile, its held-out shrink alone."""
+    params = ", ".join(
+        f"{k} = {_value(val, entry['uncertainty'][k], entry['units'].get(k, ''))}"
+        for k, val in entry["parameters"].items()
+    )
+    prof = {k: v for k, v in entry.get("profiled_parameters", {}).items() if k != "method"}
+    params += "".join(f", {k} = {val:.3g} (profiled)" for k, val in prof.items())
+    sh = entry["heldout_shrink"]
+    return f"  {entry['name']}: {params}" + (f" (held-out shrink alone {sh:.2f})" if sh is not None else "")
+
+
+def _heldout_line(report: GapReport) -> str:
+    """The held-out gap before and after the effects, and its shrink where effects explain it."""
+    sh = shrink(report.gap_before, report.gap_after)
+    return (
+        f"held-out gap (mean z^2 - 1): before {report.gap_before.G:.3g}, after {report.gap_after.G:.3g}"
+        + (f", shrink {sh:.2f}" if sh is not None and report.verdict.effects else "")
+        + f" (se if no gap {report.gap_before.se:.2g})"
+    )
+
+
+def _rejecting_tests(report: GapReport) -> list[str]:
+    """The structure tests that reject the final model (the twin's own unless effects were accepted), at the
+    verdict's Bonferroni level."""
+    v = report.verdict
+    tests = report.where["structure_tests_after" if v.effects or v.partial else "structure_tests_before"]
+    level = family_level(len(tests)) / max(len(tests), 1)  # the verdict's Bonferroni level
+    bad = [t for t in tests if t["p_value"] is not None and t["p_value"] < level]
+    found = "; ".join(
+        f"{t['name']} ({t['channel']}, p = {t['p_value']:.1e})" + (f" at {t['at']}" if t["at"] else "") for t in bad
+    )
+    return [f"tests that reject the model: {found}"] if bad else []
+
+
+def _untestable(report: GapReport) -> list[str]:
+    """The candidates this design cannot test, and the test points that would test them or tell the ambiguous
+    effects apart."""
+    ident = report.identifiability
+    untestable = [c for c in ident.candidates.values() if not c.identifiable]
+    lines = ["not testable in this design: " + ", ".join(c.name for c in untestable)] if untestable else []
+    for c in untestable + [ident.candidates[n] for n in report.verdict.ambiguous]:
+        tests = sorted({s.test for p in c.params for s in p.separating if s.separates})
+        if tests:
+            lines.append(f"  {c.name} would be tested by: {'; '.join(tests)}")
+    return lines
+
+
+def _noise_line(report: GapReport) -> str:
+    """The rate noise sigma0, where it comes from, and what the session states."""
+    noise = report.noise
+    known = [k for k, val in noise["stated_by_session"].items() if val is not None]
+    return f"noise: sigma0 {noise['sigma0_radps']:.3g} rad/s ({noise['source']}); " + (
+        f"stated by the session: {', '.join(known)}" if known else "nothing stated by the session (estimated)"
+    )
+
+
+def summary_text(report: GapReport) -> str:
+    """A short human summary: verdict, effects with parameters and uncertainty, shrink, what is untestable."""
+    v = report.verdict
+    named = v.effects or v.partial or v.ambiguous
+    effects = [_effect_line(e) for e in report.candidates if e["name"] in named and e["parameters"]]
+    lines = [f"verdict: {v.verdict}", f"  {v.text}", *effects, _heldout_line(report)]
+    lines += _rejecting_tests(report) + _untestable(report)
+    lines += [_noise_line(report), f"{report.session_info['n_points']} points, {report.elapsed_s:.1f} s"]
+    return "\n".join(lines)
