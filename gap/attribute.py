@@ -237,6 +237,79 @@ def lateral_pulse_profile(
     return None if best is None else (best[1], best[2])
 
 
+def _scored(
+    lin: Linearisation, current: ModelFit, fit: ModelFit, name: str, profiled: Mapping[str, float] | None
+) -> Scored:
+    """Candidate `name`'s fit scored on top of `current` (score), with its set parameters chosen by profile."""
+    d = lin.ch.design
+    w_radps = 2 * math.pi * np.unique(d.freq_hz[d.vib])
+    sc = score(current, fit, name, lin.ch.n_rate, lin.ch.n_other, w_radps)
+    sc.profiled = dict(profiled or {})
+    return sc
+
+
+def _kept_profiles(profiled: Mapping[str, Mapping[str, float]], chosen: Sequence[str]) -> dict:
+    """The profiled set parameters of the effects already chosen (kept in later steps)."""
+    return {n: v for n, v in profiled.items() if n in chosen}
+
+
+def _fit_candidate(
+    lin: Linearisation,
+    current: ModelFit,
+    chosen: Sequence[str],
+    name: str,
+    drop: frozenset[str],
+    profiled: Mapping[str, Mapping[str, float]],
+) -> Scored | None:
+    """Candidate `name` fitted with the chosen effects and scored (a lateral resonance at its fr, Q by profile,
+    lateral_profile); None where the fit leaves no rate degree of freedom."""
+    override = profiled.get(name)
+    if name == "lateral_resonance" and override is None:
+        override = lateral_profile(lin, current)
+    over = {name: override} if override else {}
+    over |= _kept_profiles(profiled, chosen)
+    fit = fit_model(lin, [*chosen, name], drop=drop, fixed_override=over)
+    return _scored(lin, current, fit, name, override) if fit.dof_rate > 0 else None
+
+
+def _accepted(scored: list[Scored], limit: float) -> list[Scored]:
+    """The candidates the rates accept: p-value below limit, a lower BIC, every parameter within its bound."""
+    return [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
+
+
+def _lateral_by_pulses(
+    lin: Linearisation,
+    current: ModelFit,
+    chosen: Sequence[str],
+    drop: frozenset[str],
+    profiled: Mapping[str, Mapping[str, float]],
+    scored: list[Scored],
+    limit: float,
+    pulse_level: float,
+) -> list[Scored]:
+    """`scored` again where the pulse record rejects an accepted lateral resonance at the rates' fr, Q: with the fr, Q
+    that the pulses choose within what the rates cannot tell apart (lateral_pulse_profile), where they find one."""
+    ok = _accepted(scored, limit)
+    lateral = next((s for s in ok if s.name == "lateral_resonance" and s.name not in profiled), None)
+    if lateral is None or not rejected_by_pulses(lin, lateral, pulse_level):
+        return scored
+    over = _kept_profiles(profiled, chosen)
+    alt = lateral_pulse_profile(lin, current, [*chosen, lateral.name], drop, over, pulse_level)
+    if alt is None:
+        return scored
+    sc = _scored(lin, current, alt[1], lateral.name, alt[0])
+    return sorted([sc if s is lateral else s for s in scored], key=lambda s: s.bic)
+
+
+def _rivals(lin: Linearisation, scored: list[Scored], best: Scored, pulse_level: float) -> list[str]:
+    """The candidates within bounds that reproduce the winner on every channel: the rates (in the winner's sigma^2),
+    timing and grating in the fit within REPRODUCE_CHI2 of the winner's chi^2, the pulse record not rejecting them."""
+    s2 = best.fit.rss_rate / max(best.fit.dof_rate, 1)
+    chi_best = chi2_total(best.fit, s2)
+    alike = [s for s in scored if s is not best and s.plausible and chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2]
+    return [s.name for s in alike if not rejected_by_pulses(lin, s, pulse_level)]
+
+
 def _step(
     lin: Linearisation,
     current: ModelFit,
@@ -251,43 +324,16 @@ def _step(
     profiled: the profiled set parameters of candidates already chosen (kept in later steps);
     pulse_level: a candidate whose fit the pulse test rejects below it is not accepted."""
     profiled = dict(profiled or {})
-    n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
-    d = lin.ch.design
-    w_radps = 2 * math.pi * np.unique(d.freq_hz[d.vib])
-    scored = []
-    for name in names:
-        override = profiled.get(name)
-        if name == "lateral_resonance" and override is None:
-            override = lateral_profile(lin, current)
-        over = {name: override} if override else {}
-        over |= {n: v for n, v in profiled.items() if n in chosen}
-        fit = fit_model(lin, [*chosen, name], drop=drop, fixed_override=over)
-        if fit.dof_rate > 0:
-            sc = score(current, fit, name, n_rate, n_other, w_radps)
-            sc.profiled = dict(override or {})
-            scored.append(sc)
-    scored.sort(key=lambda s: s.bic)
+    fitted = (_fit_candidate(lin, current, chosen, name, drop, profiled) for name in names)
+    scored = sorted((s for s in fitted if s is not None), key=lambda s: s.bic)
     limit = ALPHA / max(len(scored), 1)
-    ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
-    lateral = next((s for s in ok if s.name == "lateral_resonance" and s.name not in profiled), None)
-    if lateral is not None and rejected_by_pulses(lin, lateral, pulse_level):
-        # The rates' fr, Q rejected by the pulses: the pulses choose within what the rates cannot tell apart.
-        over = {n: v for n, v in profiled.items() if n in chosen}
-        alt = lateral_pulse_profile(lin, current, [*chosen, lateral.name], drop, over, pulse_level)
-        if alt is not None:
-            sc = score(current, alt[1], lateral.name, n_rate, n_other, w_radps)
-            sc.profiled = alt[0]
-            scored = sorted([sc if s is lateral else s for s in scored], key=lambda s: s.bic)
-            ok = [s for s in scored if s.p_value < limit and s.dbic < 0 and s.plausible]
+    scored = _lateral_by_pulses(lin, current, chosen, drop, profiled, scored, limit, pulse_level)
+    ok = _accepted(scored, limit)
     if not ok:
         return scored, None
     # The pulse record rejecting all of them may show a second effect still missing (a pair): the rates' best.
     best = next((s for s in ok if not rejected_by_pulses(lin, s, pulse_level)), ok[0])
-    s2 = best.fit.rss_rate / max(best.fit.dof_rate, 1)
-    chi_best = chi2_total(best.fit, s2)
-    # A rival reproduces the winner on every channel: the rates, timing and grating in the fit, the pulses tested.
-    alike = [s for s in scored if s is not best and s.plausible and chi2_total(s.fit, s2) - chi_best < REPRODUCE_CHI2]
-    best.rivals = [s.name for s in alike if not rejected_by_pulses(lin, s, pulse_level)]
+    best.rivals = _rivals(lin, scored, best, pulse_level)
     return scored, best
 
 
