@@ -134,6 +134,49 @@ def _rest_only_text(rest_only: dict[str, list[str]]) -> str:
     )
 
 
+def _named(effects: list[str], alike: dict[str, list[str]], alternatives: list[list[str]]) -> list[str]:
+    """The chosen effects, each followed by its look-alikes, then the effects of every alternative model; once each."""
+    named = [n for e in effects for n in [e, *alike.get(e, [])]] + [n for alt in alternatives for n in alt]
+    return list(dict.fromkeys(named))
+
+
+def _separating(
+    ident: IdentifiabilityReport, named: list[str], rest_only: dict[str, list[str]], alternatives: list[list[str]]
+) -> str:
+    """The test points that would separate the named effects, as a clause of the verdict's text ("" if none)."""
+    tests = ident.separating_tests(named) if len(named) > 1 or rest_only or alternatives else []
+    return f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
+
+
+def _not_told_apart(
+    effects: list[str], alike: dict[str, list[str]], alternatives: list[list[str]], sh: str, sep: str, named: list[str]
+) -> Verdict:
+    """cannot_tell: the effects explain the gap, but this session cannot tell them from their look-alikes and the
+    alternative models that reproduce them."""
+    why = "; ".join(
+        [f"{e} from {', '.join(a)}" for e, a in alike.items()]
+        + [f"{' + '.join(effects)} from {' + '.join(alt)} (which reproduces it)" for alt in alternatives]
+    )
+    text = f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, but this session "
+    return Verdict("cannot_tell", [], f"{text}cannot tell {why}{sep}", ambiguous=named)
+
+
+def _explained(
+    effects: list[str], ident: IdentifiabilityReport, sh: str, unpredictable: bool, heldout_rows: tuple[int, int] | None
+) -> Verdict:
+    """explained, naming the parameters this design does not determine, and saying where only the held-out points
+    fix some of them."""
+    undetermined = {e: ident.undetermined(e) for e in effects if ident.undetermined(e)}
+    text = f"explained by {', '.join(effects)} ({sh})"
+    if undetermined:
+        text += "; not determined by this design (absorbed, aliased with the fitted ones or unseen): " + (
+            "; ".join(f"{e} {', '.join(ps)}" for e, ps in undetermined.items())
+        )
+    if unpredictable:
+        text += f"; {_unpredictable_text(heldout_rows)}, so no held-out test checks the fitted parameters"
+    return Verdict("explained", effects, text, undetermined=undetermined)
+
+
 def _accepted_verdict(
     selection: Selection,
     ident: IdentifiabilityReport,
@@ -146,10 +189,8 @@ def _accepted_verdict(
     one effect whose parameters the design does not all fix is `explained` with those marked undetermined."""
     effects = selection.effects
     alike, alternatives = _look_alikes(selection), selection.alternatives
-    named = [n for e in effects for n in [e, *alike.get(e, [])]] + [n for alt in alternatives for n in alt]
-    named = list(dict.fromkeys(named))
-    tests = ident.separating_tests(named) if len(named) > 1 or rest_only or alternatives else []
-    sep = f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
+    named = _named(effects, alike, alternatives)
+    sep = _separating(ident, named, rest_only, alternatives)
     if rest_only:
         return Verdict("cannot_tell", [], f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}{sep}",
                        ambiguous=named)  # fmt: skip
@@ -161,21 +202,8 @@ def _accepted_verdict(
         )
         return Verdict("cannot_tell", [], text, ambiguous=named)
     if alike or alternatives:
-        why = "; ".join(
-            [f"{e} from {', '.join(a)}" for e, a in alike.items()]
-            + [f"{' + '.join(effects)} from {' + '.join(alt)} (which reproduces it)" for alt in alternatives]
-        )
-        text = f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, but this session "
-        return Verdict("cannot_tell", [], f"{text}cannot tell {why}{sep}", ambiguous=named)
-    undetermined = {e: ident.undetermined(e) for e in effects if ident.undetermined(e)}
-    text = f"explained by {', '.join(effects)} ({sh})"
-    if undetermined:
-        text += "; not determined by this design (absorbed, aliased with the fitted ones or unseen): " + (
-            "; ".join(f"{e} {', '.join(ps)}" for e, ps in undetermined.items())
-        )
-    if unpredictable:
-        text += f"; {_unpredictable_text(heldout_rows)}, so no held-out test checks the fitted parameters"
-    return Verdict("explained", effects, text, undetermined=undetermined)
+        return _not_told_apart(effects, alike, alternatives, sh, sep, named)
+    return _explained(effects, ident, sh, unpredictable, heldout_rows)
 
 
 def _unpredictable_text(heldout_rows: tuple[int, int] | None) -> str:
