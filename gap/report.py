@@ -349,6 +349,7 @@ def render(report: GapReport) -> str:
 
 
 def _value(v: float, sd: float, unit: str) -> str:
+    """A value with its standard deviation and unit."""
     return f"{v:.4g} ± {sd:.2g} {unit}".rstrip()
 
 
