@@ -248,7 +248,9 @@ def _scored(
     return sc
 
 
-def _kept_profiles(profiled: Mapping[str, Mapping[str, float]], chosen: Sequence[str]) -> dict:
+def _kept_profiles(
+    profiled: Mapping[str, Mapping[str, float]], chosen: Sequence[str]
+) -> dict[str, Mapping[str, float]]:
     """The profiled set parameters of the effects already chosen (kept in later steps)."""
     return {n: v for n, v in profiled.items() if n in chosen}
 
