@@ -34,7 +34,7 @@ from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from engine.runner import Engine, State
 from engine.supervisor import QUICK_STOP_BOUND_S, MotionSupervisor, SafeState
-from station.clock import ClockEvent
+from station.clock import ClockEvent, host_clock, spawn_party
 from station.control_channel import ControlError
 from station.session_lock import INTERRUPTED, recover_interrupted
 from station.store import SessionStore
@@ -73,8 +73,8 @@ class StationController:
         self.model = model
         self.reports_dir = Path(reports_dir)
         self.publish: Publisher = publish or (lambda topic, msg: None)
-        self._link = hardware.clock.link  # what the CLI and the panel wait on: the station's link time
-        self.supervisor = MotionSupervisor(hardware, clock=self._link).start()
+        self._link = host_clock()  # what the CLI and the panel wait on: the host's wall time
+        self.supervisor = MotionSupervisor(hardware, clock=hardware.clock).start()
         self.engine = Engine(hardware, store, self.publish, self.supervisor)
         self._lock = threading.Lock()
         self._worker: threading.Thread | None = None
@@ -123,10 +123,9 @@ class StationController:
             self._start_error = None
             self._started.clear()
             self._worker_ended.clear()
-            self._worker = threading.Thread(
-                target=self._run, args=(spec, plan, instrument_serial, resume_uid), name="engine", daemon=True
+            self._worker = spawn_party(  # the engine acts in station time: the clock waits for it
+                self.hw.clock, "engine", lambda: self._run(spec, plan, instrument_serial, resume_uid)
             )
-            self._worker.start()
         self._started.wait()
         if self._start_error is not None:  # the session could not be opened (locked, unknown): nothing moved
             raise self._start_error

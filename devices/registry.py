@@ -58,8 +58,7 @@ def serial_kind(
 
     def emulate_device(sec: Any, world: Any) -> Any:
         emu = emulator()(world, baud=sec.baud)
-        emu.start()
-        return emu
+        return world.attach(emu)
 
     return DeviceKind(name, section, open_device, emulate_device, core=core)
 

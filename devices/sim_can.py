@@ -39,6 +39,7 @@ from station.clock import Clock, TimerHandle, host_clock
 
 log = logging.getLogger(__name__)
 
+INTERFACE = "station_sim"  # its name in the `can.interface` entry points (pyproject.toml)
 IDLE_POLL_S = 0.05  # how soon a stopped Notifier's idle reader notices, so that Network.disconnect() is prompt
 
 

@@ -13,8 +13,9 @@ The line (`SimLine`), in the station time of the emulator's clock:
   its `next_due_s` has come or after a write, as the pty worker polls every
   2 ms), then takes from its transmit FIFO what a UART at the emulator's baud
   (baud/10 bytes per station second) has carried by now; while that is too
-  little it waits on the clock until the next byte is carried or the emulator
-  is next due, at most the port's timeout, counted in the same seconds;
+  little it waits on the clock until the adapter hands over the next bytes
+  (on a 1 ms USB frame grid) or the emulator is next due, at most the port's
+  timeout, counted in the same seconds;
 - a pulled cable (`disconnect()`, a DISCONNECT fault) or a closed emulator
   makes every call raise SerialException, as a vanished pty does.
 
@@ -36,6 +37,9 @@ from station.clock import Clock
 
 SCHEME = "sim"
 HANDLER_PACKAGE = "devices"  # pyserial imports devices.protocol_sim for sim:// URLs
+# A USB-serial adapter hands what it received to the host once per 1 ms USB frame: a waiting read wakes on
+# that grid and takes every byte carried by then (not one wake per byte of a 3 Mbaud stream).
+HOST_LATENCY_S = 0.001
 CARRY_SLACK_BYTES = 1e-6  # a read woken at a byte's due time takes that byte despite rounding
 
 if HANDLER_PACKAGE not in serial.protocol_handler_packages:
@@ -168,7 +172,9 @@ class SimLine:
         due_s = self._poll_due_s
         pending = self.emulator.tx_pending()
         if pending:
-            due_s = min(due_s, self._carried_s + min(need, pending) / self._bytes_per_s)
+            carried_s = self._carried_s + min(need, pending) / self._bytes_per_s
+            delivered_s = math.ceil(carried_s / HOST_LATENCY_S) * HOST_LATENCY_S
+            due_s = min(due_s, max(delivered_s, carried_s))
         return due_s
 
 

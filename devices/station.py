@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from devices import sim_can
 from devices.config import SERIAL_SECTIONS, StationConfig
 from devices.counter_timer.driver import CounterTimer
 from devices.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError, LostSamples
@@ -39,6 +40,7 @@ from devices.servo.driver import ServoLimits, VibrationTableServo
 from engine.protocols import Event, FrequencyEstimate, MotionRecord, ServoReading, Stoppable, WindowResult
 from models.config import TwinConfig
 from station.clock import Clock, VirtualClock, WallClock, speed_at_most
+from station.event_clock import EventClock
 from station.session import StationInfo
 
 log = logging.getLogger(__name__)
@@ -380,10 +382,12 @@ class SimulatedStation:
     world: Any
     emulators: dict[str, Any]
     devices: StationDevices
+    can_channel: str = ""
 
     def close(self) -> None:
         self.devices.close()
         _stop_emulators(self.emulators)
+        sim_can.bind_clock(self.can_channel, None)
 
     def __enter__(self) -> SimulatedStation:
         return self
@@ -407,19 +411,31 @@ def simulated_station(
     seed: int = 0,
     speed: float = 1.0,
     clock: Clock | None = None,
+    deterministic: bool = False,
 ) -> SimulatedStation:
     """Start the simulated station of `config` (which must say simulated = true) and open its drivers.
 
-    The world runs on `clock` (default: a VirtualClock `speed` times real time); each
-    station gets its own CAN channel so that several can run in one process.
+    Each station gets its own CAN channel so that several can run in one process. The world runs on
+    `clock`; by default, a VirtualClock `speed` times real time with the emulators behind pseudo-terminals
+    and on python-can's virtual bus, or, `deterministic`, a discrete-event clock (station.event_clock) with
+    the synchronous transports (the `station_sim` CAN interface, sim:// serial lines): the same seed then
+    gives the same session to the bit, however busy the host (the threads that act in station time are
+    parties of the clock: the controller's engine, the supervisor's safe stop, or a lone caller).
     """
     from devices.world import SimStation
 
     if not config.simulated:
         raise InterlockError("station", f"{config.path} is a real station's configuration (simulated = false)")
-    clock = clock or VirtualClock(speed)
-    world = SimStation(twin, clock, seed=seed, index_speed_deg_s=config.indexing_head.speed_deg_s)
-    servo_cfg = dataclasses.replace(config.servo, channel=f"{config.servo.channel}-{uuid.uuid4().hex[:8]}")
+    if clock is None:
+        clock = EventClock() if deterministic else VirtualClock(speed)
+    world = SimStation(
+        twin, clock, seed=seed, index_speed_deg_s=config.indexing_head.speed_deg_s, sim_lines=deterministic
+    )
+    channel = f"{config.servo.channel}-{uuid.uuid4().hex[:8]}"
+    servo_cfg = dataclasses.replace(config.servo, channel=channel)
+    if deterministic:
+        servo_cfg = dataclasses.replace(servo_cfg, interface=sim_can.INTERFACE)
+        sim_can.bind_clock(channel, clock)
     config = dataclasses.replace(config, servo=servo_cfg)
     emulators: dict[str, Any] = {}
     kinds = device_kinds()
@@ -434,5 +450,6 @@ def simulated_station(
         devices.seed = seed
     except BaseException:
         _stop_emulators(emulators)
+        sim_can.bind_clock(channel, None)
         raise
-    return SimulatedStation(world, emulators, devices)
+    return SimulatedStation(world, emulators, devices, channel)

@@ -83,8 +83,11 @@ class SimStation:
         clock: Clock | None = None,
         seed: int = 0,
         index_speed_deg_s: float = 20.0,
+        *,
+        sim_lines: bool = False,
     ) -> None:
         self.twin = twin or default_twin()
+        self.sim_lines = sim_lines  # serial emulators serve sim:// lines (devices.sim_serial), else ptys
         self.clock = clock or WallClock()
         self.rng = np.random.default_rng(seed)
         t0 = self.clock.now_s()
@@ -99,6 +102,14 @@ class SimStation:
         self._edge_phase_rad = float(self.rng.uniform(0.0, self.twin.station.pulse_angle_rad))
 
     # --- state changes -------------------------------------------------------------------
+    def attach(self, emulator: Any) -> Any:
+        """Start a serial emulator of this world on its kind of line (sim:// or a pty); the emulator."""
+        if self.sim_lines:
+            emulator.start_sim()
+        else:
+            emulator.start()
+        return emulator
+
     def _changed(self) -> None:
         with self._lock:
             self._version += 1

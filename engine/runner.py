@@ -126,7 +126,7 @@ class Engine:
         supervisor: MotionSupervisor | None = None,
     ) -> None:
         self.hw = hardware
-        self.supervisor = supervisor or MotionSupervisor(hardware, clock=hardware.clock.link)
+        self.supervisor = supervisor or MotionSupervisor(hardware, clock=hardware.clock)
         self.clock = hardware.clock
         self.store = store
         self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user

@@ -24,10 +24,13 @@ that ticks every `TICK_S` of wall time. Three things go through it:
   its master is lost (CiA 402 0x6007, 0x605A), stops the crank: a live process
   whose supervision is gone no longer defeats the drive's watchdog.
 
-Bounds, in seconds of the supervisor's clock (the station clock's link: wall time on a real
-and on today's simulated station, station.clock): tick 0.05 s; alive() false once a tick has
-been stuck for STALE_S = 1 s (a thread that only waits its turn on a busy host is not hung);
-the drive's consumer then trips after 3 heartbeat periods (1.5 s on the simulated station).
+Clocks: the tick, alive(), the abort grace and the wait for a lost run's record count the host's
+wall time (they judge the process, whatever the station's clock); a safe stop's bound counts the
+station clock's link (wall time on a real and on a wall-paced simulated station, station time on the
+discrete-event one), and its helper thread is a party of the station clock (station.clock.spawn_party).
+Bounds: tick 0.05 s; alive() false once a tick has been stuck for STALE_S = 1 s (a thread that only
+waits its turn on a busy host is not hung); the drive's consumer then trips after 3 heartbeat
+periods (1.5 s on the simulated station).
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
-from station.clock import Clock, ClockEvent, host_clock
+from station.clock import Clock, ClockEvent, host_clock, spawn_party
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +102,9 @@ class MotionSupervisor:
         clock: Clock | None = None,
     ) -> None:
         self.hw = hardware
-        self._clock = clock if clock is not None else host_clock()
+        self._station_clock = clock if clock is not None else host_clock()
+        self._clock = self._station_clock.link  # the safe stops' bounds: the pace of the drivers' confirmations
+        self._tick_clock = host_clock()  # liveness is the host process's: ticks, staleness, grace, records
         if bound_s is None:
             bound_s = hardware.safe_stop_bound_s() if isinstance(hardware, StatesStopBound) else None
         self.bound_s = DEFAULT_SAFE_STOP_BOUND_S if bound_s is None else float(bound_s)
@@ -107,8 +112,8 @@ class MotionSupervisor:
         self.last: SafeState | None = None
         self._lock = threading.Lock()
         self._watch: _Watch | None = None
-        self._stop = self._clock.event()
-        self._ended = self._clock.event()
+        self._stop = self._tick_clock.event()
+        self._ended = self._tick_clock.event()
         self._frozen = threading.Event()
         self._tick_started_s: float | None = None  # set while a tick runs
         self._thread = threading.Thread(target=self._loop, name="motion-supervisor", daemon=True)
@@ -132,7 +137,7 @@ class MotionSupervisor:
     def alive(self) -> bool:
         """The supervisor ticks: its thread runs and no tick has been stuck for STALE_S."""
         started_s = self._tick_started_s
-        return self._thread.is_alive() and (started_s is None or self._clock.now_s() - started_s < STALE_S)
+        return self._thread.is_alive() and (started_s is None or self._tick_clock.now_s() - started_s < STALE_S)
 
     def freeze(self) -> None:
         """Hang in the next tick without ending the thread: what a hung supervisor looks like (for fault tests)."""
@@ -143,7 +148,7 @@ class MotionSupervisor:
     def watch(self, thread: threading.Thread, on_lost: Callable[[str, SafeState], None]) -> None:
         """Supervise a run's engine thread until release(); on_lost(reason, safe_state) if it is lost."""
         with self._lock:
-            self._watch = _Watch(thread, on_lost, lost=self._clock.event())
+            self._watch = _Watch(thread, on_lost, lost=self._tick_clock.event())
 
     def release(self, thread: threading.Thread | None = None) -> None:
         """The run ended through its own path (its outcome recorded, its devices stopped)."""
@@ -157,7 +162,9 @@ class MotionSupervisor:
         """An abort or signal was sent: the run must end within within_s (default ABORT_GRACE_S) of wall time."""
         with self._lock:
             if self._watch is not None and self._watch.deadline_s is None:
-                self._watch.deadline_s = self._clock.now_s() + (self.abort_grace_s if within_s is None else within_s)
+                self._watch.deadline_s = self._tick_clock.now_s() + (
+                    self.abort_grace_s if within_s is None else within_s
+                )
 
     def wait_lost(self, *, timeout_s: float) -> bool:
         """True once a watched run was found lost and its devices brought to a safe state (for tests)."""
@@ -180,7 +187,7 @@ class MotionSupervisor:
             finally:
                 ended.set()
 
-        threading.Thread(target=stop, name="safe-stop", daemon=True).start()
+        spawn_party(self._station_clock, "safe-stop", stop)  # it acts in station time: time waits for it
         if ended.wait(timeout_s=self.bound_s) and not errors:
             state = SafeState(reason, "safe stop", self._clock.now_s() - t0, tuple(errors))
         else:
@@ -209,7 +216,7 @@ class MotionSupervisor:
     def _loop(self) -> None:
         try:
             while not self._stop.wait(timeout_s=TICK_S):
-                self._tick_started_s = self._clock.now_s()
+                self._tick_started_s = self._tick_clock.now_s()
                 if self._frozen.is_set():
                     self._stop.wait()  # hung: the tick never ends
                     return
@@ -228,7 +235,7 @@ class MotionSupervisor:
                 return
             if not w.thread.is_alive():
                 reason = f"engine thread {w.thread.name!r} ended without recording its outcome"
-            elif w.deadline_s is not None and self._clock.now_s() > w.deadline_s:
+            elif w.deadline_s is not None and self._tick_clock.now_s() > w.deadline_s:
                 reason = f"engine did not end within {self.abort_grace_s:g} s of an abort"
             else:
                 return

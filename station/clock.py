@@ -32,7 +32,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from typing import Any, Protocol, runtime_checkable
 
 log = logging.getLogger(__name__)
@@ -100,6 +100,24 @@ class Clock(Protocol):
     @property
     def link(self) -> Clock: ...
 
+    def party(self, name: str) -> AbstractContextManager[None]: ...
+
+
+def spawn_party(clock: Clock, name: str, target: Callable[[], object]) -> threading.Thread:
+    """Start a daemon thread that runs target() as a party of `clock` named `name` (station.event_clock);
+    returns once it is registered, so that station time cannot move before the new thread takes part."""
+    registered = threading.Event()
+
+    def run() -> None:
+        with clock.party(name):
+            registered.set()
+            target()
+
+    thread = threading.Thread(target=run, name=name, daemon=True)
+    thread.start()
+    registered.wait()  # no timeout: the thread registers before anything else it does
+    return thread
+
 
 class _PacedClock:
     """A clock derived from the wall clock: `wall_s(d)` wall seconds last d of its seconds.
@@ -121,6 +139,10 @@ class _PacedClock:
 
     def wall_s(self, duration_s: float) -> float:
         raise NotImplementedError
+
+    def party(self, name: str) -> AbstractContextManager[None]:
+        """A paced clock's time moves by itself: a party changes nothing."""
+        return nullcontext()
 
     def sleep_s(self, duration_s: float) -> None:
         if duration_s > 0:

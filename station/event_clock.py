@@ -8,6 +8,12 @@ runs the timers due then in that waiting thread, in the order of their due times
 and, at the same instant, of their creation, and wakes whoever's wait has ended.
 So a simulated session depends on its seed and never on how busy the host is.
 
+While no party is registered, time moves only to end a wait with a deadline
+(a lone thread opening the station, a test): a thread that waits without one,
+such as whoever waits for a run's end, never drives the station on by itself.
+`station.clock.spawn_party` starts a thread already registered, so that time
+cannot move between a thread's start and its registration.
+
 A wait on which nothing can ever happen (every party waits, no timer is left,
 no timeout is set) raises `ClockDeadlockError`, naming each party and what it waits on.
 `ceiling` paces the clock to at most that many station seconds per wall second,
@@ -166,14 +172,14 @@ class EventClock:
         """If every party waits, move time to the next due instant and run what is due there."""
         while self._waiters and self._idle():  # time moves only to end someone's wait
             due_s = min((w.deadline_s for w in self._waiters), default=math.inf)
+            if math.isinf(due_s) and not self._parties:
+                return  # nobody acts in station time and no wait has a deadline: time stands still
             while self._timers and self._timers[0][2].cancelled:
                 heapq.heappop(self._timers)
             if self._timers:
                 due_s = min(due_s, self._timers[0][0])
             if math.isinf(due_s):
-                if self._parties:
-                    raise ClockDeadlockError(self._describe())
-                return
+                raise ClockDeadlockError(self._describe())
             self._advancing = True
             try:
                 self._pace(due_s)

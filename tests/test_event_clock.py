@@ -6,30 +6,13 @@ same): nothing here depends on how fast the host runs, which is the point.
 
 from __future__ import annotations
 
-import multiprocessing
 import threading
-from collections.abc import Callable
-from multiprocessing.synchronize import Event as MpEvent
 
 import pytest
+from busy import busy_loops
 
-from station.clock import Clock
+from station.clock import Clock, spawn_party
 from station.event_clock import ClockDeadlockError, EventClock
-
-
-def _in_party(clock: EventClock, name: str, body: Callable[[], None]) -> threading.Thread:
-    """A thread that is a party of `clock` from before it starts until body() returns."""
-    registered = threading.Event()
-
-    def run() -> None:
-        with clock.party(name):
-            registered.set()
-            body()
-
-    t = threading.Thread(target=run, name=name, daemon=True)
-    t.start()
-    registered.wait()
-    return t
 
 
 def test_it_implements_the_station_clock_and_is_its_own_link() -> None:
@@ -62,8 +45,8 @@ def test_time_stands_still_while_a_party_works() -> None:
 
     threading.Timer(0.05, go.set).start()  # the worker's wall-time work ends after 50 ms, not a party
     with clock.party("main"):
-        a = _in_party(clock, "sleeper", sleeper)
-        b = _in_party(clock, "worker", worker)
+        a = spawn_party(clock, "sleeper", sleeper)
+        b = spawn_party(clock, "worker", worker)
         clock.sleep_s(0.5)  # main waits; while the worker works, time stays at 0
         assert clock.now_s() == 0.5
     a.join()
@@ -103,7 +86,7 @@ def test_an_event_ends_a_wait_at_the_instant_it_is_set() -> None:
         woke.append((ev.wait(timeout_s=0.0), clock.now_s()))
 
     with clock.party("setter"):
-        t = _in_party(clock, "waiter", waiter)
+        t = spawn_party(clock, "waiter", waiter)
         clock.sleep_s(7.0)
         ev.set()
     t.join()
@@ -128,7 +111,7 @@ def test_a_condition_hands_off_between_parties_in_station_time() -> None:
                 cond.notify_all()
 
     with clock.party("producer"):
-        t = _in_party(clock, "consumer", consumer)
+        t = spawn_party(clock, "consumer", consumer)
         for _ in range(3):
             clock.sleep_s(1.5)
             with cond:
@@ -151,13 +134,38 @@ def test_a_wait_that_can_never_end_names_every_party_and_what_it_waits_on() -> N
             errors.append(exc)
 
     with clock.party("engine"):
-        t = _in_party(clock, "servo-link", stuck)
+        t = spawn_party(clock, "servo-link", stuck)
         with pytest.raises(ClockDeadlockError) as info:
             clock.event().wait()
         never.set()
     t.join()
     message = str(info.value)
     assert "engine" in message and "servo-link" in message and "event" in message
+
+
+def test_without_parties_only_a_timed_wait_moves_time() -> None:
+    """A thread that waits for a run's end without a deadline must not drive the station on by itself:
+    with no party registered, time moves only to end a timed wait (a lone thread opening a station)."""
+    clock = EventClock()
+    ticks: list[float] = []
+    clock.call_every(0.5, lambda: ticks.append(clock.now_s()))
+    done = clock.event()
+    seen: list[float] = []
+
+    def waits_for_the_end() -> None:
+        done.wait()
+        seen.append(clock.now_s())
+
+    t = threading.Thread(target=waits_for_the_end, daemon=True)
+    t.start()
+    while not clock._waiters:  # the waiter must be in place before the sleep
+        threading.Event().wait(0.001)
+    assert clock.now_s() == 0.0 and ticks == []
+    clock.sleep_s(1.2)  # a timed wait: time moves to its end, running the timers due on the way
+    assert clock.now_s() == 1.2 and ticks == [0.5, 1.0]
+    done.set()
+    t.join()
+    assert seen == [1.2]
 
 
 def test_a_ceiling_paces_station_time_against_the_wall() -> None:
@@ -202,30 +210,17 @@ def _scenario() -> list[tuple[str, float]]:
 
     clock.call_every(0.05, lambda: note("tick"))
     with clock.party("main"):
-        threads = [_in_party(clock, "producer", producer), _in_party(clock, "consumer", consumer)]
+        threads = [spawn_party(clock, "producer", producer), spawn_party(clock, "consumer", consumer)]
         clock.sleep_s(1.0)
     for t in threads:
         t.join()
     return log
 
 
-def _spin(stop: MpEvent) -> None:
-    while not stop.is_set():
-        pass
-
-
 def test_the_same_exchange_gives_the_same_record_beside_two_busy_loops() -> None:
     quiet = _scenario()
-    stop = multiprocessing.Event()
-    hogs = [multiprocessing.Process(target=_spin, args=(stop,), daemon=True) for _ in range(2)]
-    for h in hogs:
-        h.start()
-    try:
+    with busy_loops(2):
         loaded = _scenario()
-    finally:
-        stop.set()
-        for h in hogs:
-            h.join()
     # Each party's record is the same to the bit; two parties running at one instant may append in either order.
     assert sorted(loaded) == sorted(quiet)
     assert [x for x in loaded if x[0] == "got"] == [x for x in quiet if x[0] == "got"]

@@ -22,6 +22,7 @@ under way fails with FAULT code 1), DISCONNECT.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,9 @@ from devices.serial_port import FrameParser, encode_frame, ticks_of
 
 SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary edges are those
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
+# On a sim:// line the board reports a window in batches this far apart (crossings, edges, heartbeats carry
+# their own stamps), and at once when the window opens and closes; idle, it speaks only when spoken to.
+REPORT_BATCH_S = 0.25
 REF_FRAME_BYTES = 7 + c.REF_PAYLOAD.size
 EVENT_RESERVE_BYTES = 256  # room kept for OPEN/CLOSE/DONE/HEARTBEAT/ACK frames
 MAX_STAMP_GAP_S = 100.0  # consecutive stamps well within a wrap of the 32-bit tick counter (214.7 s)
@@ -129,6 +133,16 @@ class CounterEmulator(PtyEmulator):
             if not self._advance(t_s):
                 return
         self._advance(now_s)
+
+    def next_due_s(self, now_s: float) -> float:
+        """When the board next has something to say on a sim:// line (devices.sim_serial)."""
+        if self.state not in (ARMED, COUNTING, CLOSING):
+            return math.inf
+        due_s = now_s + REPORT_BATCH_S
+        for t_s in (self.window.open_s, self.window.close_s + 2 * SNAP_S):
+            if t_s > now_s:
+                due_s = min(due_s, t_s)
+        return due_s
 
     def _advance(self, now_s: float) -> bool:
         """Report the window up to now_s; False if crossings wait for the line (nothing later may go out first)."""

@@ -46,8 +46,7 @@ def emulate_gradiometer(section: GradiometerSection, world: Any) -> Any:
         world, baud=section.baud, address=section.address,
         resolution_arcsec=section.resolution_arcsec, range_arcsec=section.range_arcsec,
     )  # fmt: skip
-    emu.start()
-    return emu
+    return world.attach(emu)
 
 
 DEVICE_KIND = DeviceKind("gradiometer", GradiometerSection, open_gradiometer, emulate_gradiometer)

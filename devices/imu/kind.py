@@ -31,8 +31,7 @@ def emulate_imu(section: ImuSection, world: Any) -> Any:
     from devices.imu.emulator import ImuEmulator
 
     emulator = ImuEmulator(world, baud=section.baud)
-    emulator.start()
-    return emulator
+    return world.attach(emulator)
 
 
 DEVICE_KIND = DeviceKind("imu", ImuSection, open_imu, emulate_imu)

@@ -25,8 +25,7 @@ def emulate_indexing_head(section: IndexingHeadSection, world: Any) -> Any:
     from devices.indexing_head.emulator import IndexingEmulator
 
     emulator = IndexingEmulator(world, baud=section.baud)
-    emulator.start()
-    return emulator
+    return world.attach(emulator)
 
 
 DEVICE_KIND = DeviceKind("indexing_head", IndexingHeadSection, open_indexing_head, emulate_indexing_head, core=True)

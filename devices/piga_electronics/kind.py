@@ -33,8 +33,7 @@ def _emulate(section: PigaElectronicsSection, world: Any) -> Any:
     from devices.piga_electronics.emulator import PigaElectronicsEmulator
 
     emulator = PigaElectronicsEmulator(world, baud=section.baud, settle_s=section.servo_settle_s)
-    emulator.start()
-    return emulator
+    return world.attach(emulator)
 
 
 DEVICE_KIND = DeviceKind("piga_electronics", PigaElectronicsSection, _open, _emulate)

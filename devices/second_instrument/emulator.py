@@ -115,5 +115,4 @@ def start_counter_emulator(world: SimStation, baud: int) -> CounterEmulator:
     fixture = world.shared(FIXTURE, lambda: DualFixture(world))
     emulator = CounterEmulator(InstrumentOnHead(world, fixture), baud=baud)
     emulator.name = "second-counter-emulator"
-    emulator.start()
-    return emulator
+    return world.attach(emulator)

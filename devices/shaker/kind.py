@@ -29,8 +29,7 @@ def emulate_shaker(section: ShakerSection, world: Any) -> Any:
     from devices.shaker.emulator import ShakerEmulator
 
     emulator = ShakerEmulator(world, section)
-    emulator.start()
-    return emulator
+    return world.attach(emulator)
 
 
 DEVICE_KIND = DeviceKind("shaker", ShakerSection, open_shaker, emulate_shaker)

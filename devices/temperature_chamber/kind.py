@@ -45,8 +45,7 @@ def _emulate(section: TemperatureChamberSection, world: Any) -> Any:
     from devices.temperature_chamber.emulator import ChamberEmulator
 
     emu = ChamberEmulator(world, baud=section.baud, address=section.address, time_constant_s=section.time_constant_s)
-    emu.start()
-    return emu
+    return world.attach(emu)
 
 
 DEVICE_KIND = DeviceKind("temperature_chamber", TemperatureChamberSection, _open, _emulate)

@@ -28,8 +28,7 @@ def _emulate(section: VoltmeterSection, world: Any) -> Any:
     from devices.voltmeter.emulator import VoltmeterEmulator
 
     emu = VoltmeterEmulator(world, baud=section.baud, line_hz=section.line_hz)
-    emu.start()
-    return emu
+    return world.attach(emu)
 
 
 DEVICE_KIND = DeviceKind("voltmeter", VoltmeterSection, _open, _emulate)

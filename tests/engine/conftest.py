@@ -1,4 +1,5 @@
-"""A simulated station under a controller: real drivers against their emulators, on a VirtualClock."""
+"""A simulated station under a controller: real drivers against their emulators, on a VirtualClock (or, with
+deterministic=True, on the discrete-event clock and the synchronous transports)."""
 
 from __future__ import annotations
 
@@ -33,8 +34,14 @@ class Rig:
 def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
     rigs: list[Rig] = []
 
-    def make(twin: TwinConfig | None = None, speed: float = 1000.0, seed: int = 1, db: Path | None = None) -> Rig:
-        sim = simulated_station(CONFIG, twin or default_twin(), seed=seed, speed=speed)
+    def make(
+        twin: TwinConfig | None = None,
+        speed: float = 1000.0,
+        seed: int = 1,
+        db: Path | None = None,
+        deterministic: bool = False,
+    ) -> Rig:
+        sim = simulated_station(CONFIG, twin or default_twin(), seed=seed, speed=speed, deterministic=deterministic)
         store = SessionStore(db or tmp_path / "station.sqlite")
         messages: list[tuple[str, dict]] = []
         controller = StationController(

@@ -1,5 +1,6 @@
-"""Seed 000's error-source experiments end to end: procedure, engine, real drivers against the emulators,
-store, analysis and report; and the analyses on the seed's own Tables 5-7.
+"""Seed 000's error-source experiments end to end: procedure, engine, real drivers against the emulators
+(on the deterministic simulated station: a reading is taken at its slot's station time however busy the
+host is), store, analysis and report; and the analyses on the seed's own Tables 5-7.
 
 Tolerances: a recovered parameter must lie within K = 4 of its stated standard uncertainties of
 the value the twin was given. Every such uncertainty rests on at least 30 residual degrees of
@@ -58,7 +59,7 @@ def run(tmp_path) -> Iterator[Callable[..., tuple[RunOutcome, SessionStore]]]:
     opened = []
 
     def go(procedure: str, params: dict, twin: TwinConfig) -> tuple[RunOutcome, SessionStore]:
-        sim = simulated_station(STATION, twin, seed=5, speed=1000.0)
+        sim = simulated_station(STATION, twin, seed=5, deterministic=True)
         store = SessionStore(tmp_path / "station.sqlite")
         opened.append((sim, store))
         controller = StationController(sim.devices, store, STATION.station_model(), reports_dir=tmp_path)
@@ -165,7 +166,7 @@ def test_parasitic_rotation_reproduces_table7(run) -> None:
     twin = default_twin().with_effect(
         "parasitic_rotation", ax0=x0 * ARCSEC_RAD, axs1=xs1 * ARCSEC_RAD, axc1=xc1 * ARCSEC_RAD
     )
-    # one turn at 0.5 Hz with 36 readings: 33 residual degrees of freedom, about 5 s of wall time
+    # one turn at 0.5 Hz with 36 readings: 33 residual degrees of freedom, a few seconds of CPU on the deterministic station
     params = {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 36, "settle_s": 1.0}
     outcome, _ = run("seed000.parasitic_rotation", params, twin)
     result = outcome.analysis.results["parasitic_rotation"]
