@@ -1,9 +1,11 @@
 """Integral precession identification: exact recovery, honest uncertainties, the baseline's bias."""
 
 import math
+from functools import partial
 
 import numpy as np
 import pytest
+from parallel import map_seeds
 
 from methods.common.least_squares import FitError
 from methods.seed000.identify import identify
@@ -38,17 +40,22 @@ def test_noise_free_recovery_holds_for_other_coefficients_and_designs():
         assert result.coefficient(name)[0] == pytest.approx(getattr(inst, name), rel=1e-10), name
 
 
+NOISY = TwinConfig(noise=NoiseModel(rate_noise_radps=1e-6, timing_jitter_s=1e-7))
+
+
+def _normalised_error(seed: int, method: str = "integral", ols_on_y: bool = False) -> list[float]:
+    """One session's (k_hat - k) / sigma_k of kzz, ky, k3 (a worker's case: module level, so it pickles)."""
+    s = simulate_session(seed000_plan(), NOISY, seed=seed)
+    if ols_on_y:
+        return _ols_on_y(s)
+    r = identify(s, method)
+    return [(r.coefficient(n)[0] - TRUE[n]) / r.coefficient(n)[1] for n in ("kzz", "ky", "k3")]
+
+
 def _normalised_errors(n_sessions: int, method: str = "integral", ols_on_y: bool = False):
-    cfg = TwinConfig(noise=NoiseModel(rate_noise_radps=1e-6, timing_jitter_s=1e-7))
-    z = []
-    for seed in range(n_sessions):
-        s = simulate_session(seed000_plan(), cfg, seed=1000 + seed)
-        if ols_on_y:
-            z.append(_ols_on_y(s))
-        else:
-            r = identify(s, method)
-            z.append([(r.coefficient(n)[0] - TRUE[n]) / r.coefficient(n)[1] for n in ("kzz", "ky", "k3")])
-    return np.array(z)
+    """Sessions of seeds 1000, 1001, ... on every core (tests/parallel.py), in the seeds' order."""
+    one = partial(_normalised_error, method=method, ols_on_y=ols_on_y)
+    return np.array(map_seeds(one, range(1000, 1000 + n_sessions)))
 
 
 def _ols_on_y(session):
@@ -87,6 +94,17 @@ def test_ols_on_y_would_understate_the_uncertainties():
     assert np.all(spread > 1.2), spread
 
 
+def _baseline_and_integral_errors(seed: int) -> tuple[list[float], list[float], np.ndarray]:
+    """One session's errors of kzz, ky, k3 by both methods, and its a<s> per vibration point (a worker's case)."""
+    s = simulate_session(seed000_plan(), NOISY, seed=seed)
+    ri, rb = identify(s, "integral"), identify(s, "baseline")
+    tab = point_table(s.select("vibration"))
+    s1, _, _ = window_means(2 * np.pi * tab["freq_hz"], tab["Tm_s"], tab["t1_s"], tab["t2_s"])
+    return ([ri.coefficient(n)[0] - TRUE[n] for n in ("kzz", "ky", "k3")],
+            [rb.coefficient(n)[0] - TRUE[n] for n in ("kzz", "ky", "k3")],
+            s.station.amplitude_ratio(tab["freq_hz"]) * s1)  # fmt: skip
+
+
 @pytest.mark.slow
 def test_baseline_errors_exceed_the_integral_method_and_its_k3_bias_is_explained():
     """On the same sessions the baseline's errors are larger (seed 000 Tables 10-11).
@@ -98,17 +116,9 @@ def test_baseline_errors_exceed_the_integral_method_and_its_k3_bias_is_explained
     k3's column 3 a^2/2 cos^3(theta). Predicting the bias from the mean a<s>
     by that projection must match the Monte Carlo bias within 25 %.
     """
-    cfg = TwinConfig(noise=NoiseModel(rate_noise_radps=1e-6, timing_jitter_s=1e-7))
-    err_int, err_base, a_s = [], [], []
-    for seed in range(60):
-        s = simulate_session(seed000_plan(), cfg, seed=2000 + seed)
-        ri, rb = identify(s, "integral"), identify(s, "baseline")
-        err_int.append([ri.coefficient(n)[0] - TRUE[n] for n in ("kzz", "ky", "k3")])
-        err_base.append([rb.coefficient(n)[0] - TRUE[n] for n in ("kzz", "ky", "k3")])
-        tab = point_table(s.select("vibration"))
-        s1, _, _ = window_means(2 * np.pi * tab["freq_hz"], tab["Tm_s"], tab["t1_s"], tab["t2_s"])
-        a_s.append(s.station.amplitude_ratio(tab["freq_hz"]) * s1)
-    err_int, err_base, a_s = map(np.array, (err_int, err_base, a_s))
+    seeds = range(2000, 2060)
+    err_int, err_base, a_s = map(np.array, zip(*map_seeds(_baseline_and_integral_errors, seeds), strict=True))
+    s = simulate_session(seed000_plan(), NOISY, seed=seeds[-1])  # the last session again (seeded: the same)
     rms_int = np.sqrt((err_int**2).mean(axis=0))
     rms_base = np.sqrt((err_base**2).mean(axis=0))
     assert np.all(rms_base > 3 * rms_int), (rms_base, rms_int)

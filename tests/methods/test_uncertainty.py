@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import cache
 
 import numpy as np
 import pytest
 import scipy.stats
+from parallel import map_seeds
 
 from methods.common.references import load_references
 from methods.common.uncertainty import (
@@ -203,6 +205,24 @@ def test_eq28_is_the_seeds_on_the_residuals_of_y() -> None:
     assert mu2 >= muc2
 
 
+@cache
+def _coverage_inputs():
+    """The twin, its truth, the 12-point design and the references (made once; forked workers inherit them)."""
+    cfg = default_twin()
+    truth = np.array([cfg.instrument.kz, cfg.instrument.kzz, cfg.instrument.ky, cfg.instrument.k3])
+    return cfg, truth, multiposition_plan([0.0, 45.0, 180.0], [8.0, 9.0, 10.0], 560.0), load_references()
+
+
+def _coverage_of_one_session(seed: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """One twin session's |k_hat - k| <= U, <= 1.96 u, and its few-dof coefficients (a worker's case)."""
+    cfg, truth, plan, refs = _coverage_inputs()
+    s = simulate_session(plan, cfg, seed=seed)
+    r = identify(s)
+    b = seed000_budget(s, r, {}, refs, timer_rows=False)
+    err = np.abs(r.values - truth)
+    return err <= b.expanded_uncertainty(), err <= 1.96 * b.standard_uncertainty(), list(b.few_dof())
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(1200)  # about 1 s a session on a loaded 2-core machine
 def test_multi_frequency_t_based_expanded_uncertainty_covers_95_percent() -> None:
@@ -211,20 +231,13 @@ def test_multi_frequency_t_based_expanded_uncertainty_covers_95_percent() -> Non
     Binomial sd of a 0.95 coverage over 200 sessions is 0.0154: 0.905-0.99 is about 3 sd. The normal
     k = 1.96 on the same sessions covers markedly less (t_5 has P(|t| > 1.96) = 0.107).
     """
-    cfg = default_twin()
-    truth = np.array([cfg.instrument.kz, cfg.instrument.kzz, cfg.instrument.ky, cfg.instrument.k3])
-    plan = multiposition_plan([0.0, 45.0, 180.0], [8.0, 9.0, 10.0], 560.0)
-    refs = load_references()
+    _coverage_inputs()  # made here, before the workers fork
     cover, cover_normal = [], []
-    for i in range(200):
-        s = simulate_session(plan, cfg, seed=90_000 + i)
-        r = identify(s)
-        b = seed000_budget(s, r, {}, refs, timer_rows=False)
-        err = np.abs(r.values - truth)
-        cover.append(err <= b.expanded_uncertainty())
-        cover_normal.append(err <= 1.96 * b.standard_uncertainty())
+    for covered, covered_normal, few_dof in map_seeds(_coverage_of_one_session, range(90_000, 90_200)):
+        cover.append(covered)
+        cover_normal.append(covered_normal)
         # Type A dominates kz, kzz and ky (nu_eff about 5); k3's Type B share (the second harmonic) can lift it
-        assert {"kz", "kzz", "ky"} <= set(b.few_dof())
+        assert {"kz", "kzz", "ky"} <= set(few_dof)
     cover, cover_normal = np.mean(cover, axis=0), np.mean(cover_normal, axis=0)
     assert np.all((cover >= 0.905) & (cover <= 0.99)), cover
     assert np.all(cover_normal < cover), (cover_normal, cover)
