@@ -21,13 +21,13 @@ from __future__ import annotations
 import json
 import logging
 import subprocess
-import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app import analysis_job
 from engine.context import StationModel
 from engine.planning import Plan, plan_procedure
 from engine.protocols import StationHardware
@@ -84,6 +84,7 @@ class StationController:
         self.after_run: list[Callable[[RunOutcome], None]] = []  # called in the worker once a run has ended
         self._start_error: BaseException | None = None
         self.interrupted = recover_interrupted(store)
+        self._analyst = analysis_job.start_analyst()  # ready for the first session's analysis
 
     def close(self, timeout_s: float = 30.0) -> None:
         """End any run (abort, wait at most timeout_s), then stop supervising: what every exit path calls."""
@@ -91,6 +92,8 @@ class StationController:
             self.abort()
             self.wait(timeout_s=timeout_s)
         self.supervisor.close()
+        self._analyst.kill()  # the idle analyst has no job left: it holds nothing worth finishing
+        self._analyst.communicate()
 
     # ---- library and planning ------------------------------------------------------------
 
@@ -274,13 +277,17 @@ class StationController:
         """The procedure's analysis in a child process (app.analysis_job), results into the store."""
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         report = self.reports_dir / f"report-{uid}.html"
-        job = subprocess.run(
-            [sys.executable, "-m", "app.analysis_job", spec.name, str(self.store.path), uid, str(report)],
-            capture_output=True, text=True, timeout=ANALYSIS_TIMEOUT_S,
-        )  # fmt: skip
+        job, self._analyst = self._analyst, analysis_job.start_analyst()  # the next one imports meanwhile
+        request = json.dumps([spec.name, str(self.store.path), uid, str(report)]) + "\n"
+        try:
+            stdout, stderr = job.communicate(request, timeout=ANALYSIS_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            job.kill()
+            job.communicate()
+            raise
         if job.returncode != 0:
-            raise ValueError(job.stderr.strip().splitlines()[-1] if job.stderr.strip() else f"exit {job.returncode}")
-        doc = json.loads(job.stdout)
+            raise ValueError(stderr.strip().splitlines()[-1] if stderr.strip() else f"exit {job.returncode}")
+        doc = json.loads(stdout)
         analysis = Analysis(doc["results"], report.read_text(), doc["summary"])
         for method, result in analysis.results.items():
             self.store.add_result(uid, method, result)

@@ -166,7 +166,7 @@ def test_parasitic_rotation_reproduces_table7(run) -> None:
     twin = default_twin().with_effect(
         "parasitic_rotation", ax0=x0 * ARCSEC_RAD, axs1=xs1 * ARCSEC_RAD, axc1=xc1 * ARCSEC_RAD
     )
-    # one turn at 0.5 Hz with 36 readings: 33 residual degrees of freedom, a few seconds of CPU on the deterministic station
+    # one turn at 0.5 Hz with 36 readings: 33 residual degrees of freedom, seconds of CPU on the deterministic station
     params = {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 36, "settle_s": 1.0}
     outcome, _ = run("seed000.parasitic_rotation", params, twin)
     result = outcome.analysis.results["parasitic_rotation"]
