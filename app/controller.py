@@ -84,7 +84,7 @@ class StationController:
         self.after_run: list[Callable[[RunOutcome], None]] = []  # called in the worker once a run has ended
         self._start_error: BaseException | None = None
         self.interrupted = recover_interrupted(store)
-        self._analyst: subprocess.Popen[str] | None = None  # a run's analysis child, importing while it measures
+        self._analyst = analysis_job.start_analyst()  # ready for the first session's analysis
 
     def close(self, timeout_s: float = 30.0) -> None:
         """End any run (abort, wait at most timeout_s), then stop supervising: what every exit path calls."""
@@ -92,7 +92,8 @@ class StationController:
             self.abort()
             self.wait(timeout_s=timeout_s)
         self.supervisor.close()
-        self._dismiss_analyst()
+        self._analyst.kill()  # the idle analyst has no job left: it holds nothing worth finishing
+        self._analyst.communicate()
 
     # ---- library and planning ------------------------------------------------------------
 
@@ -226,14 +227,7 @@ class StationController:
         try:
             self._measure_and_analyse(spec, plan, serial, resume_uid)
         finally:
-            self._dismiss_analyst()  # one that was not needed (the run failed or was aborted)
             self._worker_ended.set()  # wakes wait() at once
-
-    def _dismiss_analyst(self) -> None:
-        job, self._analyst = self._analyst, None
-        if job is not None:
-            job.kill()  # it holds nothing worth finishing: it only imported
-            job.communicate()
 
     def _measure_and_analyse(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
         engine = self.engine
@@ -244,8 +238,6 @@ class StationController:
             nonlocal opened
             opened = True
             self.supervisor.watch(me, self._on_lost)
-            if spec.analyse is not None:
-                self._analyst = analysis_job.start_analyst()  # it imports the library while the session runs
             self._started.set()
 
         try:
@@ -285,7 +277,7 @@ class StationController:
         """The procedure's analysis in a child process (app.analysis_job), results into the store."""
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         report = self.reports_dir / f"report-{uid}.html"
-        job, self._analyst = self._analyst or analysis_job.start_analyst(), None
+        job, self._analyst = self._analyst, analysis_job.start_analyst()  # the next one imports meanwhile
         request = json.dumps([spec.name, str(self.store.path), uid, str(report)]) + "\n"
         try:
             stdout, stderr = job.communicate(request, timeout=ANALYSIS_TIMEOUT_S)
