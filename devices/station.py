@@ -410,24 +410,22 @@ def simulated_station(
     *,
     seed: int = 0,
     speed: float = 1.0,
-    clock: Clock | None = None,
     deterministic: bool = False,
 ) -> SimulatedStation:
     """Start the simulated station of `config` (which must say simulated = true) and open its drivers.
 
-    Each station gets its own CAN channel so that several can run in one process. The world runs on
-    `clock`; by default, a VirtualClock `speed` times real time with the emulators behind pseudo-terminals
-    and on python-can's virtual bus, or, `deterministic`, a discrete-event clock (station.event_clock) with
-    the synchronous transports (the `station_sim` CAN interface, sim:// serial lines): the same seed then
-    gives the same session to the bit, however busy the host (the threads that act in station time are
+    Each station gets its own CAN channel so that several can run in one process. The world runs on a
+    VirtualClock `speed` times real time with the emulators behind pseudo-terminals and on python-can's
+    virtual bus or, `deterministic`, on a discrete-event clock (station.event_clock) with the synchronous
+    transports (the `station_sim` CAN interface, sim:// serial lines): the same seed then gives the same
+    session to the bit, however busy the host (the threads that act in station time are
     parties of the clock: the controller's engine, the supervisor's safe stop, or a lone caller).
     """
     from devices.world import SimStation
 
     if not config.simulated:
         raise InterlockError("station", f"{config.path} is a real station's configuration (simulated = false)")
-    if clock is None:
-        clock = EventClock() if deterministic else VirtualClock(speed)
+    clock: Clock = EventClock() if deterministic else VirtualClock(speed)
     world = SimStation(
         twin, clock, seed=seed, index_speed_deg_s=config.indexing_head.speed_deg_s, sim_lines=deterministic
     )

@@ -53,6 +53,35 @@ class TimerHandle:
         self.cancelled = True
 
 
+class TimerQueue:
+    """The pending timers of one clock, by due time and, at the same due time, in the order scheduled.
+    Not thread-safe: its clock guards it."""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[float, int, TimerHandle]] = []
+        self._seq = itertools.count()
+
+    def push(self, handle: TimerHandle) -> None:
+        heapq.heappush(self._heap, (handle.due_s, next(self._seq), handle))
+
+    def next_due_s(self) -> float:
+        """The earliest live timer's due time, inf if none (cancelled timers are dropped as they surface)."""
+        while self._heap and self._heap[0][2].cancelled:
+            heapq.heappop(self._heap)
+        return self._heap[0][0] if self._heap else math.inf
+
+    def pop(self) -> TimerHandle:
+        return heapq.heappop(self._heap)[2]
+
+
+def fire(handle: TimerHandle) -> None:
+    """Run a timer's function; its failure is logged and must not stop the clock's other timers."""
+    try:
+        handle.fn()
+    except Exception:
+        log.exception("clock timer %r failed", handle.fn)
+
+
 class ClockEvent(Protocol):
     """threading.Event whose `wait` counts the clock's seconds."""
 
@@ -129,8 +158,7 @@ class _PacedClock:
     """
 
     def __init__(self) -> None:
-        self._timers: list[tuple[float, int, TimerHandle]] = []
-        self._timer_seq = itertools.count()
+        self._timers = TimerQueue()
         self._timer_cond = threading.Condition()
         self._scheduler: threading.Thread | None = None
 
@@ -169,7 +197,7 @@ class _PacedClock:
 
     def _schedule(self, handle: TimerHandle) -> TimerHandle:
         with self._timer_cond:
-            heapq.heappush(self._timers, (handle.due_s, next(self._timer_seq), handle))
+            self._timers.push(handle)
             if self._scheduler is None:
                 self._scheduler = threading.Thread(target=self._run_timers, name="clock-timers", daemon=True)
                 self._scheduler.start()
@@ -179,21 +207,16 @@ class _PacedClock:
     def _run_timers(self) -> None:
         while True:
             with self._timer_cond:
-                while not self._timers or self._timers[0][2].cancelled:
-                    if self._timers:
-                        heapq.heappop(self._timers)
-                        continue
+                due_s = self._timers.next_due_s()
+                if math.isinf(due_s):
                     self._timer_cond.wait()
-                due_s, _, handle = self._timers[0]
+                    continue
                 left_s = due_s - self.now_s()
                 if left_s > 0:
                     self._timer_cond.wait(self.wall_s(left_s))
                     continue
-                heapq.heappop(self._timers)
-            try:
-                handle.fn()
-            except Exception:  # a timer's failure must not stop the others
-                log.exception("clock timer %r failed", handle.fn)
+                handle = self._timers.pop()
+            fire(handle)
             if handle.period_s is not None and not handle.cancelled:
                 due_s += handle.period_s
                 now_s = self.now_s()
@@ -201,7 +224,7 @@ class _PacedClock:
                     due_s = now_s + handle.period_s
                 handle.due_s = due_s
                 with self._timer_cond:
-                    heapq.heappush(self._timers, (due_s, next(self._timer_seq), handle))
+                    self._timers.push(handle)
 
 
 class _PacedEvent:

@@ -23,9 +23,6 @@ The clock is its own link: a reply timeout counts station time exactly.
 
 from __future__ import annotations
 
-import heapq
-import itertools
-import logging
 import math
 import threading
 import time
@@ -33,9 +30,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from station.clock import ClockCondition, ClockEvent, TimerHandle
-
-log = logging.getLogger(__name__)
+from station.clock import ClockCondition, ClockEvent, TimerHandle, TimerQueue, fire
 
 
 class ClockDeadlockError(RuntimeError):
@@ -73,8 +68,7 @@ class EventClock:
         self.ceiling = ceiling
         self._now_s = float(start_s)
         self._cv = threading.Condition(threading.Lock())
-        self._timers: list[tuple[float, int, TimerHandle]] = []
-        self._seq = itertools.count()
+        self._timers = TimerQueue()
         self._parties: dict[int, _Party] = {}
         self._waiters: set[_Waiter] = set()
         self._advancing = False
@@ -125,7 +119,7 @@ class EventClock:
 
     def _schedule(self, handle: TimerHandle) -> TimerHandle:
         with self._cv:
-            heapq.heappush(self._timers, (handle.due_s, next(self._seq), handle))
+            self._timers.push(handle)
         return handle
 
     # ---- waiting and advancing (call with self._cv held)
@@ -174,10 +168,7 @@ class EventClock:
             due_s = min((w.deadline_s for w in self._waiters), default=math.inf)
             if math.isinf(due_s) and not self._parties:
                 return  # nobody acts in station time and no wait has a deadline: time stands still
-            while self._timers and self._timers[0][2].cancelled:
-                heapq.heappop(self._timers)
-            if self._timers:
-                due_s = min(due_s, self._timers[0][0])
+            due_s = min(due_s, self._timers.next_due_s())
             if math.isinf(due_s):
                 raise ClockDeadlockError(self._describe())
             self._advancing = True
@@ -190,20 +181,16 @@ class EventClock:
             self._wake([w for w in self._waiters if w.deadline_s <= self._now_s])
 
     def _run_due_timers(self) -> None:
-        while self._timers and self._timers[0][0] <= self._now_s:
-            due_s, _, handle = heapq.heappop(self._timers)
-            if handle.cancelled:
-                continue
+        while self._timers.next_due_s() <= self._now_s:
+            handle = self._timers.pop()
             self._cv.release()
             try:
-                handle.fn()
-            except Exception:  # a timer's failure must not stop the others
-                log.exception("clock timer %r failed", handle.fn)
+                fire(handle)
             finally:
                 self._cv.acquire()
             if handle.period_s is not None and not handle.cancelled:
-                handle.due_s = due_s + handle.period_s
-                heapq.heappush(self._timers, (handle.due_s, next(self._seq), handle))
+                handle.due_s += handle.period_s
+                self._timers.push(handle)
 
     def _pace(self, due_s: float) -> None:
         """With a ceiling, a step of station time lasts at least step / ceiling of wall time (the parties' own

@@ -5,10 +5,11 @@
 
 from __future__ import annotations
 
+from devices import sim_can
 from devices.pty_link import PtyEmulator
 
 TRANSPORTS = ("pty", "sim")
-CAN_INTERFACES = ("virtual", "station_sim")
+CAN_INTERFACES = ("virtual", sim_can.INTERFACE)
 
 
 def serve(emu: PtyEmulator, transport: str) -> str:
