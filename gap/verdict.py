@@ -18,14 +18,17 @@ and none of its significant parameters is one that only the static points see wh
 session has no pulse record to test it (gap.identifiability.seen_only_at_rest). Parameters
 the design does not fix (absorbed, aliased, unseen) are named as undetermined; one effect
 whose held-out points alone fix some of its parameters is still `explained`, and says so.
-"cannot_tell": the design leaves fewer than MIN_DOF residual degrees of
-freedom after the calibrated terms, or the effects that explain the gap are
-ones this design cannot tell apart (it names them all with their look-alikes and
-alternatives, and the test points that would separate them), or several whose split
-only the held-out points fix, or one it sees only at rest (the table's rest
-value, which out-of-library motions share). Otherwise "unexplained", naming
-what was found and what remains, and which test rejected the library's best
-candidate (its parameters' bounds, or the pulse record).
+"cannot_tell": the effects that explain the gap are ones this design cannot tell
+apart (it names them all with their look-alikes and alternatives, and the test points
+that would separate them), or several whose split only the held-out points fix, or
+one it sees only at rest (the table's rest value, which out-of-library motions share)
+together with a look-alike. A `cannot_tell` always names at least two effects (issue 28;
+Verdict checks it when made). Otherwise "unexplained", naming what was found and what
+remains, and which test rejected the library's best candidate (its parameters' bounds,
+or the pulse record): among them a design that leaves fewer than MIN_DOF residual
+degrees of freedom after the calibrated terms (nothing can be tested), and effects
+the session sees only at rest that no library look-alike reproduces (an out-of-library
+motion with that rest value fits the same, so they are not `explained` either).
 """
 
 from __future__ import annotations
@@ -54,6 +57,10 @@ class NoiseCheck:
     p_value: float | None
 
 
+class VerdictError(RuntimeError):
+    """A verdict that breaks issue 28's rule for `cannot_tell` (a bug of the diagnosis, not of its input)."""
+
+
 @dataclass
 class Verdict:
     verdict: str  # no_gap | explained | unexplained | cannot_tell
@@ -63,6 +70,11 @@ class Verdict:
     remaining: list[str] = field(default_factory=list)  # what is left after them
     ambiguous: list[str] = field(default_factory=list)  # effects this design cannot tell apart
     undetermined: dict[str, list[str]] = field(default_factory=dict)  # parameters the design does not fix
+    separating: list[str] = field(default_factory=list)  # test points that would separate the ambiguous effects
+
+    def __post_init__(self) -> None:
+        if self.verdict == "cannot_tell":
+            _check_cannot_tell(self)
 
     def to_json(self) -> dict:
         return {
@@ -73,7 +85,19 @@ class Verdict:
             "remaining": self.remaining,
             "ambiguous_effects": self.ambiguous,
             "undetermined_parameters": self.undetermined,
+            "separating_points": self.separating,
         }
+
+
+def _check_cannot_tell(v: Verdict) -> None:
+    """Issue 28: `cannot_tell` names at least two effects that it cannot tell apart (each in its text), and
+    no effect as explaining the gap; one effect alone is `explained` or `unexplained`."""
+    named = list(dict.fromkeys(v.ambiguous))
+    if len(named) < 2 or v.effects:
+        raise VerdictError(f"cannot_tell must name at least two effects and explain none: {named}, {v.effects}")
+    missing = [e for e in named if e not in v.text]
+    if missing:
+        raise VerdictError(f"cannot_tell names {', '.join(missing)} but its text does not: {v.text}")
 
 
 def residual_checks(dets: list[Detector], noise: NoiseCheck) -> list[str]:
@@ -125,6 +149,11 @@ def _rejected(selection: Selection) -> list[str]:
     return out
 
 
+def _aliases_chosen(effects: list[str]) -> bool:
+    """Whether the chosen effects include an exact alias of one another (ALIASES)."""
+    return any(a in effects for e in effects for a in ALIASES.get(e, ()))
+
+
 def _rest_only_text(rest_only: dict[str, list[str]]) -> str:
     parts = "; ".join(f"{e} through {', '.join(ps)}" for e, ps in rest_only.items())
     return (
@@ -142,23 +171,41 @@ def _named(effects: list[str], alike: dict[str, list[str]], alternatives: list[l
 
 def _separating(
     ident: IdentifiabilityReport, named: list[str], rest_only: dict[str, list[str]], alternatives: list[list[str]]
-) -> str:
-    """The test points that would separate the named effects, as a clause of the verdict's text ("" if none)."""
-    tests = ident.separating_tests(named) if len(named) > 1 or rest_only or alternatives else []
-    return f"; test points that would separate them: {'; '.join(tests)}" if tests else ""
+) -> list[str]:
+    """The test points that would separate the named effects (found where the search for them ran)."""
+    return ident.separating_tests(named) if len(named) > 1 or rest_only or alternatives else []
+
+
+def _separating_text(points: list[str]) -> str:
+    """The separating test points as a clause of the verdict's text ("" if none)."""
+    return f"; test points that would separate them: {'; '.join(points)}" if points else ""
 
 
 def _not_told_apart(
-    effects: list[str], alike: dict[str, list[str]], alternatives: list[list[str]], sh: str, sep: str, named: list[str]
+    effects: list[str], alike: dict[str, list[str]], alternatives: list[list[str]], sh: str, sep: list[str]
 ) -> Verdict:
     """cannot_tell: the effects explain the gap, but this session cannot tell them from their look-alikes and the
     alternative models that reproduce them."""
-    why = "; ".join(
+    text = f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, but this session "
+    why = _look_alikes_text(effects, alike, alternatives)
+    named = _named(effects, alike, alternatives)
+    return Verdict(
+        "cannot_tell", [], f"{text}cannot tell {why}{_separating_text(sep)}", ambiguous=named, separating=sep
+    )
+
+
+def _look_alikes_text(effects: list[str], alike: dict[str, list[str]], alternatives: list[list[str]]) -> str:
+    """Each effect with the look-alikes it cannot be told from, then the alternative models that reproduce them."""
+    return "; ".join(
         [f"{e} from {', '.join(a)}" for e, a in alike.items()]
         + [f"{' + '.join(effects)} from {' + '.join(alt)} (which reproduces it)" for alt in alternatives]
     )
-    text = f"cannot tell with this design: the gap is explained ({sh}) by {', '.join(effects)}, but this session "
-    return Verdict("cannot_tell", [], f"{text}cannot tell {why}{sep}", ambiguous=named)
+
+
+def _with_look_alikes(effects: list[str], alike: dict[str, list[str]], alternatives: list[list[str]]) -> str:
+    """The look-alikes as a clause of a verdict's text ("" if none)."""
+    why = _look_alikes_text(effects, alike, alternatives)
+    return f"; nor can it tell {why}" if why else ""
 
 
 def _explained(
@@ -177,6 +224,21 @@ def _explained(
     return Verdict("explained", effects, text, undetermined=undetermined)
 
 
+def _seen_only_at_rest(
+    effects: list[str], rest_only: dict[str, list[str]], sh: str, named: list[str], sep: list[str], alike: str
+) -> Verdict:
+    """The chosen effects fit the gap through parameters the session sees only at rest: `cannot_tell` naming
+    them with the library's look-alikes (among them chosen exact aliases: a mount tilt carrying the rocking's ax0);
+    without one it is `unexplained` (out-of-library motions with that rest value fit the same:
+    gap.identifiability.seen_only_at_rest), never `explained`."""
+    why = _rest_only_text(rest_only)
+    if len(named) > len(effects) or _aliases_chosen(effects):
+        text = f"cannot tell with this design ({sh}): with {', '.join(effects)}, {why}{alike}{_separating_text(sep)}"
+        return Verdict("cannot_tell", [], text, ambiguous=named, separating=sep)
+    text = f"not explained by the library: {', '.join(effects)} fit(s) it ({sh}), but {why}"
+    return Verdict("unexplained", [], text, partial=effects, remaining=[why])
+
+
 def _accepted_verdict(
     selection: Selection,
     ident: IdentifiabilityReport,
@@ -188,21 +250,22 @@ def _accepted_verdict(
     naming the effects with every look-alike and alternative model that reproduces them (gap.verdict docstring);
     one effect whose parameters the design does not all fix is `explained` with those marked undetermined."""
     effects = selection.effects
-    alike, alternatives = _look_alikes(selection), selection.alternatives
+    alike = _look_alikes(selection)
+    alternatives = [alt for alt in selection.alternatives if set(alt) != set(effects)]  # another model, not the same
     named = _named(effects, alike, alternatives)
     sep = _separating(ident, named, rest_only, alternatives)
+    also = _with_look_alikes(effects, alike, alternatives)
     if rest_only:
-        return Verdict("cannot_tell", [], f"cannot tell with this design ({sh}): {_rest_only_text(rest_only)}{sep}",
-                       ambiguous=named)  # fmt: skip
+        return _seen_only_at_rest(effects, rest_only, sh, named, sep, also)
     unpredictable = bool(heldout_rows and heldout_rows[1] < (1.0 - MAX_UNPREDICTABLE) * heldout_rows[0])
     if unpredictable and len(effects) > 1:
         text = (
             f"cannot tell with this design ({sh}): with {', '.join(effects)} {_unpredictable_text(heldout_rows)}"
-            f", so no held-out test checks how the gap divides among them; add positions or frequencies{sep}"
+            f", so no held-out test checks how the gap divides among them; add positions or frequencies{also}"
         )
-        return Verdict("cannot_tell", [], text, ambiguous=named)
+        return Verdict("cannot_tell", [], text + _separating_text(sep), ambiguous=named, separating=sep)
     if alike or alternatives:
-        return _not_told_apart(effects, alike, alternatives, sh, sep, named)
+        return _not_told_apart(effects, alike, alternatives, sh, sep)
     return _explained(effects, ident, sh, unpredictable, heldout_rows)
 
 
@@ -215,14 +278,13 @@ def _unpredictable_text(heldout_rows: tuple[int, int] | None) -> str:
 
 
 def _too_few_dof(dof: int) -> Verdict:
-    """cannot_tell: the design leaves fewer than MIN_DOF residual degrees of freedom after the calibrated terms."""
-    return Verdict(
-        "cannot_tell",
-        [],
-        f"cannot tell with this design: only {dof} residual degrees of freedom "
-        f"remain after the bias k0 and the calibrated coefficients (need >= {MIN_DOF}); "
-        "add positions or frequencies",
+    """unexplained: the design leaves fewer than MIN_DOF residual degrees of freedom after the calibrated terms,
+    so no test of the twin (nor of any effect) can be made."""
+    why = (
+        f"only {dof} residual degrees of freedom remain after the bias k0 and the calibrated coefficients "
+        f"(need >= {MIN_DOF}): nothing can be tested; add positions or frequencies"
     )
+    return Verdict("unexplained", [], f"not testable with this design: {why}", remaining=[why])
 
 
 def _no_gap(noise_before: NoiseCheck) -> Verdict:

@@ -49,11 +49,13 @@ def test_a_design_that_cannot_fit_the_calibrated_coefficients_is_refused(twin):
         diagnose(session, twin)
 
 
-def test_too_few_residual_dof_gives_cannot_tell(twin):
-    """6 points, the bias k0 + 4 coefficients: 1 dof, below the 4 the tests need."""
+def test_too_few_residual_dof_gives_unexplained_with_the_reason(twin):
+    """6 points, the bias k0 + 4 coefficients: 1 dof, below the 4 the tests need: nothing can be tested, and a
+    `cannot_tell` would name no effect (issue 28), so `unexplained` saying why."""
     rep = diagnose(_session(twin, [0.0, 45.0], (8.0, 10.0)), twin)
-    assert rep.verdict.verdict == "cannot_tell"
-    assert "cannot tell with this design: only 1 residual degrees of freedom" in rep.verdict.text
+    assert rep.verdict.verdict == "unexplained"
+    assert "not testable with this design: only 1 residual degrees of freedom" in rep.verdict.text
+    assert rep.verdict.remaining and "add positions or frequencies" in rep.verdict.remaining[0]
     assert rep.effects == [] and all(c["rank"] is None for c in rep.candidates)
 
 

@@ -38,6 +38,16 @@ def test_devset_case_is_scored_right(case_id: str) -> None:
     assert bench.right(r), (r["truth"], r["verdict"], r["effects"], r["ambiguous"], r["partial"], r["text"])
 
 
+@pytest.mark.parametrize("case_id", bench.case_ids())
+def test_devset_cannot_tell_names_two_effects_or_more(case_id: str) -> None:
+    """Issue 28, deliverable 2, on every case (gap.verdict.Verdict refuses it when made; asserted here too):
+    a `cannot_tell` names at least two effects, each in its text, and explains none."""
+    r = _row(case_id)
+    if r["verdict"] == "cannot_tell":
+        assert len(set(r["ambiguous"])) >= 2 and not r["effects"], (r["ambiguous"], r["text"])
+        assert all(e in r["text"] for e in r["ambiguous"]), r["text"]
+
+
 def test_a_pair_that_one_many_parameter_effect_absorbs_is_named_with_it():
     """c05bc5fc, 6 positions: 4 index harmonics take the static pattern of a mount tilt and a bias drift alike
     (greedy selection chose them alone); the pair is the model of lower BIC, the harmonics its alternative. The
