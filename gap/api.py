@@ -138,6 +138,85 @@ def _coefficients(fit: ModelFit) -> dict:
     return {c: {"value": float(v), "sigma": float(s)} for c, v, s in zip(CALIBRATED, fit.K, fit.K_sigmas, strict=True)}
 
 
+# How a lateral resonance's fr and Q are set (gap.attribute.lateral_profile, lateral_pulse_profile).
+PROFILE_METHOD = (
+    "set by profile: a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50), then a fine one "
+    "around its best point: the point whose kx column removes the most chi^2 (lateral_profile); "
+    "where the pulse record rejects it, the point of the rates' region (chi^2 within the 2-dof "
+    "test at ALPHA of the best) whose fit the pulse test accepts best (lateral_pulse_profile)"
+)
+
+
+def _table_order(selection: Selection, first: dict[str, Scored], ident: IdentifiabilityReport) -> list[str]:
+    """The chosen effects first, then the identifiable candidates of the first step by BIC, then the other scored
+    ones, then the unscored."""
+    chosen = selection.effects
+    order = chosen + [n for n in first if n not in chosen and ident.candidates[n].identifiable]
+    order += [n for n in first if n not in order]
+    return order + [n for n in ident.candidates if n not in order]
+
+
+def _identification(name: str, ident: IdentifiabilityReport, twin: TwinConfig, accepted: bool) -> dict:
+    """A candidate's entry before its fit: cause, identifiability, fixed parameters, units and bounds."""
+    cid, cand = ident.candidates[name], cl.LIBRARY[name]
+    return {
+        "name": name,
+        "cause": cand.cause,
+        "identifiable": cid.identifiable,
+        "identifiability": {
+            "reason": cid.reason,
+            "fitted_parameters": cid.kept,
+            "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with],
+        },
+        "fixed_parameters": cl.fixed_params(cand, twin),
+        "notes": cand.notes,
+        "accepted": accepted,
+        "rank": None,
+        "parameters": {},
+        "uncertainty": {},
+        "units": {fp.param: fp.unit for fp in cand.free},
+        "plausible_bounds": {fp.param: fp.bound for fp in cand.free},
+        "evidence": None,
+        "heldout_shrink": None,
+    }
+
+
+def _evidence(s: Scored, heldout_gap: float, heldout_rank: int | None) -> dict:
+    """A scored candidate's evidence: BIC, F, p, the channels' chi^2, the held-out gap with it, rivals, rejections."""
+    return {
+        "delta_bic": s.dbic,
+        "F_rate": s.F,
+        "p_value": s.p_value,
+        "delta_rss_in_sigma2": s.drss_sigma2,
+        "delta_chi2_timing": s.dchi2_tau,
+        "heldout_gap_with_it": heldout_gap,
+        "heldout_rank": heldout_rank,
+        "rivals_reproducing_it": s.rivals,
+        "beyond_bounds": s.beyond_bounds,
+        "rejected_by": s.rejected_by or None,
+        "fit_converged": s.fit.converged,
+    }
+
+
+def _place(name: str, ranked: list[str]) -> int | None:
+    """1-based place of `name` in `ranked`, None if it is not ranked."""
+    return ranked.index(name) + 1 if name in ranked else None
+
+
+def _fitted(
+    s: Scored, fit: ModelFit, gap_and_shrink: tuple[float, float | None], rank: int | None, heldout_rank: int | None
+) -> dict:
+    """A scored candidate's fields of the table: its rank, its parameters as `fit` has them, the held-out gap
+    with it and its shrink, the evidence, and how set parameters were profiled."""
+    parameters, uncertainty = fit.effect_parameters(s.name)
+    G, shrunk = gap_and_shrink
+    out: dict = {"rank": rank, "parameters": parameters, "uncertainty": uncertainty, "heldout_shrink": shrunk}
+    out["evidence"] = _evidence(s, G, heldout_rank)
+    if s.profiled:
+        out["profiled_parameters"] = {**s.profiled, "method": PROFILE_METHOD}
+    return out
+
+
 def _candidate_table(
     selection: Selection,
     ident: IdentifiabilityReport,
@@ -151,64 +230,20 @@ def _candidate_table(
     """
     first = {s.name: s for s in selection.steps[0]} if selection.steps else {}
     chosen = {s.name: s for s in selection.chosen}
-    order = list(chosen) + [n for n in first if n not in chosen and ident.candidates[n].identifiable]
-    order += [n for n in first if n not in order] + [n for n in ident.candidates if n not in order and n not in first]
-    ranked = [n for n in shrinks if ident.candidates[n].identifiable]
-    by_heldout = sorted(ranked, key=lambda n: np.nan_to_num(shrinks[n][0], nan=np.inf))
-    rank = 0
+    scored = {**first, **chosen}
+    order = _table_order(selection, first, ident)
+    ranked = [n for n in order if n in scored and ident.candidates[n].identifiable]
+    by_heldout = sorted(
+        [n for n in shrinks if ident.candidates[n].identifiable], key=lambda n: np.nan_to_num(shrinks[n][0], nan=np.inf)
+    )
     table = []
     for name in order:
-        cid, cand = ident.candidates[name], cl.LIBRARY[name]
-        s: Scored | None = chosen.get(name) or first.get(name)
-        entry: dict = {
-            "name": name,
-            "cause": cand.cause,
-            "identifiable": cid.identifiable,
-            "identifiability": {
-                "reason": cid.reason,
-                "fitted_parameters": cid.kept,
-                "collinear_with": [{"candidate": n, "cos": round(c, 4)} for n, c in cid.collinear_with],
-            },
-            "fixed_parameters": cl.fixed_params(cand, twin),
-            "notes": cand.notes,
-            "accepted": name in chosen,
-            "rank": None,
-            "parameters": {},
-            "uncertainty": {},
-            "units": {fp.param: fp.unit for fp in cand.free},
-            "plausible_bounds": {fp.param: fp.bound for fp in cand.free},
-            "evidence": None,
-            "heldout_shrink": None,
-        }
-        if s is not None:
-            if cid.identifiable:
-                rank += 1
-                entry["rank"] = rank
+        entry = _identification(name, ident, twin, name in chosen)
+        if name in scored:
             # A chosen effect's parameters come from the final joint fit.
-            fit = selection.final if name in chosen else s.fit
-            entry["parameters"], entry["uncertainty"] = fit.effect_parameters(name)
-            if s.profiled:
-                entry["profiled_parameters"] = {
-                    **s.profiled,
-                    "method": "set by profile: a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50), then a fine one "
-                    "around its best point: the point whose kx column removes the most chi^2 (lateral_profile); "
-                    "where the pulse record rejects it, the point of the rates' region (chi^2 within the 2-dof "
-                    "test at ALPHA of the best) whose fit the pulse test accepts best (lateral_pulse_profile)",
-                }
-            G, entry["heldout_shrink"] = shrinks.get(name, (math.nan, None))
-            entry["evidence"] = {
-                "delta_bic": s.dbic,
-                "F_rate": s.F,
-                "p_value": s.p_value,
-                "delta_rss_in_sigma2": s.drss_sigma2,
-                "delta_chi2_timing": s.dchi2_tau,
-                "heldout_gap_with_it": G,
-                "heldout_rank": by_heldout.index(name) + 1 if name in by_heldout else None,
-                "rivals_reproducing_it": s.rivals,
-                "beyond_bounds": s.beyond_bounds,
-                "rejected_by": s.rejected_by or None,
-                "fit_converged": s.fit.converged,
-            }
+            fit = selection.final if name in chosen else scored[name].fit
+            gap_and_shrink = shrinks.get(name, (math.nan, None))
+            entry |= _fitted(scored[name], fit, gap_and_shrink, _place(name, ranked), _place(name, by_heldout))
         table.append(entry)
     return table
 

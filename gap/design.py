@@ -9,13 +9,14 @@ gap.api.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from models.config import TwinConfig
 from station.errors import InputError
-from station.session import Session
+from station.session import PointRecord, Session
 
 # Relative tolerance on the station geometry of session.json against the twin's.
 GEOMETRY_RTOL = 1e-6
@@ -71,30 +72,41 @@ class PointDesign:
 
     @classmethod
     def from_session(cls, session: Session) -> PointDesign:
+        """The session's points as columns; raises GapInputError on an empty session or untimed vibration."""
         pts = session.points
-        if not pts:
-            raise GapInputError("the session has no points")
-        bad = [p.point_id for p in pts if p.kind == "vibration" and (p.t1_s is None or p.t2_s is None or p.Np is None)]
-        if bad:
-            raise GapInputError(f"vibration point(s) without timing capture (t1, t2, Np): {', '.join(bad[:5])}")
-        pos_deg = np.array([p.position_deg for p in pts], dtype=float)
+        _check_points(pts)
+        pos_deg = _column(pts, "position_deg")
         uniq, index = np.unique(np.round(pos_deg, 9), return_inverse=True)
         return cls(
             point_ids=tuple(p.point_id for p in pts),
             theta_rad=np.radians(pos_deg),
             position_deg=pos_deg,
-            freq_hz=np.array([p.freq_hz for p in pts], dtype=float),
+            freq_hz=_column(pts, "freq_hz"),
             vib=np.array([p.kind == "vibration" for p in pts]),
-            Tm_s=np.array([p.Tm_s for p in pts], dtype=float),
-            t1_s=np.array([np.nan if p.t1_s is None else p.t1_s for p in pts], dtype=float),
-            t2_s=np.array([np.nan if p.t2_s is None else p.t2_s for p in pts], dtype=float),
-            Np=np.array([0 if p.Np is None else p.Np for p in pts], dtype=np.int64),
-            start_s=np.array([p.start_s for p in pts], dtype=float),
-            sequence=np.array([p.sequence for p in pts], dtype=np.int64),
+            Tm_s=_column(pts, "Tm_s"),
+            t1_s=_column(pts, "t1_s"),
+            t2_s=_column(pts, "t2_s"),
+            Np=_column(pts, "Np", np.int64, 0),
+            start_s=_column(pts, "start_s"),
+            sequence=_column(pts, "sequence", np.int64),
             rate_radps=session.rates_radps(),
             pos_index=index,
             positions_deg=uniq,
         )
+
+
+def _check_points(pts: Sequence[PointRecord]) -> None:
+    """Refuse an empty session, and vibration points without timing capture (t1, t2, Np)."""
+    if not pts:
+        raise GapInputError("the session has no points")
+    bad = [p.point_id for p in pts if p.kind == "vibration" and (p.t1_s is None or p.t2_s is None or p.Np is None)]
+    if bad:
+        raise GapInputError(f"vibration point(s) without timing capture (t1, t2, Np): {', '.join(bad[:5])}")
+
+
+def _column(pts: Sequence[PointRecord], attr: str, dtype: type = float, missing: float = math.nan) -> np.ndarray:
+    """One field of every point as an array; `missing` where a point has none (a static point's timing)."""
+    return np.array([missing if (v := getattr(p, attr)) is None else v for p in pts], dtype=dtype)
 
 
 def check_geometry(session: Session, cfg: TwinConfig) -> None:

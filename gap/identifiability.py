@@ -256,9 +256,10 @@ def _kept(params: list[ParamId], proj: dict[str, np.ndarray]) -> list[str]:
     return [p.key for p in params if p.key in keep]  # table order
 
 
-def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> IdentifiabilityReport:
-    """Absorbed / degenerate / collinear status of every candidate and parameter of the library."""
-    proj = {k: lin.project(c[:, None])[:, 0] for k, c in lin.columns.items()}
+def _candidate_ids(
+    lin: Linearisation, proj: dict[str, np.ndarray]
+) -> tuple[dict[str, CandidateId], dict[str, np.ndarray]]:
+    """Each candidate's parameters' status and its kept parameters, and the span of their projected columns."""
     out: dict[str, CandidateId] = {}
     spaces: dict[str, np.ndarray] = {}
     for name, cand in lin.cands.items():
@@ -266,18 +267,42 @@ def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> I
         kept = _kept(params, proj)
         spaces[name] = subspace(np.column_stack([proj[k] for k in kept])) if kept else np.zeros((lin.n_rows, 0))
         out[name] = CandidateId(name, params, kept)
-    for name, cid in out.items():
-        cos = [(other, principal_cos(spaces[name], spaces[other])) for other in out if other != name]
-        cid.collinear_with = sorted([(n, c) for n, c in cos if c >= COLLINEAR_COS], key=lambda x: -x[1])
+    return out, spaces
+
+
+def _near(v: np.ndarray, names: Sequence[str], spaces: dict[str, np.ndarray]) -> list[tuple[str, float]]:
+    """The candidates of `names` whose span holds the unit vector v at cos >= COLLINEAR_COS, closest first."""
+    cos = [(n, float(np.linalg.norm(spaces[n].T @ v))) for n in names]
+    return sorted([(n, c) for n, c in cos if c >= COLLINEAR_COS], key=lambda x: -x[1])
+
+
+def _collinear(
+    cid: CandidateId, others: Sequence[str], spaces: dict[str, np.ndarray], proj: dict[str, np.ndarray]
+) -> None:
+    """The candidates collinear with `cid` (smallest principal angle), and for each kept parameter those whose
+    span holds its column."""
+    cos = [(other, principal_cos(spaces[cid.name], spaces[other])) for other in others if other != cid.name]
+    cid.collinear_with = sorted([(n, c) for n, c in cos if c >= COLLINEAR_COS], key=lambda x: -x[1])
+    partners = [n for n, _ in cid.collinear_with]
+    for p in cid.params:
+        if p.key in cid.kept:
+            p.collinear_with = _near(proj[p.key] / np.linalg.norm(proj[p.key]), partners, spaces)
+
+
+def _raw_stream(p: ParamId, has_raw: bool) -> None:
+    """Where a raw stream measures a parameter the rates fix poorly (absorbed, degenerate, weak or collinear)."""
+    if p.key in RAW_MEASURES and (p.status in ("absorbed", "degenerate", "weak") or p.collinear_with):
+        p.raw_stream = ("recorded in this session (see where.raw_streams): " if has_raw else "") + RAW_MEASURES[p.key]
+
+
+def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> IdentifiabilityReport:
+    """Absorbed / degenerate / collinear status of every candidate and parameter of the library."""
+    proj = {k: lin.project(c[:, None])[:, 0] for k, c in lin.columns.items()}
+    out, spaces = _candidate_ids(lin, proj)
+    for cid in out.values():
+        _collinear(cid, list(out), spaces, proj)
         for p in cid.params:
-            if p.key in cid.kept:
-                v = proj[p.key] / np.linalg.norm(proj[p.key])
-                near = [(n, float(np.linalg.norm(spaces[n].T @ v))) for n, _ in cid.collinear_with]
-                p.collinear_with = sorted([(n, c) for n, c in near if c >= COLLINEAR_COS], key=lambda x: -x[1])
-            if p.key in RAW_MEASURES and (p.status in ("absorbed", "degenerate", "weak") or p.collinear_with):
-                p.raw_stream = ("recorded in this session (see where.raw_streams): " if has_raw else "") + RAW_MEASURES[
-                    p.key
-                ]
+            _raw_stream(p, has_raw)
     report = IdentifiabilityReport(out)
     if suggest:
         _suggest(lin, report)
@@ -333,40 +358,50 @@ class _Option:
     A0_factor: float = 1.0
 
 
+def _new_frequencies(design: PointDesign, freqs: list[float], pulses_per_rev: int) -> list[_Option]:
+    """2, 4 and 6 Hz where the session has none within 0.5 Hz, at every position, and the first of them with short
+    windows (1 precession revolution)."""
+    pos = [float(p) for p in design.positions_deg]
+    new = [f for f in (2.0, 4.0, 6.0) if all(abs(f - g) > 0.5 for g in freqs)]
+    opts = [
+        _Option(f"add {f:g} Hz at every position", tuple(PointSpec(p, f, _preset_for(design, p)) for p in pos))
+        for f in new
+    ]
+    if new:
+        label = f"add {new[0]:g} Hz with short windows (1 precession revolution) at every position"
+        opts.append(_Option(label, tuple(PointSpec(p, new[0], pulses_per_rev) for p in pos)))
+    return opts
+
+
+def _half_way_positions(design: PointDesign, freqs: list[float]) -> list[_Option]:
+    """Positions half-way between the recorded ones (the smallest step), each at the session's frequencies and
+    at rest; positions near 90 and 270 deg cost hours (physics.md) and are left out."""
+    pos = [float(p) for p in design.positions_deg]
+    if len(pos) < 2:
+        return []
+    step = float(np.min(np.diff(sorted(pos))))
+    new = [p + step / 2 for p in pos if abs(math.cos(math.radians(p + step / 2))) > 0.2]
+    specs = [PointSpec(p, f, pp) for p in new for pp in [_preset_for(design, p)] for f in [*freqs, 0.0]]
+    return [_Option(f"add {len(new)} positions half-way between the recorded ones", tuple(specs))]
+
+
+def _half_amplitude(design: PointDesign, freqs: list[float]) -> list[_Option]:
+    """The vibration points again with the crank amplitude A0/2."""
+    if not freqs:
+        return []
+    pos = [float(p) for p in design.positions_deg]
+    specs = tuple(PointSpec(p, f, _preset_for(design, p)) for p in pos for f in freqs)
+    return [_Option("repeat the vibration points with a second crank amplitude A0/2", specs, A0_factor=0.5)]
+
+
 def _options(design: PointDesign, pulses_per_rev: int) -> list[_Option]:
     """Extra test points to try: each is a set of points added to the recorded design."""
-    pos = [float(p) for p in design.positions_deg]
     freqs = sorted({float(f) for f in design.freq_hz[design.vib]})
-    preset = {p: _preset_for(design, p) for p in pos}
-    opts: list[_Option] = []
-    new_freqs = [f for f in (2.0, 4.0, 6.0) if all(abs(f - g) > 0.5 for g in freqs)]
-    for f in new_freqs:
-        opts.append(_Option(f"add {f:g} Hz at every position", tuple(PointSpec(p, f, preset[p]) for p in pos)))
-    if new_freqs:
-        opts.append(
-            _Option(
-                f"add {new_freqs[0]:g} Hz with short windows (1 precession revolution) at every position",
-                tuple(PointSpec(p, new_freqs[0], pulses_per_rev) for p in pos),
-            )
-        )
-    if len(pos) >= 2:
-        step = float(np.min(np.diff(sorted(pos))))
-        # Positions near 90 and 270 deg cost hours (physics.md): left out.
-        new = [p + step / 2 for p in pos if abs(math.cos(math.radians(p + step / 2))) > 0.2]
-        specs = []
-        for p in new:
-            pp = _preset_for(design, p)
-            specs += [PointSpec(p, f, pp) for f in freqs] + [PointSpec(p, 0.0, pp)]
-        opts.append(_Option(f"add {len(new)} positions half-way between the recorded ones", tuple(specs)))
-    if freqs:
-        opts.append(
-            _Option(
-                "repeat the vibration points with a second crank amplitude A0/2",
-                tuple(PointSpec(p, f, preset[p]) for p in pos for f in freqs),
-                A0_factor=0.5,
-            )
-        )
-    return opts
+    return (
+        _new_frequencies(design, freqs, pulses_per_rev)
+        + _half_way_positions(design, freqs)
+        + _half_amplitude(design, freqs)
+    )
 
 
 def _preset_for(design: PointDesign, position_deg: float) -> int:
@@ -411,43 +446,67 @@ def _unit_norm(M: np.ndarray) -> np.ndarray:
     return M / np.where(n > 0, n, 1.0)
 
 
-def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
-    """Try each option for every absorbed, degenerate or collinear parameter."""
+def _flagged(report: IdentifiabilityReport) -> dict[str, list[str]]:
+    """Every absorbed, degenerate or collinear parameter, with the kept parameters of its collinear partners."""
     flagged: dict[str, list[str]] = {}
-    pids = {p.key: p for c in report.candidates.values() for p in c.params}
     for cid in report.candidates.values():
         for p in cid.params:
             partners = [n for n, _ in p.collinear_with]
             if p.status in ("absorbed", "degenerate") or partners:
                 flagged[p.key] = [k for n in partners for k in report.candidates[n].kept]
+    return flagged
+
+
+def _option_twin(twin: TwinConfig, opt: _Option) -> TwinConfig:
+    """The twin that runs an option's points (its crank amplitude scaled by A0_factor)."""
+    if opt.A0_factor == 1.0:
+        return twin
+    return replace(twin, station=replace(twin.station, A0_m=twin.station.A0_m * opt.A0_factor))
+
+
+def _projected_with(lin: Linearisation, opt: _Option, keys: Sequence[str]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The parameters' columns over the recorded design with the option's points added, projected off the
+    calibrated terms (P) and off the bias k0 alone (CL); None where the twin cannot run the option."""
+    d, tw = lin.ch.design, _option_twin(lin.ch.twin, opt)
+    try:
+        hd = _hypothetical(d, tw, opt.specs)
+    except WindowNeverClosesError:  # an option the twin cannot run (a rate too small to close a window)
+        return None
+    Xh, Ch = _columns_for(hd, tw, lin, keys)
+    X = np.vstack([lin.state.X_white, Xh])  # one bias k0 shared by both
+    C = np.vstack([np.column_stack([lin.columns[k] for k in keys]), Ch])
+    Q, _ = np.linalg.qr(_unit_norm(X))
+    QL, _ = np.linalg.qr(_unit_norm(X[:, : d.n_levels]))
+    return C - Q @ (Q.T @ C), C - QL @ (QL.T @ C)
+
+
+def _separation(
+    pid: ParamId, label: str, n_points: int, p_col: np.ndarray, cl_col: np.ndarray, B: np.ndarray | None
+) -> SeparatingTest:
+    """The option as a separating test of one parameter: the fraction of its column kept off the calibrated terms
+    (rho = |P c| / |C_L c|) and its cosine with the partners' span B; it separates when rho >= ABSORBED_RHO and
+    cos < COLLINEAR_COS."""
+    raw, pr = float(np.linalg.norm(cl_col)), float(np.linalg.norm(p_col))
+    rho = pr / raw if raw > 0 else 0.0
+    cos = None if B is None else float(np.linalg.norm(B.T @ (p_col / max(pr, 1e-300))))
+    ok = rho >= ABSORBED_RHO and (cos is None or cos < COLLINEAR_COS)
+    return SeparatingTest(label, n_points, rho, cos, pr * pid.scale, ok)
+
+
+def _suggest(lin: Linearisation, report: IdentifiabilityReport) -> None:
+    """Try each option for every absorbed, degenerate or collinear parameter."""
+    flagged = _flagged(report)
     if not flagged:
         return
-    d, twin = lin.ch.design, lin.ch.twin
+    pids = {p.key: p for c in report.candidates.values() for p in c.params}
     keys = sorted({k for key, partners in flagged.items() for k in [key, *partners]})
     col = {k: j for j, k in enumerate(keys)}
-    C0 = np.column_stack([lin.columns[k] for k in keys])
-    for opt in _options(d, twin.station.pulses_per_rev):
-        tw = twin
-        if opt.A0_factor != 1.0:
-            tw = replace(twin, station=replace(twin.station, A0_m=twin.station.A0_m * opt.A0_factor))
-        try:
-            hd = _hypothetical(d, tw, opt.specs)
-        except WindowNeverClosesError:  # an option the twin cannot run (a rate too small to close a window)
+    for opt in _options(lin.ch.design, lin.ch.twin.station.pulses_per_rev):
+        projected = _projected_with(lin, opt, keys)
+        if projected is None:
             continue
-        Xh, Ch = _columns_for(hd, tw, lin, keys)
-        X, n_levels = np.vstack([lin.state.X_white, Xh]), d.n_levels  # one bias k0 shared by both
-        C = np.vstack([C0, Ch])
-        Q, _ = np.linalg.qr(_unit_norm(X))
-        P = C - Q @ (Q.T @ C)
-        QL, _ = np.linalg.qr(_unit_norm(X[:, :n_levels]))
-        CL = C - QL @ (QL.T @ C)
+        P, CL = projected
         for key, partners in flagged.items():
-            raw, pr = float(np.linalg.norm(CL[:, col[key]])), float(np.linalg.norm(P[:, col[key]]))
-            rho = pr / raw if raw > 0 else 0.0
-            cos = None
-            if partners:
-                B = subspace(P[:, [col[k] for k in partners]])
-                cos = float(np.linalg.norm(B.T @ (P[:, col[key]] / max(pr, 1e-300))))
-            ok = rho >= ABSORBED_RHO and (cos is None or cos < COLLINEAR_COS)
-            pid = pids[key]
-            pid.separating.append(SeparatingTest(opt.label, len(opt.specs), rho, cos, pr * pid.scale, ok))
+            B = subspace(P[:, [col[k] for k in partners]]) if partners else None
+            test = _separation(pids[key], opt.label, len(opt.specs), P[:, col[key]], CL[:, col[key]], B)
+            pids[key].separating.append(test)

@@ -416,31 +416,47 @@ def maps(design: PointDesign, z: np.ndarray, tau_z: np.ndarray) -> dict:
     return out
 
 
-def where_text(m: dict, dets: list[Detector], alpha: float) -> str:
-    """Where the gap lies, in words and numbers."""
-    parts = []
-    k = m["by_kind"]
-    if k.get("static", {}).get("n") and k.get("vibration", {}).get("n"):
-        parts.append(
-            f"static points rms z {k['static']['rms_z']:.2f}, vibration points rms z {k['vibration']['rms_z']:.2f}"
-        )
-    worst = sorted([g for g in m["by_frequency"] if g.get("n")], key=lambda g: -g["rms_z"])[:1]
-    for g in worst:
-        parts.append(
-            f"largest at {g['freq_hz']}{' Hz' if g['freq_hz'] != 'static' else ''} "
-            f"(rms z {g['rms_z']:.2f}, mean z {g['mean_z']:+.2f})"
-        )
-    pos = sorted([g for g in m["by_position"] if g.get("n")], key=lambda g: -g["rms_z"])[:2]
+def _largest(groups: list[dict], n: int) -> list[dict]:
+    """The n groups of a map with points, largest rms z first."""
+    return sorted([g for g in groups if g.get("n")], key=lambda g: -g["rms_z"])[:n]
+
+
+def _kinds_text(by_kind: dict) -> list[str]:
+    """The rms z of the static and of the vibration points, where the session has both."""
+    if not (by_kind.get("static", {}).get("n") and by_kind.get("vibration", {}).get("n")):
+        return []
+    static, vibration = by_kind["static"]["rms_z"], by_kind["vibration"]["rms_z"]
+    return [f"static points rms z {static:.2f}, vibration points rms z {vibration:.2f}"]
+
+
+def _largest_text(m: dict) -> list[str]:
+    """Where the residuals are largest: the worst frequency, the two worst positions, the worst run-order block."""
+    out = [
+        f"largest at {g['freq_hz']}{' Hz' if g['freq_hz'] != 'static' else ''} "
+        f"(rms z {g['rms_z']:.2f}, mean z {g['mean_z']:+.2f})"
+        for g in _largest(m["by_frequency"], 1)
+    ]
+    pos = _largest(m["by_position"], 2)
     if pos:
-        parts.append("positions " + ", ".join(f"{g['position_deg']:g} deg (rms z {g['rms_z']:.2f})" for g in pos))
-    blk = sorted([g for g in m["by_time_block"] if g.get("n")], key=lambda g: -g["rms_z"])[:1]
-    for g in blk:
-        parts.append(f"run-order block {g['block']} ({g['start_s']:.0f}-{g['end_s']:.0f} s, rms z {g['rms_z']:.2f})")
-    if "timing" in m:
-        parts.append(f"period identities rms z {m['timing']['rms_z']:.2f}")
+        out.append("positions " + ", ".join(f"{g['position_deg']:g} deg (rms z {g['rms_z']:.2f})" for g in pos))
+    out += [
+        f"run-order block {g['block']} ({g['start_s']:.0f}-{g['end_s']:.0f} s, rms z {g['rms_z']:.2f})"
+        for g in _largest(m["by_time_block"], 1)
+    ]
+    return out
+
+
+def _structure_text(dets: list[Detector], alpha: float) -> str:
+    """The structure tests significant at alpha (Bonferroni over the tests), or that none is."""
     sig = significant(dets, alpha)
     if sig:
-        parts.append("structure: " + "; ".join(f"{dt.label} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig))
-    else:
-        parts.append(f"no structure test significant at the {alpha:g} level (Bonferroni over {len(dets)} tests)")
-    return "; ".join(parts) + "."
+        return "structure: " + "; ".join(f"{dt.label} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig)
+    return f"no structure test significant at the {alpha:g} level (Bonferroni over {len(dets)} tests)"
+
+
+def where_text(m: dict, dets: list[Detector], alpha: float) -> str:
+    """Where the gap lies, in words and numbers."""
+    parts = _kinds_text(m["by_kind"]) + _largest_text(m)
+    if "timing" in m:
+        parts.append(f"period identities rms z {m['timing']['rms_z']:.2f}")
+    return "; ".join([*parts, _structure_text(dets, alpha)]) + "."

@@ -65,6 +65,29 @@ def _pair(lin: Linearisation, a: Scored, b: Scored, drop: frozenset[str], n_pair
     return [a, b_given_a], fit
 
 
+def _models(
+    lin: Linearisation, greedy: Selection, drop: frozenset[str], level: float
+) -> list[tuple[list[Scored], ModelFit]]:
+    """The greedy choice and every pair model of the first step's pool (_pool, _pair) that the pulse record does
+    not reject, lowest BIC first."""
+    pool = _pool(greedy.steps[0], greedy.effects[0])
+    pairs = [(a, b) for a, b in combinations(pool, 2) if {a.name, b.name} != set(greedy.effects)]
+    models: list[tuple[list[Scored], ModelFit]] = [(greedy.chosen, greedy.final)]
+    models += [m for a, b in pairs if (m := _pair(lin, a, b, drop, len(pairs))) is not None]
+    models.sort(key=lambda m: bic(m[1], lin.ch.n_rate, lin.ch.n_other))
+    # The pulse record (when there is one) tests every pair model; the greedy's choice met it in its own steps.
+    return [m for m in models if m[0] is greedy.chosen or not rejected_by_pulses(lin, m[0][-1], level)]
+
+
+def _reproducing(models: list[tuple[list[Scored], ModelFit]]) -> list[list[str]]:
+    """The effects of every model after the first that reproduces its fit on every channel (chi^2, rate rows in
+    its sigma^2, within REPRODUCE_CHI2: the rule of a rival)."""
+    best_fit = models[0][1]
+    s2 = best_fit.rss_rate / max(best_fit.dof_rate, 1)
+    chi_best = chi2_total(best_fit, s2)
+    return [[s.name for s in members] for members, fit in models[1:] if chi2_total(fit, s2) - chi_best < REPRODUCE_CHI2]
+
+
 def best_subset(
     lin: Linearisation,
     base: ModelFit,
@@ -78,24 +101,11 @@ def best_subset(
     the models that reproduce it as its alternatives (gap.subsets docstring). level: the pulse test's."""
     if not greedy.chosen or not greedy.steps or max_effects < 2:
         return greedy
-    first = greedy.steps[0]
-    pool = _pool(first, greedy.effects[0])
-    pairs = [(a, b) for a, b in combinations(pool, 2) if {a.name, b.name} != set(greedy.effects)]
-    n_rate, n_other = lin.ch.n_rate, lin.ch.n_other
-    models: list[tuple[list[Scored], ModelFit]] = [(greedy.chosen, greedy.final)]
-    models += [m for a, b in pairs if (m := _pair(lin, a, b, drop, len(pairs))) is not None]
-    models.sort(key=lambda m: bic(m[1], n_rate, n_other))
-    # The pulse record (when there is one) tests every pair model; the greedy's choice met it in its own steps.
-    models = [m for m in models if m[0] is greedy.chosen or not rejected_by_pulses(lin, m[0][-1], level)]
-    best_members, best_fit = models[0]
-    s2 = best_fit.rss_rate / max(best_fit.dof_rate, 1)
-    chi_best = chi2_total(best_fit, s2)
-    alternatives = [
-        [s.name for s in members] for members, fit in models[1:] if chi2_total(fit, s2) - chi_best < REPRODUCE_CHI2
-    ]
-    if best_members is greedy.chosen:
-        out = greedy
-    else:
+    models = _models(lin, greedy, drop, level)
+    best_members = models[0][0]
+    out = greedy
+    if best_members is not greedy.chosen:
+        first = greedy.steps[0]
         out = forward_select(lin, base, names, drop, max_effects, level, start=best_members, first_step=first)
-    out.alternatives = alternatives
+    out.alternatives = _reproducing(models)
     return out
