@@ -274,6 +274,13 @@ class Case:
     snr: float
     seed: int
 
+    @property
+    def named_effect(self) -> str:
+        """The effect injected or left out (every kind of case but a null has one)."""
+        if self.effect is None:
+            raise ValueError(f"a {self.kind} case needs an effect")
+        return self.effect
+
 
 def make_session(case: Case, twin: TwinConfig):
     """The "real" session of a case and what was injected into it."""
@@ -281,20 +288,20 @@ def make_session(case: Case, twin: TwinConfig):
     null = simulate_session(plan, twin, case.seed)
     if case.kind == "null":
         return null, {}
-    d = PointDesign.from_session(null)
+    d, effect = PointDesign.from_session(null), case.named_effect
     if case.kind in ("effect", "leave_one_out"):
-        injected = within_bounds(d, case.effect, scaled_injection(d, twin, case.effect, case.snr))
-        return simulate_session(plan, twin.with_effect(case.effect, **injected), case.seed), injected
-    unit = 1e-6 if case.effect == "bias_step" else 1e-7
-    value = unit * case.snr / _snr(d, twin, _extra_signal(case.effect, unit, d, twin), np.zeros(d.n_points))
-    with out_of_library(case.effect, value, len(plan)):
+        injected = within_bounds(d, effect, scaled_injection(d, twin, effect, case.snr))
+        return simulate_session(plan, twin.with_effect(effect, **injected), case.seed), injected
+    unit = 1e-6 if effect == "bias_step" else 1e-7
+    value = unit * case.snr / _snr(d, twin, _extra_signal(effect, unit, d, twin), np.zeros(d.n_points))
+    with out_of_library(effect, value, len(plan)):
         return simulate_session(plan, twin, case.seed), {"value": value}
 
 
 def run_case(case: Case, twin: TwinConfig | None = None) -> dict:
     twin = twin or default_twin()
     session, injected = make_session(case, twin)
-    exclude = (case.effect,) if case.kind == "leave_one_out" else ()
+    exclude = [case.named_effect] if case.kind == "leave_one_out" else []
     t0 = time.perf_counter()
     j = diagnose(session, twin, exclude=exclude, suggest=False).to_json()
     elapsed = time.perf_counter() - t0
@@ -315,7 +322,7 @@ def run_case(case: Case, twin: TwinConfig | None = None) -> dict:
             "gap_after": j["gap_after"]["value"],
             "truth_shrink": truth["heldout_shrink"] if truth else None,
             "truth_identifiable": truth["identifiable"] if truth else None,
-            "snr_reached": effect_snr(PointDesign.from_session(session), twin, case.effect, injected)
+            "snr_reached": effect_snr(PointDesign.from_session(session), twin, case.named_effect, injected)
             if case.kind in ("effect", "leave_one_out")
             else None,
             "elapsed_s": elapsed,
@@ -526,7 +533,7 @@ def run(
     t0 = time.perf_counter()
     results = run_cases(run_case, todo, spec, results=results_path, settings=settings, progress=progress)
     twin = default_twin()
-    look = {}
+    look: dict[tuple[str, str], dict] = {}
     for dn in designs:
         d = PointDesign.from_session(simulate_session(DESIGNS[dn](), twin, seed))
         look |= {(dn, e): dict(zip(("candidate", "cos"), look_alike(d, twin, e), strict=True)) for e in ool}
