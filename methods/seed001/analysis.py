@@ -115,7 +115,7 @@ def linear_fit(X: np.ndarray, y: np.ndarray, sigma_y: np.ndarray | None = None) 
     dof = n - p
     chi2 = float(np.sum((resid * w) ** 2))
     sigma = math.sqrt(chi2 / dof) if dof > 0 else 0.0
-    cov = scipy.linalg.inv(Xw.T @ Xw) * (sigma**2 if sigma_y is None else 1.0)
+    cov = np.linalg.inv(Xw.T @ Xw) * (sigma**2 if sigma_y is None else 1.0)
     return LinearFit(beta, cov, resid, dof, sigma)
 
 

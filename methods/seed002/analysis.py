@@ -170,7 +170,7 @@ def estimate_flexure(A: np.ndarray, B: np.ndarray, weights: np.ndarray | None = 
         raise FitError(f"the runs' design has rank {rank} < {p}: the poses do not observe every coefficient")
     e = B - A @ tau
     sigma = float(np.sqrt(e @ (w * e) / (n - p)))
-    cov = sigma**2 * scipy.linalg.inv(A.T @ (A * w[:, None]))
+    cov = sigma**2 * np.linalg.inv(A.T @ (A * w[:, None]))
     return FlexureFit(tau, cov, e, sigma, n - p, float(sv[0] / sv[-1]))
 
 
