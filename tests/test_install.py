@@ -1,5 +1,7 @@
 """A plain install works: `pip install .` (not editable) into a fresh venv, then `station calibrate` from an empty
-folder runs the main job with the defaults shipped as package data and the panel's uPlot inside the package.
+folder runs the main job with the defaults shipped as package data and the panel's uPlot inside the package. That
+run is also the README's main job checked end to end (a full simulated seed-000 session, stored, identified,
+reported, certified): one run of the 6.5 h session serves both.
 
 The fresh venv takes the third-party dependencies from the development venv (a .pth line; nothing is
 downloaded, so the test runs offline), and the package itself is built from a copy of the source tree and installed
@@ -9,6 +11,7 @@ imports of the code (test_every_imported_package_is_declared)."""
 import ast
 import importlib.metadata
 import json
+import math
 import os
 import re
 import shutil
@@ -19,6 +22,8 @@ import tomllib
 from pathlib import Path
 
 import pytest
+
+from station.store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("station", "engine", "models", "devices", "methods", "gap", "app", "web")
@@ -121,3 +126,30 @@ def test_a_plain_install_runs_the_main_job_from_an_empty_folder(tmp_path):
     assert doc["provenance"]["station_id"] == "station-sim" and doc["provenance"]["simulated"] is True
     assert doc["provenance"]["software_version"] == importlib.metadata.version("piga-station")  # no git checkout
     assert len((export / "points.csv").read_text().splitlines()) == 41  # seed 000's 40 points and the header
+    _the_main_job_stored_identified_and_reported(run.stdout, out)
+
+
+def _the_main_job_stored_identified_and_reported(printed: str, out: Path) -> None:
+    assert re.search(r"^\s+kzz\s+= ", printed, re.M) and "u = " in printed and "U = " in printed  # value, u, U = k u
+    with SessionStore(out / "station.sqlite") as store:
+        (session,) = store.sessions()
+        assert session["n_points"] == 40 and session["status"] == "finished"
+        results = {r["method"]: r["result"] for r in store.results(session["uid"])}
+    integral = results["integral"]["coefficients"]
+    truth = {"kz": 0.56, "kzz": 6e-6, "ky": 5e-6, "k3": 7e-7}  # the embedded default twin's instrument
+    for name, value in truth.items():
+        c = integral[name]
+        assert abs(c["value"] - value) < 5 * c["sigma"], name  # a 5-sigma miss is a defect, not bad luck
+    # The reliability test of eq. 28 is reported, consistently (a random outlier may fail it: that is its job).
+    integral_result = results["integral"]
+    # eq. 28 as the seed defines it: N = the 30 test points (rows of Y); the joint variant counts all 40 rates
+    assert integral_result["mu_c"] == pytest.approx(1.25 + math.log(math.sqrt(30 / 3)))
+    assert integral_result["mu_c_joint"] == pytest.approx(1.25 + math.log(math.sqrt(40 / 3)))
+    assert integral_result["reliable"] == (integral_result["mu"] < integral_result["mu_c"])
+    # the certificate is written beside the report (issue 15)
+    assert next(out.glob("certificate-*.pdf")).read_bytes().startswith(b"%PDF")
+    assert "SIMULATED" in next(out.glob("certificate-*.html")).read_text()
+    report = next(out.glob("report-*.html")).read_text()
+    assert "<svg" in report and "Timing capture" in report and "http" not in report.split("<svg")[0]
+    result = json.loads(next(out.glob("result-*.json")).read_text())
+    assert result["baseline"]["coefficients"]["kz"]["value"] is None
