@@ -84,7 +84,8 @@ class StationController:
         self.after_run: list[Callable[[RunOutcome], None]] = []  # called in the worker once a run has ended
         self._start_error: BaseException | None = None
         self.interrupted = recover_interrupted(store)
-        self._analyst = analysis_job.start_analyst()  # ready for the first session's analysis
+        self._analyst: subprocess.Popen[str] | None = None  # started once a session that needs one is open
+        self._analyst_lock = threading.Lock()
 
     def close(self, timeout_s: float = 30.0) -> None:
         """End any run (abort, wait at most timeout_s), then stop supervising: what every exit path calls."""
@@ -92,8 +93,7 @@ class StationController:
             self.abort()
             self.wait(timeout_s=timeout_s)
         self.supervisor.close()
-        self._analyst.kill()  # the idle analyst has no job left: it holds nothing worth finishing
-        self._analyst.communicate()
+        self._dismiss_analyst()
 
     # ---- library and planning ------------------------------------------------------------
 
@@ -110,7 +110,8 @@ class StationController:
 
     @property
     def busy(self) -> bool:
-        return self._worker is not None and self._worker.is_alive()
+        """A run is under way: its worker lives and has not ended the run (what is left of it then is exiting)."""
+        return self._worker is not None and self._worker.is_alive() and not self._worker_ended.is_set()
 
     def start(
         self, procedure: str, params: dict[str, Any], *, instrument_serial: str = "", resume_uid: str | None = None
@@ -238,6 +239,9 @@ class StationController:
             nonlocal opened
             opened = True
             self.supervisor.watch(me, self._on_lost)
+            if spec.analyse is not None:
+                with self._analyst_lock:  # imports the library while the session runs
+                    self._analyst = analysis_job.start_analyst()
             self._started.set()
 
         try:
@@ -265,19 +269,30 @@ class StationController:
             log.exception("analysis of %s failed", uid)
             faults.append(f"analysis: {type(exc).__name__}: {exc}")
         finally:
+            self._dismiss_analyst()  # a run that ended without its analysis leaves none idle
             outcome = RunOutcome(uid, state, analysis, report, faults)
             for hook in self.after_run:  # `station serve --sync-to`: the session to the central history
                 try:
                     hook(outcome)
                 except Exception:  # a hook never keeps the outcome from whoever waits
                     log.exception("after-run hook %r failed for %s", hook, uid)
+            self._worker_ended.set()  # not busy from here: the next start() need not wait for this thread to exit
             self._outcome = outcome  # last: wait() returns once the hooks are done
+
+    def _dismiss_analyst(self) -> None:
+        """Stop an analyst that has no job left (the run ended without an analysis, or the controller closes)."""
+        with self._analyst_lock:
+            job, self._analyst = self._analyst, None
+        if job is not None:
+            job.kill()
+            job.communicate()
 
     def _analyse(self, spec: ProcedureSpec, uid: str) -> tuple[Analysis, Path]:
         """The procedure's analysis in a child process (app.analysis_job), results into the store."""
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         report = self.reports_dir / f"report-{uid}.html"
-        job, self._analyst = self._analyst, analysis_job.start_analyst()  # the next one imports meanwhile
+        with self._analyst_lock:
+            job, self._analyst = self._analyst or analysis_job.start_analyst(), None
         request = json.dumps([spec.name, str(self.store.path), uid, str(report)]) + "\n"
         try:
             stdout, stderr = job.communicate(request, timeout=ANALYSIS_TIMEOUT_S)
