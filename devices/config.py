@@ -66,6 +66,9 @@ class ServoSection:
     eds: Path = Field(strict=False, json_schema_extra={"allowed": "a file, relative to the station file"})
     heartbeat_ms: int = spec(in_range(10, 10_000))
     timeout_s: float = spec(in_range(0.0, 10.0, lo_open=True))
+    # every enabled TPDO's, set at connect (0x1800+n sub 5); the driver's state and ramp waits allow 0.5 s for
+    # the TPDO that confirms them (STATE_TIMEOUT_S, RAMP_MARGIN_S), hence the bound
+    tpdo_event_timer_ms: int = spec(in_range(1, 500))
 
 
 @settings

@@ -307,6 +307,7 @@ class VibrationTableServo:
         except (SdoCommunicationError, SdoAbortedError) as e:
             raise DeviceTimeout(self.DEVICE, f"reading the PDO configuration failed: {e}") from e
         self._check_pdo_mapping()
+        self._set_tpdo_event_timers()
         timers_s = [t.event_timer / 1000 for t in node.tpdo.values() if t.enabled and t.event_timer]
         self._pdo_silence_s = min(self._hb_timeout_s, 5 * max(timers_s, default=self._hb_period_s))
         for tpdo in node.tpdo.values():
@@ -595,6 +596,15 @@ class VibrationTableServo:
 
     # ---- internals --------------------------------------------------------------------
 
+    def _set_tpdo_event_timers(self) -> None:
+        """The station file's TPDO event timer on every enabled TPDO (CiA 301 0x1800+n sub 5: the master sets the
+        rate it needs), written where the drive's differs."""
+        event_timer_ms = self._cfg.tpdo_event_timer_ms
+        for tpdo in self.node.tpdo.values():
+            if tpdo.enabled and tpdo.event_timer != event_timer_ms:
+                self._sdo_write(tpdo.com_record.od.index, event_timer_ms, subindex=5)
+                tpdo.event_timer = event_timer_ms
+
     def _select_profile_velocity(self) -> None:
         supported = self._sdo_read(0x6502)
         if not supported & SUPPORTED_MODE_PV_BIT:
@@ -731,12 +741,14 @@ class VibrationTableServo:
         return self._fresh(0x6041, self._tpdo.seq(0x6041), "statusword TPDO")[0]
 
     def _fresh(self, index: int, after_seq: int, what: str) -> tuple[int, int, float]:
-        got = self._tpdo.reception(index, after_seq, timeout_s=self._cfg.timeout_s)
+        """The next reception of a TPDO-mapped object: due within one event period, the reply timeout on top."""
+        wait_s = self._cfg.tpdo_event_timer_ms / 1000 + self._cfg.timeout_s
+        got = self._tpdo.reception(index, after_seq, timeout_s=wait_s)
         if got is None:
             self.check()
             raise DeviceTimeout(
                 self.DEVICE,
-                f"no {what} within {self._cfg.timeout_s:g} s",
+                f"no {what} within {wait_s:g} s",
                 field=f"0x{index:04X}",
                 value=None,
                 allowed="cyclic TPDOs",

@@ -410,3 +410,34 @@ def test_event_clock_ramp_takes_its_station_time(interface: str) -> None:
                 emu.stop()
     finally:
         bind_clock(channel, None)
+
+
+def test_the_station_files_tpdo_event_timer_is_written_to_the_drive() -> None:
+    """tpdo_event_timer_ms = 250 in the station file: the driver writes it to both TPDOs at connect (0x1800+n
+    sub 5) and the drive sends each every 250 ms of station time, not every 10 ms (the EDS's). On the
+    discrete-event clock every period is exact: 20 velocity samples in 5 s, two read() samples 250 ms apart."""
+    period_ms = 250
+    clock = EventClock()
+    channel = f"servo-test-{uuid.uuid4().hex[:8]}"
+    bind_clock(channel, clock)
+    cfg = dataclasses.replace(
+        CONFIG.servo, interface="station_sim", channel=channel, timeout_s=TIMEOUT_S, tpdo_event_timer_ms=period_ms
+    )
+    try:
+        with clock.party("test"):
+            emu = ServoEmulator.from_config(cfg, clock)
+            emu.start()
+            servo = VibrationTableServo(cfg, LIMITS, clock)
+            try:
+                servo.open()
+                assert [emu.node.sdo[0x1800 + n][5].raw for n in (0, 1)] == [period_ms, period_ms]
+                before = servo._tpdo.seq(0x606C)
+                clock.sleep_s(5.0)
+                assert servo._tpdo.seq(0x606C) - before == 5000 // period_ms
+                first, second = servo.read(), servo.read()
+                assert second.t_s - first.t_s == pytest.approx(period_ms / 1000, abs=1e-9)
+            finally:
+                servo.close()
+                emu.stop()
+    finally:
+        bind_clock(channel, None)
