@@ -19,6 +19,7 @@ Tolerances and bounds, derived:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -26,6 +27,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import can
 import canopen
@@ -380,36 +382,43 @@ def test_emulator_honours_pdo_parameters_written_by_sdo(make_rig: RigFactory) ->
         rig.servo.open()
 
 
-@pytest.mark.parametrize("interface", ["station_sim"])  # `virtual` hands frames to threads no clock waits for
-def test_event_clock_ramp_takes_its_station_time(interface: str) -> None:
-    """Driver and emulator on a discrete-event clock: the ramp lasts |f| / ramp station seconds, to within
-    one TPDO event period (the statusword that reports it is sampled on the event timer's grid)."""
-    f_hz = 1.5
-    tpdo_period_s = 0.010  # TPDO1 event timer of the EDS
+@contextlib.contextmanager
+def _on_the_event_clock(**servo: Any) -> Iterator[tuple[EventClock, ServoEmulator, VibrationTableServo]]:
+    """Driver and emulator on a discrete-event clock over the station_sim interface (python-can's `virtual`
+    hands frames to threads no clock waits for), the driver open, the caller a party of the clock."""
     clock = EventClock()
     channel = f"servo-test-{uuid.uuid4().hex[:8]}"
     bind_clock(channel, clock)
-    cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=TIMEOUT_S)
+    cfg = dataclasses.replace(CONFIG.servo, interface="station_sim", channel=channel, timeout_s=TIMEOUT_S, **servo)
     try:
         with clock.party("test"):
             emu = ServoEmulator.from_config(cfg, clock)
             emu.start()
-            servo = VibrationTableServo(cfg, LIMITS, clock)
+            servo_driver = VibrationTableServo(cfg, LIMITS, clock)
             try:
-                servo.open()
-                servo.enable()
-                t_cmd_s = clock.now_s()
-                at_speed = servo.set_frequency(f_hz)
-                ramp_s = at_speed.t_s - t_cmd_s
-                ramp_min_s = f_hz / RAMP_HZ_PER_S
-                assert ramp_min_s - 1e-9 <= ramp_s <= ramp_min_s + tpdo_period_s + 1e-9  # float rounding only
-                assert at_speed.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
-                assert emu.state == servo.state == "OPERATION ENABLED"
+                servo_driver.open()
+                yield clock, emu, servo_driver
             finally:
-                servo.close()
+                servo_driver.close()
                 emu.stop()
     finally:
         bind_clock(channel, None)
+
+
+def test_event_clock_ramp_takes_its_station_time() -> None:
+    """Driver and emulator on a discrete-event clock: the ramp lasts |f| / ramp station seconds, to within
+    one TPDO event period (the statusword that reports it is sampled on the event timer's grid)."""
+    f_hz = 1.5
+    tpdo_period_s = CONFIG.servo.tpdo_event_timer_ms / 1000
+    with _on_the_event_clock() as (clock, emu, servo):
+        servo.enable()
+        t_cmd_s = clock.now_s()
+        at_speed = servo.set_frequency(f_hz)
+        ramp_s = at_speed.t_s - t_cmd_s
+        ramp_min_s = f_hz / RAMP_HZ_PER_S
+        assert ramp_min_s - 1e-9 <= ramp_s <= ramp_min_s + tpdo_period_s + 1e-9  # float rounding only
+        assert at_speed.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
+        assert emu.state == servo.state == "OPERATION ENABLED"
 
 
 def test_the_station_files_tpdo_event_timer_is_written_to_the_drive() -> None:
@@ -417,27 +426,10 @@ def test_the_station_files_tpdo_event_timer_is_written_to_the_drive() -> None:
     sub 5) and the drive sends each every 250 ms of station time, not every 10 ms (the EDS's). On the
     discrete-event clock every period is exact: 20 velocity samples in 5 s, two read() samples 250 ms apart."""
     period_ms = 250
-    clock = EventClock()
-    channel = f"servo-test-{uuid.uuid4().hex[:8]}"
-    bind_clock(channel, clock)
-    cfg = dataclasses.replace(
-        CONFIG.servo, interface="station_sim", channel=channel, timeout_s=TIMEOUT_S, tpdo_event_timer_ms=period_ms
-    )
-    try:
-        with clock.party("test"):
-            emu = ServoEmulator.from_config(cfg, clock)
-            emu.start()
-            servo = VibrationTableServo(cfg, LIMITS, clock)
-            try:
-                servo.open()
-                assert [emu.node.sdo[0x1800 + n][5].raw for n in (0, 1)] == [period_ms, period_ms]
-                before = servo._tpdo.seq(0x606C)
-                clock.sleep_s(5.0)
-                assert servo._tpdo.seq(0x606C) - before == 5000 // period_ms
-                first, second = servo.read(), servo.read()
-                assert second.t_s - first.t_s == pytest.approx(period_ms / 1000, abs=1e-9)
-            finally:
-                servo.close()
-                emu.stop()
-    finally:
-        bind_clock(channel, None)
+    with _on_the_event_clock(tpdo_event_timer_ms=period_ms) as (clock, emu, servo):
+        assert [emu.node.sdo[0x1800 + n][5].raw for n in (0, 1)] == [period_ms, period_ms]
+        before = servo._tpdo.seq(0x606C)
+        clock.sleep_s(5.0)
+        assert servo._tpdo.seq(0x606C) - before == 5000 // period_ms
+        first, second = servo.read(), servo.read()
+        assert second.t_s - first.t_s == pytest.approx(period_ms / 1000, abs=1e-9)
