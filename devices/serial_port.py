@@ -263,6 +263,27 @@ def crc16(data: bytes | bytearray | memoryview) -> int:
     return binascii.crc_hqx(data, 0xFFFF)
 
 
+def _crc16_table() -> np.ndarray:
+    table = np.zeros(256, dtype=np.uint16)
+    for byte in range(256):
+        reg = byte << 8
+        for _ in range(8):
+            reg = ((reg << 1) ^ 0x1021) & 0xFFFF if reg & 0x8000 else (reg << 1) & 0xFFFF
+        table[byte] = reg
+    return table
+
+
+CRC16_TABLE = _crc16_table()
+
+
+def crc16_rows(rows: np.ndarray) -> np.ndarray:
+    """crc16 of every row of a (n, k) uint8 array at once (table-driven, one column at a time)."""
+    reg = np.full(len(rows), 0xFFFF, dtype=np.uint16)
+    for column in rows.T:
+        reg = (reg << np.uint16(8)) ^ CRC16_TABLE[(reg >> np.uint16(8)) ^ column]
+    return reg
+
+
 def encode_frame(frame_type: int, payload: bytes = b"") -> bytes:
     """One binary frame (see the module docstring)."""
     if len(payload) > MAX_PAYLOAD:
@@ -339,6 +360,35 @@ class FrameParser:
             return None
         self._resyncing = not isinstance(err, ChecksumError)
         return err
+
+    def peek_run(self, frame_type: int, payload_size: int, max_frames: int, min_frames: int = 1) -> np.ndarray:
+        """The payloads (rows of a uint8 array) of the frames of `frame_type` and `payload_size` that follow
+        at the parser's position back to back, each with its sync, header and a good CRC, at most max_frames;
+        nothing is consumed (consume_run). What next_item would return one by one for them, in bulk. Empty
+        while fewer than min_frames such frames could be buffered (in bulk, a handful costs more than singly)."""
+        frame_len = HEADER.size + payload_size + CRC.size
+        n = min((len(self._buf) - self._pos) // frame_len, max_frames)
+        if n < max(min_frames, 1):
+            return np.empty((0, payload_size), dtype=np.uint8)
+        rows = np.frombuffer(self._buf, dtype=np.uint8, count=n * frame_len, offset=self._pos).reshape(n, frame_len)
+        crc_rx = rows[:, -2].astype(np.uint16) | (rows[:, -1].astype(np.uint16) << np.uint16(8))
+        good = (
+            (rows[:, 0] == SYNC[0])
+            & (rows[:, 1] == SYNC[1])
+            & (rows[:, 2] == frame_type)
+            & (rows[:, 3] == payload_size & 0xFF)
+            & (rows[:, 4] == payload_size >> 8)
+            & (crc16_rows(rows[:, 2:-2]) == crc_rx)
+        )
+        k = n if good.all() else int(np.argmin(good))
+        return rows[:k, HEADER.size : HEADER.size + payload_size].copy()  # a copy: feed() may move the buffer
+
+    def consume_run(self, n_frames: int, payload_size: int) -> None:
+        """Take the first n_frames of a peek_run off the buffer, as next_item would have."""
+        if n_frames > 0:
+            self._pos += n_frames * (HEADER.size + payload_size + CRC.size)
+            self._synced = True
+            self._resyncing = False
 
     def next_item(self) -> Frame | FrameError | None:
         buf = self._buf
@@ -426,6 +476,15 @@ class FramedPort:
         if self._backlog:
             return self._backlog.popleft()
         return self.parser.next_item()
+
+    def peek_run(self, frame_type: int, payload_size: int, max_frames: int, min_frames: int = 1) -> np.ndarray:
+        """FrameParser.peek_run on what poll_item would hand out next (nothing while a backlog waits)."""
+        if self._backlog:
+            return np.empty((0, payload_size), dtype=np.uint8)
+        return self.parser.peek_run(frame_type, payload_size, max_frames, min_frames)
+
+    def consume_run(self, n_frames: int, payload_size: int) -> None:
+        self.parser.consume_run(n_frames, payload_size)
 
     def fill(self, wait_s: float) -> None:
         """Receive what arrives within wait_s (at least waits for one byte)."""

@@ -66,6 +66,8 @@ from devices.grating.protocol import (
     STOP,
     TICKS_PER_CYCLE,
     decode_biss,
+    decode_biss_np,
+    sample_fields,
 )
 from devices.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from station.clock import Clock
@@ -102,6 +104,12 @@ class GratingStats:
     invalid_samples: int = 0  # nE active (signal lost)
     warnings: int = 0  # nW active
     biss_crc_errors: int = 0
+
+
+# Below this many buffered sample frames, parsing them one by one costs less than in bulk, numpy's cost per call
+# (bench/bench_grating_decode.py: in bulk 9.4 against 4.3 us a frame at 20, 5.0 against 4.6 at 40, 2.1 against 4.3
+# at 100, 0.5 against 4.2 at 1000).
+BULK_MIN_FRAMES = 50
 
 
 class GratingReadHead(FramedDevice):
@@ -257,52 +265,71 @@ class GratingReadHead(FramedDevice):
                 lost_here,
             )
 
+        def take(seq16: int, raw: int, pos: int, error: bool, warning: bool, crc_ok: bool) -> DriverError | None:
+            """One sample into the block (or dropped, counted); the error it raises, if any."""
+            nonlocal lost_here
+            if not crc_ok:
+                stats.biss_crc_errors += 1
+                return ChecksumError(DEVICE, f"BiSS CRC-6 mismatch in sample seq {seq16}; sample dropped")
+            ticks = self._unwrap.unwrap_ticks(raw, host_s)
+            lost, err = self._account(seq16, ticks, period_ticks)
+            if lost < 0:
+                return None  # duplicate
+            lost_here += lost
+            if err is None and error:
+                stats.invalid_samples += 1
+                if self._in_signal_loss:
+                    return None
+                self._in_signal_loss = True
+                return self._signal_fault()
+            if err is None:
+                self._in_signal_loss = False
+                seqs.append(self._seq_full)
+                times.append(ticks)
+                zs.append(pos)
+                warns.append(warning)
+                stats.samples += 1
+                stats.warnings += warning
+            return err
+
         while len(seqs) < max_samples:
-            item = fp.poll_item()
-            if item is None:
-                if seqs:
-                    break
-                left_s = deadline_s - self._link_clock.now_s()
-                if left_s <= 0:
-                    if self._in_signal_loss:
-                        raise self._signal_fault()
-                    raise DeviceTimeout(DEVICE, f"no sample within {timeout_s:g} s")
-                fp.fill(left_s)
-                host_s = self._unwrap.clock.now_s()
-                continue
-            err: DriverError | None = None
-            if isinstance(item, FrameError):
-                err = item
-            elif item.type == SAMPLE and len(item.payload) == SAMPLE_PAYLOAD.size:
-                seq16, raw, word_b = unpack(item.payload)
-                pos, error, warning, crc_ok = decode_biss(int.from_bytes(word_b, "big"))
-                if not crc_ok:
-                    stats.biss_crc_errors += 1
-                    err = ChecksumError(DEVICE, f"BiSS CRC-6 mismatch in sample seq {seq16}; sample dropped")
-                else:
-                    ticks = self._unwrap.unwrap_ticks(raw, host_s)
-                    lost, err = self._account(seq16, ticks, period_ticks)
-                    if lost < 0:
-                        continue  # duplicate
-                    lost_here += lost
-                    if err is None and error:
-                        stats.invalid_samples += 1
-                        if self._in_signal_loss:
-                            continue
-                        self._in_signal_loss = True
-                        err = self._signal_fault()
-                    elif err is None:
-                        self._in_signal_loss = False
-                        seqs.append(self._seq_full)
-                        times.append(ticks)
-                        zs.append(pos)
-                        warns.append(warning)
-                        stats.samples += 1
-                        stats.warnings += warning
-            elif item.type == SAMPLE:
-                err = FrameError(DEVICE, f"sample frame of {len(item.payload)} bytes")
+            # Well-formed sample frames back to back (the stream's usual state) are parsed and checked in bulk;
+            # anything else, one item at a time: the same samples and errors in the same order either way.
+            run = fp.peek_run(SAMPLE, SAMPLE_PAYLOAD.size, max_samples - len(seqs), min_frames=BULK_MIN_FRAMES)
+            if len(run):
+                seq16s, raws, words = sample_fields(run)
+                taken = 0
+                err = None
+                for sample in zip(seq16s, raws, *decode_biss_np(words), strict=True):
+                    if len(seqs) >= max_samples:
+                        break
+                    taken += 1
+                    err = take(*sample)
+                    if err is not None:
+                        break
+                fp.consume_run(taken, SAMPLE_PAYLOAD.size)
             else:
-                continue  # a late ACK or STATUS
+                item = fp.poll_item()
+                if item is None:
+                    if seqs:
+                        break
+                    left_s = deadline_s - self._link_clock.now_s()
+                    if left_s <= 0:
+                        if self._in_signal_loss:
+                            raise self._signal_fault()
+                        raise DeviceTimeout(DEVICE, f"no sample within {timeout_s:g} s")
+                    fp.fill(left_s)
+                    host_s = self._unwrap.clock.now_s()
+                    continue
+                if isinstance(item, FrameError):
+                    err = item
+                elif item.type == SAMPLE and len(item.payload) == SAMPLE_PAYLOAD.size:
+                    seq16, raw, word_b = unpack(item.payload)
+                    err = take(seq16, raw, *decode_biss(int.from_bytes(word_b, "big")))
+                elif item.type == SAMPLE:
+                    err = FrameError(DEVICE, f"sample frame of {len(item.payload)} bytes")
+                else:
+                    continue  # a late ACK or STATUS
             if err is not None:
                 if seqs:
                     self._pending = err

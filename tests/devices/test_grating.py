@@ -12,6 +12,8 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from devices.errors import (
     ChecksumError,
@@ -22,6 +24,7 @@ from devices.errors import (
     FrameError,
     LimitError,
 )
+from devices.grating import driver as grating_driver
 from devices.grating import protocol as g
 from devices.grating.driver import GratingReadHead
 from devices.pty_link import Fault
@@ -95,6 +98,58 @@ def _drain(p: FrameParser) -> list[Frame | DriverError]:
     return out
 
 
+def _bulk_then_one_by_one(p: FrameParser, payload_size: int) -> list[Frame | DriverError]:
+    """What the grating driver reads: runs of well-formed frames in bulk (peek_run), the rest by next_item."""
+    out: list[Frame | DriverError] = []
+    while True:
+        run = p.peek_run(0x10, payload_size, max_frames=3)  # short runs: every boundary gets crossed
+        if len(run):
+            out += [Frame(0x10, row.tobytes()) for row in run[:2]]
+            p.consume_run(min(len(run), 2), payload_size)  # take part of what was peeked, as at max_samples
+            continue
+        item = p.next_item()
+        if item is None:
+            return out
+        out.append(item)
+
+
+def _as_compared(items: list[Frame | DriverError]) -> list[object]:
+    return [(i.type, i.payload) if isinstance(i, Frame) else (type(i).__name__, str(i)) for i in items]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.sampled_from(["good", "good", "good", "crc", "cut", "garbage", "other", "long"]), max_size=40),
+       st.integers(1, 64))  # fmt: skip
+def test_bulk_parsing_gives_what_frame_by_frame_parsing_gives(kinds: list[str], chunk: int) -> None:
+    """FrameParser.peek_run / consume_run hand out exactly the frames next_item would, in the same order, and
+    leave every bad stretch (bad CRC, cut frame, garbage, another type or length) to next_item's errors."""
+    stream = b""
+    for i, kind in enumerate(kinds):
+        frame = encode_frame(0x10, bytes([i % 256]) * 12)
+        if kind == "crc":
+            frame = frame[:-1] + bytes([frame[-1] ^ 0x01])
+        elif kind == "cut":
+            frame = frame[:-4]
+        elif kind == "garbage":
+            frame = bytes([0x11, 0x22, 0xA5])
+        elif kind == "other":
+            frame = encode_frame(0x83, bytes([i % 256]) * 12)
+        elif kind == "long":
+            frame = encode_frame(0x10, bytes([i % 256]) * 13)
+        stream += frame
+    one_by_one, bulk = FrameParser("t"), FrameParser("t")
+    expected: list[Frame | DriverError] = []
+    got: list[Frame | DriverError] = []
+    for k in range(0, len(stream), chunk):  # bytes arrive in pieces, as from the line
+        one_by_one.feed(stream[k : k + chunk])
+        bulk.feed(stream[k : k + chunk])
+        expected += _drain(one_by_one)
+        got += _bulk_then_one_by_one(bulk, 12)
+    assert _as_compared(got) == _as_compared(expected)
+    assert (bulk.crc_errors, bulk.frame_errors, bulk.skipped_bytes) == (
+        one_by_one.crc_errors, one_by_one.frame_errors, one_by_one.skipped_bytes)  # fmt: skip
+
+
 def test_parser_roundtrip_byte_by_byte() -> None:
     p = FrameParser("t")
     out: list[Frame | DriverError] = []
@@ -151,7 +206,15 @@ def test_sample_frame_layout() -> None:
 # ---------------------------------------------------------------- driver against emulator
 
 
-def test_streams_world_positions_without_loss(grating_rig) -> None:
+@pytest.fixture(params=["bulk", "one_by_one"])
+def parsing(request, monkeypatch) -> str:
+    """The driver's two ways through the stream (in bulk from one frame on, or never in bulk): every test
+    that takes it must pass both ways, faults included."""
+    monkeypatch.setattr(grating_driver, "BULK_MIN_FRAMES", 1 if request.param == "bulk" else 1 << 62)
+    return request.param
+
+
+def test_streams_world_positions_without_loss(grating_rig, parsing) -> None:
     world, _, head = grating_rig
     head.start_streaming()
     block = head.read_for(2000, timeout_s=2.0)
@@ -196,7 +259,7 @@ def test_samples_iterator(grating_rig) -> None:
     assert not any(x.warning for x in s)
 
 
-def test_session_of_streaming_loses_no_sample(grating_rig) -> None:
+def test_session_of_streaming_loses_no_sample(grating_rig, parsing) -> None:
     """40 000 frames (8 s at 5 kHz) through the line: every seq and time stamp present."""
     _, emu, head = grating_rig
     head.start_streaming()
@@ -249,7 +312,7 @@ def _read_until_error(head: GratingReadHead, limit: int = 50) -> DriverError:
     ("fault", "error"),
     [(Fault.CRC_ERROR, ChecksumError), (Fault.GARBLE, FrameError), (Fault.TRUNCATE, FrameError)],
 )
-def test_damaged_frame_raises_then_stream_continues(grating_rig, fault, error) -> None:
+def test_damaged_frame_raises_then_stream_continues(grating_rig, parsing, fault, error) -> None:
     _, emu, head = grating_rig
     head.start_streaming()
     head.read_for(100)
@@ -262,7 +325,7 @@ def test_damaged_frame_raises_then_stream_continues(grating_rig, fault, error) -
     assert np.all(np.diff(after.seq) == 1)
 
 
-def test_signal_loss_raises_device_fault_until_it_clears(grating_rig) -> None:
+def test_signal_loss_raises_device_fault_until_it_clears(grating_rig, parsing) -> None:
     _, emu, head = grating_rig
     head.start_streaming()
     head.read_for(100)
