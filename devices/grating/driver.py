@@ -300,9 +300,7 @@ class GratingReadHead(FramedDevice):
                 seq16s, raws, words = sample_fields(run)
                 taken = 0
                 err = None
-                for sample in zip(seq16s, raws, *decode_biss_np(words), strict=True):
-                    if len(seqs) >= max_samples:
-                        break
+                for sample in zip(seq16s, raws, *decode_biss_np(words), strict=True):  # at most max_samples
                     taken += 1
                     err = take(*sample)
                     if err is not None:

@@ -72,11 +72,15 @@ def biss_words_np(position: np.ndarray, n_error: np.ndarray, n_warning: np.ndarr
         | (n_error.astype(np.uint64) << 1)
         | n_warning.astype(np.uint64)
     )
+    return (data << np.uint64(6)) | _biss_crc6_np(data).astype(np.uint64)
+
+
+def _biss_crc6_np(data: np.ndarray) -> np.ndarray:
+    """biss_crc6 of every 38-bit data field of a uint64 array (5 bytes, MSB first)."""
     reg = np.zeros(data.shape, dtype=np.uint8)
-    for shift in (32, 24, 16, 8, 0):  # 5 bytes, MSB first
+    for shift in (32, 24, 16, 8, 0):
         reg = CRC6_TABLE_NP[reg ^ ((data >> np.uint64(shift)) & np.uint64(0xFF)).astype(np.uint8)]
-    crc = (~(reg >> 2)) & 0x3F
-    return (data << np.uint64(6)) | crc.astype(np.uint64)
+    return (~(reg >> 2)) & 0x3F
 
 
 def decode_biss(word: int) -> tuple[int, bool, bool, bool]:
@@ -93,10 +97,7 @@ def decode_biss_np(words: np.ndarray) -> tuple[list[int], list[bool], list[bool]
     """decode_biss of every word of a uint64 array at once, as Python values (position, error, warning,
     crc_ok), each equal to what decode_biss gives for that word."""
     data = words >> np.uint64(6)
-    reg = np.zeros(data.shape, dtype=np.uint8)
-    for shift in (32, 24, 16, 8, 0):  # the 38 data bits in 5 bytes, MSB first (biss_crc6)
-        reg = CRC6_TABLE_NP[reg ^ ((data >> np.uint64(shift)) & np.uint64(0xFF)).astype(np.uint8)]
-    crc_ok = ((~(reg >> 2)) & 0x3F) == (words & np.uint64(0x3F))
+    crc_ok = _biss_crc6_np(data) == (words & np.uint64(0x3F))
     pos = (data >> np.uint64(2)).astype(np.int64)
     pos = np.where(pos & (1 << (POSITION_BITS - 1)), pos - (1 << POSITION_BITS), pos)
     error = ((data >> np.uint64(1)) & np.uint64(1)) == 0
