@@ -12,20 +12,35 @@ repeated 4 times = 640 points (160 distinct position x frequency cases), 64 posi
 640 points all distinct; and the 40-point seed-000 design. CPU seconds are the figure to quote
 on a shared machine (wall time includes other processes' load).
 
+`--cli` times `station gap SESSION --json OUT` as a user runs it, start-up included (a child process: its user +
+system CPU from getrusage), on tests/indep's 640-point null sessions (64 equal-angle positions x 9 frequencies
+with non-integer ones + static, windows to an hour; seed 700 without raw records or stated noise, 701 with both),
+median of three runs each, in the caller's environment (BLAS threads as the user has them); `--code DIR` runs
+the code of another checkout (the figure before a change).
+
     .venv/bin/python bench/bench_gap.py [--sizes-only]
+    .venv/bin/python bench/bench_gap.py --cli [--code /path/to/other/checkout]
 """
 
 from __future__ import annotations
 
 import os
 
+USER_ENV = dict(os.environ)  # what `station gap` runs with (--cli): BLAS threads as the user has them
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import json  # noqa: E402
 import platform  # noqa: E402
+import resource  # noqa: E402
 import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 REPEATS = 5
 CASES = (("null", None), ("effect", "cross_coupling"), ("out_of_library", "bias_step"))
@@ -57,9 +72,54 @@ def size_sessions(twin):
         yield label, simulate_session(plan, twin, 5)
 
 
-def main() -> None:
-    import sys
+CLI_SEEDS = (700, 701)
+CLI_FREQS_HZ = (1.0, 2.0, 3.5, 4.0, 5.25, 6.0, 7.5, 8.0, 10.0)
 
+
+def _write_640(seed: int, where: Path) -> None:
+    """tests/indep's 640-point null of bench_gap_indep --large-nulls (seed odd: raw records and noise stated)."""
+    import numpy as np
+
+    sys.path.append(str(ROOT / "tests"))
+    from indep.generator import Truth, equal_angle_design, random_coefficients, random_noise, write_session
+
+    rng = np.random.default_rng([seed, 64])
+    design = equal_angle_design(64, CLI_FREQS_HZ, window_revs=20, max_window_s=3600.0)
+    truth = Truth(random_coefficients(rng), noise=random_noise(rng))
+    write_session(where, design, truth, rng, raw=bool(seed % 2), state_noise=bool(seed % 2))
+
+
+def _child_cpu_s(cmd: list[str], env: dict, cwd: Path) -> tuple[float, float]:
+    """User + system CPU seconds of one child process run to its end, and its wall time."""
+    before, w = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    subprocess.run(cmd, env=env, cwd=cwd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, time.perf_counter() - w
+
+
+def cli_runs(code: Path, repeats: int = 3) -> None:
+    """`station gap` on the 640-point nulls, start-up included, with the code of checkout `code`."""
+    env = dict(USER_ENV, PYTHONPATH=str(code))
+    with tempfile.TemporaryDirectory(prefix="bench_gap_cli_") as tmp:
+        for seed in CLI_SEEDS:
+            session = Path(tmp) / f"s{seed}"
+            _write_640(seed, session)
+            out = Path(tmp) / f"r{seed}.json"
+            cmd = [sys.executable, "-m", "app.cli", "gap", str(session), "--json", str(out)]
+            runs = [_child_cpu_s(cmd, env, code) for _ in range(repeats)]  # python -m: the cwd comes first
+            verdict = json.loads(out.read_text())["verdict"]
+            row = {"seed": seed, "points": 640, "code": str(code), "verdict": verdict}
+            row["cpu_s"] = [round(c, 2) for c, _ in runs]
+            row["median_cpu_s"] = round(statistics.median(c for c, _ in runs), 2)
+            row["median_wall_s"] = round(statistics.median(w for _, w in runs), 2)
+            print(json.dumps(row), flush=True)
+
+
+def main() -> None:
+    if "--cli" in sys.argv:
+        code = Path(sys.argv[sys.argv.index("--code") + 1]) if "--code" in sys.argv else ROOT
+        cli_runs(code.resolve())
+        return
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     from gap.api import diagnose

@@ -570,17 +570,23 @@ def load_session(path_or_uid: str, db: str | None = None) -> Session:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`station gap`: 0 on success (whatever the verdict), 2 on bad input."""
+    """`station gap`: 0 on success (whatever the verdict), 2 on bad input.
+
+    One BLAS thread: the diagnosis's matrices (points x tens of columns) gain no time from more, and their
+    spin-waits cost CPU (a 640-point session: 1.5 s of 10, BENCHMARKS.md "Speed")."""
     args = build_parser().parse_args(argv)
+    from threadpoolctl import threadpool_limits
+
     from station.interchange import SessionFormatError
     from station.store import StoreError
 
     try:
         twin = TwinConfig.from_toml(args.twin) if args.twin else default_twin()
         session = load_session(args.session, args.db)
-        report = diagnose(
-            session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
-        )
+        with threadpool_limits(limits=1):
+            report = diagnose(
+                session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
+            )
     except (GapInputError, SessionFormatError, TwinConfigError, StoreError, ValueError, FileNotFoundError) as exc:
         print(f"station gap: error: {exc}", file=sys.stderr)
         return 2

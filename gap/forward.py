@@ -32,7 +32,7 @@ import numpy as np
 from gap.design import PointDesign
 from models.config import TwinConfig
 from models.inputs import instrument_inputs, instrument_rate_radps
-from models.precession import N_PHASES, PeriodicRate
+from models.precession import N_PHASES
 
 CALIBRATED: tuple[str, ...] = ("kz", "kzz", "ky", "k3")
 
@@ -105,27 +105,43 @@ def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray)
     return rate, period_identity_s(design, cfg)
 
 
-def fourier_window_mean(rate: PeriodicRate, w_radps: float, gamma0_rad: np.ndarray, Tm_s: np.ndarray) -> np.ndarray:
-    """phi(Tm) / Tm of windows sharing one rate series, for arrays of opening phases and lengths.
+def _series(samples_at_phases: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """c0, alpha_k, beta_k (k = 1 .. N/2 - 1) of rates sampled at N equal crank phases (last axis), as
+    models.precession.PeriodicRate.from_samples, for many series at once: rate = c0 + sum_k alpha_k cos k psi
+    + beta_k sin k psi; a harmonic that from_samples drops (|coef| <= 1e-17 |c0|) is zero here."""
+    n = samples_at_phases.shape[-1]
+    spectrum = np.fft.rfft(samples_at_phases, axis=-1) / n
+    c0 = spectrum[..., 0].real
+    coef = spectrum[..., 1 : n // 2]
+    keep = np.abs(coef) > 1e-17 * np.maximum(np.abs(c0), 1e-30)[..., None]
+    return c0, np.where(keep, 2.0 * coef.real, 0.0), np.where(keep, -2.0 * coef.imag, 0.0)
 
-    The closed form of models.precession.PrecessionWindow.phi_rad (its module docstring), vectorised
-    over windows: phi = c0 Tm + sum_k [alpha_k (sin k psi_T - sin k gamma0) + beta_k (cos k gamma0 - cos k psi_T)]
-    / (k w), psi_T = w Tm + gamma0."""
-    if not rate.k.size:
-        return np.full(np.shape(Tm_s), rate.c0_radps)
-    k = rate.k.astype(float)
+
+def _vibration_means(series, key: np.ndarray, w_radps: np.ndarray, gamma0_rad: np.ndarray, Tm_s: np.ndarray):
+    """phi(Tm) / Tm of every window (rows) for every output, each window on the series of its key.
+
+    The closed form of models.precession.PrecessionWindow.phi_rad (its module docstring), vectorised over
+    windows and outputs: phi = c0 Tm + sum_k [alpha_k (sin k psi_T - sin k gamma0) + beta_k (cos k gamma0 -
+    cos k psi_T)] / (k w), psi_T = w Tm + gamma0; the phases are shared by the outputs of a window."""
+    c0, alpha, beta = series  # (keys, outputs), (keys, outputs, K)
+    k = np.arange(1, alpha.shape[-1] + 1, dtype=float)
     kg = np.multiply.outer(gamma0_rad, k)
     kT = np.multiply.outer(w_radps * Tm_s + gamma0_rad, k)
-    per = (rate.alpha * (np.sin(kT) - np.sin(kg)) + rate.beta * (np.cos(kg) - np.cos(kT))) / (k * w_radps)
-    return rate.c0_radps + per.sum(axis=-1) / Tm_s
+    scale = 1.0 / np.multiply.outer(w_radps, k)
+    s = (np.sin(kT) - np.sin(kg)) * scale
+    c = (np.cos(kg) - np.cos(kT)) * scale
+    per = np.einsum("ick,ik->ic", alpha[key], s) + np.einsum("ick,ik->ic", beta[key], c)
+    return c0[key] + per / Tm_s[:, None]
 
 
 def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> np.ndarray:
     """Window means of every point (points x n_out) of the rates that samples(theta, psi, w) returns.
 
     Static points: the crank rests at psi = 0 (physics.md). Vibration points that share a position and
-    frequency share one Fourier series per output (the costly part); frequency and latency come from cfg:
-    gamma0 = -w_true (t1 - delta), the read head stamps the crossing of psi = 0 delta late (physics.md).
+    frequency share one Fourier series per output (sampled once per position and frequency; the series of
+    every case from one FFT, the window means of every point at once, _vibration_means); frequency and
+    latency come from cfg: gamma0 = -w_true (t1 - delta), the read head stamps the crossing of psi = 0 delta
+    late (physics.md).
     """
     out = np.empty((design.n_points, n_out))
     zero = np.zeros(1)
@@ -133,17 +149,19 @@ def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> 
         rows = samples(float(theta), zero, 0.0)
         at = (design.pos_index == j) & ~design.vib
         out[at] = [float(np.ravel(r)[0]) for r in rows]
-    f_true = design.freq_hz * (1.0 + cfg.param("frequency_error", "eps_f"))
+    vib = np.flatnonzero(design.vib)
+    if not vib.size:
+        return out
+    f_true = design.freq_hz[vib] * (1.0 + cfg.param("frequency_error", "eps_f"))
     latency_s = cfg.param("readhead_latency", "delta")
     psi = 2.0 * np.pi * np.arange(N_PHASES) / N_PHASES
-    vib = np.flatnonzero(design.vib)
-    keys = np.column_stack([design.pos_index[vib], f_true[vib]])
-    for key in np.unique(keys, axis=0):
-        j, f = int(key[0]), float(key[1])
-        idx = vib[(design.pos_index[vib] == j) & (f_true[vib] == f)]
-        w = 2.0 * math.pi * f
-        gamma0 = -w * (design.t1_s[idx] - latency_s)
-        for c, r in enumerate(samples(float(design.position_rad[j]), psi, w)):
-            series = PeriodicRate.from_samples(np.broadcast_to(np.asarray(r, dtype=float), psi.shape).copy())
-            out[idx, c] = fourier_window_mean(series, w, gamma0, design.Tm_s[idx])
+    keys, key = np.unique(np.column_stack([design.pos_index[vib], f_true]), axis=0, return_inverse=True)
+    stacked = np.empty((len(keys), n_out, N_PHASES))
+    for m, (j, f) in enumerate(keys):
+        rows = samples(float(design.position_rad[int(j)]), psi, 2.0 * math.pi * float(f))
+        for c, r in enumerate(rows):
+            stacked[m, c] = np.broadcast_to(np.asarray(r, dtype=float), psi.shape)
+    w = 2.0 * math.pi * f_true
+    gamma0 = -w * (design.t1_s[vib] - latency_s)
+    out[vib] = _vibration_means(_series(stacked), np.ravel(key), w, gamma0, design.Tm_s[vib])
     return out
