@@ -222,11 +222,16 @@ def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
     The prediction's uncertainty is carried in: G Cov G^T with G = d(harmonics)/d(K, effect parameters) by
     forward differences (linear in K; the effects' own fd steps), Cov the fit's covariance of K and a prior as
     wide as its plausible bound for each effect parameter (linearised at the fitted values); the parameters only
-    the pulses see (above) are profiled, one dof each."""
+    the pulses see (above) are profiled, one dof each. The rate noise may be white (physics.md: the window mean
+    of a rate that averages down as 1/sqrt(Tm)); integrated, it is a random walk of the angle at the edges.
+    Its density D is what each record's scatter beyond its stamps' implies (PulseFit), at most var(wbar) Tm
+    (all of the window's rate variance, stated or estimated, white): its covariance enters as well
+    (PulseRecord.covariance), so the test holds whichever form the noise has."""
     pulses = ch.pulses
     if pulses is None:
         return None
     d = ch.design
+    walk_D = np.minimum(pulses.walk_density, ch.sigma0_radps**2 / ch.weights[pulses.index] * d.Tm_s[pulses.index])
     chosen = {fp.effect for fp in fit.free}
     tilt = "parasitic_rotation" in chosen and "mount_misalignment" not in chosen
     n_nuisance = int(tilt) + int("lateral_resonance" in chosen)
@@ -260,7 +265,7 @@ def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
         if tilt:
             cfg_h = cl.apply(cfg, [tilt_fp], [tilt_fp.fd_step], {})
             cols.append((pulses.predict(d, cfg_h) - p0) / tilt_fp.fd_step)
-        return pulses.chi2(d, cfg, np.column_stack(cols), cov)
+        return pulses.chi2(d, cfg, np.column_stack(cols), cov, walk_D)
 
     cfg = fit.refitted_cfg()
     if "lateral_resonance" in chosen:

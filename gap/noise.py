@@ -2,7 +2,8 @@
 
 Stated noise (session.json, physics.md): `instrument_repeatability_radps` is one
 sigma of every window's mean rate whatever its length; `timing.timing_sigma_s`
-and `timing.timer_resolution_s` give each stamp's sd sqrt(sigma^2 + res^2 / 12);
+and `timing.timer_resolution_s` give each stamp's sd sqrt(sigma^2 + res^2 / 12) (the twin's tick
+where the resolution is not stated);
 `grating.noise_m` each grating sample's. Stated values are used as known
 (chi-square tests of each channel); nothing else is ever taken as a noise level.
 
@@ -79,13 +80,14 @@ class StatedNoise:
             get(grating, "noise_m", "grating.noise_m"),
         )
 
-    @property
-    def stamp_sd_s(self) -> float | None:
-        """sd of one stamp, jitter and quantisation: sqrt(sigma^2 + res^2 / 12); None unless the jitter is stated."""
+    def stamp_sd_s(self, default_tick_s: float) -> float | None:
+        """sd of one stamp, jitter and quantisation: sqrt(sigma^2 + q^2 / 12) (a uniform rounding error of
+        quantum q), q the stated resolution, else default_tick_s: a session that states its jitter but not its
+        resolution is still counted in the counter's ticks (physics.md: 50 ns). None unless the jitter is stated."""
         if self.timing_sigma_s is None:
             return None
-        res = self.timer_resolution_s or 0.0
-        return math.sqrt(self.timing_sigma_s**2 + res * res / 12.0)
+        q = self.timer_resolution_s if self.timer_resolution_s is not None else default_tick_s
+        return math.sqrt(self.timing_sigma_s**2 + q * q / 12.0)
 
     def to_json(self) -> dict:
         return {
@@ -138,8 +140,9 @@ def timing_noise(design: PointDesign, twin: TwinConfig, stated: StatedNoise | No
     # tau = Np T_cmd (1 / (1 + eps) - 1) = span * x, linear in x.
     x = float(span @ tau / (span @ span)) if span.size else 0.0
     eps = 1.0 / (1.0 + x) - 1.0
-    if stated.stamp_sd_s is not None:
-        return TimingNoise(max(math.sqrt(2.0) * stated.stamp_sd_s, 1e-15), 0, floor, eps, True)
+    stamp_sd = stated.stamp_sd_s(tick)
+    if stamp_sd is not None:
+        return TimingNoise(max(math.sqrt(2.0) * stamp_sd, 1e-15), 0, floor, eps, True)
     dof = int(v.sum()) - 1
     if dof < 1:
         return TimingNoise(floor, 0, floor, eps)

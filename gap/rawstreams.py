@@ -279,37 +279,87 @@ def _pulse_directions(raw, design: PointDesign, i: int, cfg: TwinConfig) -> np.n
 
 def _pulse_fit(raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, sd_stamp_s: float):
     """Rate harmonics (sin, cos per j) and their se from the precession angle at every pulse edge."""
-    meas, se = _pulse_lsq(raw, dirs, w, t1, pulses_per_rev)
-    return meas, np.hypot(se, _phase_se(meas, w, sd_stamp_s))
+    fit = _pulse_lsq(raw, dirs, w, t1, pulses_per_rev)
+    return fit.meas, np.hypot(fit.se, _phase_se(fit.meas, w, sd_stamp_s))
+
+
+# Below this fraction of its rms the rate is not trusted to weight an edge (the turning points of a reversing rate).
+RATE_WEIGHT_FLOOR = 0.01
+
+
+def _fitted_rate(coef: np.ndarray, w: float, psi: np.ndarray) -> np.ndarray:
+    """d phi / dt of phi0 + c0 t + sum_j (A_j sin j psi + B_j cos j psi) (the columns of _design with a line)."""
+    return coef[1] + sum(
+        j * w * (coef[2 * k + 2] * np.cos(j * psi) - coef[2 * k + 3] * np.sin(j * psi)) for k, j in enumerate(HARMONICS)
+    )
+
+
+def _walk_cov(Aw: np.ndarray, sd: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, float]:
+    """What a random walk of the angle does to the weighted least squares (Aw = A / sd), per unit diffusion D
+    (rad^2/s): white rate noise of two-sided density D integrates into phi(t) a walk with cov(W(t_i), W(t_j)) =
+    D K_ij, K_ij = min(t_i, t_j) - t_0 (t_0 the first edge: the constant column takes W(t_0)).
+    Returns the coefficients' covariance P M^T K M P (M = Aw / sd, P = (Aw^T Aw)^-1; M^T K M = sum_k (t_k -
+    t_k-1) C_k C_k^T, C_k = sum_{i >= k} M_i, edges in time order) and the expected weighted residual sum of
+    squares E[rss] = tr((I - H) S^-1 K S^-1) = sum_i K_ii / sd_i^2 - tr(P M^T K M) (H the hat matrix, S = diag sd)."""
+    P = np.linalg.pinv(Aw.T @ Aw)
+    C = np.cumsum((Aw / sd[:, None])[::-1], axis=0)[::-1][1:]
+    H = (C * np.diff(t)[:, None]).T @ C
+    rss_per_D = float(np.sum((t - t[0]) / sd**2)) - float(np.trace(P @ H))
+    return P @ H @ P, max(rss_per_D, 1e-300)
+
+
+@dataclass(frozen=True)
+class PulseFit:
+    """One record's rate harmonics (_pulse_lsq): values, se, the random walk's covariance per unit D, and the
+    walk's density D that the edges' scatter beyond the stamps' own implies (0 when it implies none)."""
+
+    meas: np.ndarray
+    se: np.ndarray
+    walk_unit: np.ndarray
+    walk_density: float
 
 
 def _pulse_lsq(
-    raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, tick_s: float = 0.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rate harmonics (sin, cos per j) in the phase w (t - t1) and the least-squares se (no phase error); the
-    angle's scatter is taken at least |rate| tick / sqrt(12) (rms over the edges, PulseRecord.from_session)."""
+    raw, dirs: np.ndarray, w: float, t1: float, pulses_per_rev: int, tick_s: float = 0.0, sd_stamp_s: float = 0.0
+) -> PulseFit:
+    """Rate harmonics (sin, cos per j) in the phase w (t - t1), their least-squares se (no phase error) and
+    what a random walk of the angle adds to them (_walk_cov).
+
+    An edge's stamp error e_i (jitter and the counter's quantum, independent from edge to edge) puts the angle
+    at it off by rate(t_i) e_i: the angle's variance is rate(t_i)^2 var(e), not a constant (a rate that swings
+    by its own size makes ordinary least squares' se wrong by factors of 0.4-2 per harmonic). So the fit is
+    weighted least squares (Aitken) with weights 1 / rate(t_i)^2 from an ordinary first pass, and the se come
+    from the weighted residual scatter, i.e. the stamps' sd in seconds, taken at least tick / sqrt(12) (a
+    record whose stamps carry no jitter scatters by its rounding alone). The weighted rss beyond (n - p)
+    sd_stamp^2 (a stamp's sd, stated or from the period identities) gives the walk's density by moments,
+    D = excess / E[rss per unit D]; none when sd_stamp_s is 0."""
     # The level an edge crosses: the up/down count after it, plus one after a down edge (a
     # down-crossing of level k leaves the count at k - 1); the count alone would add a
     # half-pulse square wave in step with the rate's sign, i.e. spurious odd harmonics.
     levels = np.cumsum(dirs) + (dirs < 0)
     s = _stride(raw.pulse_t.size)
     t = raw.pulse_t[s]
-    A, y = _design(w * (t - t1), with_line=t), levels[s] * (2 * math.pi / pulses_per_rev)
-    coef, se = _lsq(A, y)
-    if tick_s > 0:
-        psi = w * (t - t1)
-        rate = coef[1] + sum(
-            j * w * (coef[2 * k + 2] * np.cos(j * psi) - coef[2 * k + 3] * np.sin(j * psi))
-            for k, j in enumerate(HARMONICS)
-        )
-        floor = math.sqrt(float(np.mean(rate**2))) * tick_s / math.sqrt(12.0)
-        scatter = math.sqrt(float(np.sum((y - A @ coef) ** 2)) / max(y.size - A.shape[1], 1))
-        if scatter < floor:
-            se = se * (floor / max(scatter, 1e-300))
+    psi = w * (t - t1)
+    A, y = _design(psi, with_line=t), levels[s] * (2 * math.pi / pulses_per_rev)
+    coef, _ = _lsq(A, y)
+    rate = np.abs(_fitted_rate(coef, w, psi))
+    sd = np.maximum(rate, RATE_WEIGHT_FLOOR * math.sqrt(float(np.mean(rate**2))))
+    Aw, yw = A / sd[:, None], y / sd
+    coef, se = _lsq(Aw, yw)
+    dof = max(y.size - A.shape[1], 1)
+    rss = float(np.sum((yw - Aw @ coef) ** 2))
+    floor = tick_s / math.sqrt(12.0)
+    if math.sqrt(rss / dof) < floor:
+        se = se * (floor / max(math.sqrt(rss / dof), 1e-300))
+    walk_coef, rss_per_D = _walk_cov(Aw, sd, t)
+    density = max(rss - dof * max(sd_stamp_s, floor) ** 2, 0.0) / rss_per_D if sd_stamp_s > 0 else 0.0
     # phi = A sin + B cos  ->  rate = j w (A cos - B sin): sin part -j w B, cos part j w A
     jw = np.repeat([j * w for j in HARMONICS], 2)
-    meas = jw * np.column_stack([-coef[3::2], coef[2::2]]).ravel()
-    return meas, jw * np.column_stack([se[3::2], se[2::2]]).ravel()
+    to_rate = np.zeros((jw.size, coef.size))  # d meas / d coef
+    to_rate[0::2, 3::2] = -np.diag(jw[0::2])
+    to_rate[1::2, 2::2] = np.diag(jw[1::2])
+    return PulseFit(to_rate @ coef, np.sqrt(np.diag(to_rate @ np.diag(se**2) @ to_rate.T)),
+                    to_rate @ walk_coef @ to_rate.T, density)  # fmt: skip
 
 
 def _pulse_prediction(design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray:
@@ -343,7 +393,9 @@ class PulseRecord:
     measured[k] = (S1, C1, S2, C2, S3, C3), the rate's harmonics (rad/s) at point index[k] in the apparent crank
     phase w_m (t - t_ref) (t_ref as for the grating: t1, or the mean of the reference stamps, _reference_phase);
     se their least-squares standard errors (the edges' scatter about the fitted precession angle);
-    sd_phase_rad = w_m sd(t_ref), the phase error that a record's harmonics share (harmonic j turned by j e).
+    sd_phase_rad = w_m sd(t_ref), the phase error that a record's harmonics share (harmonic j turned by j e);
+    walk_unit the covariance per unit D that a random walk of the precession angle adds (white rate noise, which
+    physics.md allows beside a per-window error: its density D is given to `chi2`).
     Records whose up/down count cannot be rebuilt (no pulse_dir and a rate that reverses) are left out.
     The twin's prediction depends on the refitted coefficients and effects: its uncertainty enters the test
     (`chi2`) through their covariance, so the pulses need not be in the fit (they are independent of its rows).
@@ -354,6 +406,8 @@ class PulseRecord:
     measured: np.ndarray  # (records, 6)
     se: np.ndarray  # (records, 6)
     sd_phase_rad: np.ndarray  # (records,)
+    walk_unit: np.ndarray  # (records, 6, 6), per unit D (rad^2/s)
+    walk_density: np.ndarray  # (records,), D that each record's scatter beyond its stamps' implies (PulseFit)
 
     @property
     def n_rows(self) -> int:
@@ -366,7 +420,7 @@ class PulseRecord:
         """tick_s: the counter's quantum; every edge is a stamped event, so no edge is timed finer than
         tick / sqrt(12) and the precession angle at it no finer than |rate| tick / sqrt(12) (a floor on the
         edges' scatter, which alone can fall to rounding where a record's stamps carry no jitter)."""
-        idx, ws, meas, ses, sds = [], [], [], [], []
+        idx, ws, sds, fits = [], [], [], []
         for i, pid in enumerate(design.point_ids):
             raw = session.raw.get(pid)
             if raw is None or not design.vib[i] or raw.pulse_t.size <= 20:
@@ -376,34 +430,39 @@ class PulseRecord:
                 continue
             w = _apparent_w(design, i)
             t_ref, sd_ref = _reference_phase(raw.reference_t, design.t1_s[i], w, sd_stamp_s)
-            m, se = _pulse_lsq(raw, dirs, w, t_ref, session.station.pulses_per_rev, tick_s)
+            fits.append(_pulse_lsq(raw, dirs, w, t_ref, session.station.pulses_per_rev, tick_s, sd_stamp_s))
             idx.append(i)
             ws.append(w)
-            meas.append(m)
-            ses.append(np.maximum(se, 1e-300))
             sds.append(w * sd_ref)
         if not idx:
             return None
-        return cls(np.array(idx), np.array(ws), np.array(meas), np.array(ses), np.array(sds))
+        meas, ses = np.array([f.meas for f in fits]), np.maximum(np.array([f.se for f in fits]), 1e-300)
+        walks, density = np.array([f.walk_unit for f in fits]), np.array([f.walk_density for f in fits])
+        return cls(np.array(idx), np.array(ws), meas, ses, np.array(sds), walks, density)
 
     def predict(self, design: PointDesign, cfg: TwinConfig) -> np.ndarray:
         """The twin's rate harmonics at every record (periodic_rate, latency-rotated), record-major."""
         return np.concatenate([_pulse_prediction(design, int(i), cfg) for i in self.index])
 
-    def covariance(self) -> np.ndarray:
-        """Of the measured harmonics: diag(se^2) plus each record's shared phase error (d/de of a turn by j e)."""
+    def covariance(self, walk_D: np.ndarray | None = None) -> np.ndarray:
+        """Of the measured harmonics: diag(se^2), each record's shared phase error (d/de of a turn by j e) and
+        the random walk of its angle at density walk_D[k] (rad^2/s; none when None)."""
         n = self.measured.shape[1]
         C = np.diag(self.se.ravel() ** 2)
         j = np.repeat(np.array(HARMONICS, dtype=float), 2)
+        D = np.zeros(len(self.index)) if walk_D is None else walk_D
         for k, (m, sd) in enumerate(zip(self.measured, self.sd_phase_rad, strict=True)):
             g = j * np.column_stack([-m[1::2], m[0::2]]).ravel()  # (S, C) -> (S - j e C, C + j e S)
-            C[k * n : (k + 1) * n, k * n : (k + 1) * n] += sd * sd * np.outer(g, g)
+            C[k * n : (k + 1) * n, k * n : (k + 1) * n] += sd * sd * np.outer(g, g) + D[k] * self.walk_unit[k]
         return C
 
-    def chi2(self, design: PointDesign, cfg: TwinConfig, G: np.ndarray, cov_params: np.ndarray) -> float:
-        """r^T (C_meas + G Cov G^T)^-1 r of r = measured - predicted, G = d(prediction)/d(fitted parameters)."""
+    def chi2(
+        self, design: PointDesign, cfg: TwinConfig, G: np.ndarray, cov_params: np.ndarray, walk_D: np.ndarray
+    ) -> float:
+        """r^T (C_meas + G Cov G^T)^-1 r of r = measured - predicted, G = d(prediction)/d(fitted parameters);
+        walk_D the density of white rate noise at each record (covariance)."""
         r = self.measured.ravel() - self.predict(design, cfg)
-        C = self.covariance() + G @ cov_params @ G.T
+        C = self.covariance(walk_D) + G @ cov_params @ G.T
         return float(r @ np.linalg.solve(C, r))
 
 

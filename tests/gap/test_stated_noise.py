@@ -41,8 +41,15 @@ def test_a_bad_stated_noise_is_refused_naming_key_and_value(meta, message):
 
 def test_stated_timing_gives_the_stamp_sd_from_jitter_and_resolution():
     st = StatedNoise.from_meta({"timing": {"timing_sigma_s": 1e-7, "timer_resolution_s": 5e-8}})
-    assert st.stamp_sd_s == pytest.approx(math.sqrt(1e-14 + 25e-16 / 12.0), rel=1e-12)
-    assert StatedNoise.from_meta({}).stamp_sd_s is None
+    assert st.stamp_sd_s(1e-9) == pytest.approx(math.sqrt(1e-14 + 25e-16 / 12.0), rel=1e-12)
+    assert StatedNoise.from_meta({}).stamp_sd_s(5e-8) is None
+
+
+def test_a_stated_jitter_without_its_resolution_still_counts_the_ticks_quantum():
+    """Stamps counted in 50 ns ticks carry a uniform rounding error of variance q^2 / 12 whether or not the
+    session states q: with a jitter of 2e-8 s it is a third of the stamp's variance (4e-16 + 2.08e-16 s^2)."""
+    st = StatedNoise.from_meta({"timing": {"timing_sigma_s": 2e-8}})
+    assert st.stamp_sd_s(5e-8) == pytest.approx(math.sqrt(4e-16 + 25e-16 / 12.0), rel=1e-12)
 
 
 def test_the_true_stated_noise_is_used_and_a_null_session_has_no_gap(seed000_session, twin):
