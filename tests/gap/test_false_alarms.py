@@ -54,20 +54,23 @@ def _edges(rng: np.random.Generator, diffusion: float, jitter_s: float) -> np.nd
     return np.sort(np.floor((t + rng.normal(0.0, jitter_s, t.size)) / TICK_S) * TICK_S)
 
 
-def _pulse_chi2_per_dof(diffusion: float, jitter_s: float, seed: int) -> tuple[float, float]:
-    """Mean over REPS records of (harmonic - its mean over the records)^2 / variance the test assumes (the se
-    and the walk's covariance at the density the record implies), and the median of that density."""
+def pulse_chi2_per_dof(diffusion: float, jitter_s: float, seed: int, reps: int = REPS) -> tuple[float, float, float]:
+    """Mean over `reps` records of (harmonic - its mean over the records)^2 / the variance the test assumes (the se
+    and the walk's covariance at the density the record implies); the same without the walk's term; and the
+    median of that density."""
     rng = np.random.default_rng(seed)
     sd_stamp = math.sqrt(jitter_s**2 + TICK_S**2 / 12.0)
     fits = []
-    for _ in range(REPS):
+    for _ in range(reps):
         t = _edges(rng, diffusion, jitter_s)
         fits.append(_pulse_lsq(SimpleNamespace(pulse_t=t), np.ones(t.size, int), 2 * math.pi * 5.0, 0.0,
                                PULSES_PER_REV, TICK_S, sd_stamp))  # fmt: skip
     meas = np.array([f.meas for f in fits])
+    dev2 = (meas - meas.mean(axis=0)) ** 2 * reps / (reps - 1)
     var = np.array([f.se**2 + f.walk_density * np.diag(f.walk_unit) for f in fits])
-    chi2 = np.mean((meas - meas.mean(axis=0)) ** 2 / var) * REPS / (REPS - 1)
-    return float(chi2), float(np.median([f.walk_density for f in fits]))
+    white = np.array([f.se**2 for f in fits])
+    density = float(np.median([f.walk_density for f in fits]))
+    return float(np.mean(dev2 / var)), float(np.mean(dev2 / white)), density
 
 
 # The mean of 6 x REPS squared standardised values has sd sqrt(2 / (6 REPS)) = 0.065 when the variance model is
@@ -79,7 +82,7 @@ TOLERANCE = 0.25
 def test_the_pulse_harmonics_se_is_the_true_scatter_of_a_rate_that_swings():
     """Stamp jitter 1e-7 s and the 50 ns quantum: the angle's error at an edge is rate x stamp error, so its
     variance follows rate^2; weighted least squares gives the harmonics' true scatter (least squares did not)."""
-    chi2, density = _pulse_chi2_per_dof(0.0, 1e-7, 1)
+    chi2, _, density = pulse_chi2_per_dof(0.0, 1e-7, 1)
     assert abs(chi2 - 1.0) < TOLERANCE, chi2
     assert density < 1e-12  # no walk: the scatter is the stamps' (the excess estimate is 0 or of order its noise)
 
@@ -89,7 +92,7 @@ def test_white_rate_noise_walks_the_angle_and_the_test_allows_for_it(diffusion):
     """White rate noise of density D (the window mean of 4.3e-7 rad/s over 560 s: D = 1e-10 rad^2/s) is a random
     walk of the angle at the edges; its density is estimated from the scatter beyond the stamps' (within 30 %:
     the moment estimate from ~2600 edges) and its covariance makes the harmonics' scatter the one assumed."""
-    chi2, density = _pulse_chi2_per_dof(diffusion, 1e-7, 2)
+    chi2, _, density = pulse_chi2_per_dof(diffusion, 1e-7, 2)
     assert abs(chi2 - 1.0) < TOLERANCE, chi2
     assert density == pytest.approx(diffusion, rel=0.3)
 
