@@ -75,7 +75,7 @@ class StationController:
         self.publish: Publisher = publish or (lambda topic, msg: None)
         self._link = host_clock()  # what the CLI and the panel wait on: the host's wall time
         self.supervisor = MotionSupervisor(hardware, clock=hardware.clock).start()
-        self.engine = Engine(hardware, store, self.publish, self.supervisor)
+        self.engine = Engine(hardware, store, publish, self.supervisor)
         self._lock = threading.Lock()
         self._worker: threading.Thread | None = None
         self._outcome: RunOutcome | None = None

@@ -39,7 +39,9 @@ def run_once(deterministic: bool, raw: bool, tpdo_ms: int | None, seed: int = 1)
     with tempfile.TemporaryDirectory() as tmp:
         wall0, cpu0 = time.perf_counter(), time.process_time()
         with (
-            simulated_station(cfg, default_twin(), seed=seed, speed=1000.0, deterministic=deterministic) as sim,
+            simulated_station(
+                cfg, default_twin(), seed=seed, speed=None if deterministic else 1000.0, deterministic=deterministic
+            ) as sim,
             SessionStore(Path(tmp) / "s.sqlite") as store,
         ):
             controller = StationController(sim.devices, store, cfg.station_model(), reports_dir=tmp)

@@ -40,7 +40,7 @@ from devices.servo.driver import ServoLimits, VibrationTableServo
 from engine.protocols import Event, FrequencyEstimate, MotionRecord, ServoReading, Stoppable, WindowResult
 from models.config import TwinConfig
 from station.clock import Clock, VirtualClock, WallClock, speed_at_most
-from station.event_clock import EventClock
+from station.event_clock import EventClock, Pacemaker
 from station.session import StationInfo
 
 log = logging.getLogger(__name__)
@@ -383,11 +383,14 @@ class SimulatedStation:
     emulators: dict[str, Any]
     devices: StationDevices
     can_channel: str = ""
+    pacemaker: Pacemaker | None = None  # a paced station's time flows on whoever waits (station.event_clock)
 
     def close(self) -> None:
         self.devices.close()
         _stop_emulators(self.emulators)
         sim_can.bind_clock(self.can_channel, None)
+        if self.pacemaker is not None:
+            self.pacemaker.stop()
 
     def __enter__(self) -> SimulatedStation:
         return self
@@ -409,23 +412,26 @@ def simulated_station(
     twin: TwinConfig,
     *,
     seed: int = 0,
-    speed: float = 1.0,
+    speed: float | None = None,
     deterministic: bool = False,
 ) -> SimulatedStation:
     """Start the simulated station of `config` (which must say simulated = true) and open its drivers.
 
     Each station gets its own CAN channel so that several can run in one process. The world runs on a
-    VirtualClock `speed` times real time with the emulators behind pseudo-terminals and on python-can's
-    virtual bus or, `deterministic`, on a discrete-event clock (station.event_clock) with the synchronous
-    transports (the `station_sim` CAN interface, sim:// serial lines): the same seed then gives the same
-    session to the bit, however busy the host (the threads that act in station time are
-    parties of the clock: the controller's engine, the supervisor's safe stop, or a lone caller).
+    VirtualClock `speed` (default 1) times real time with the emulators behind pseudo-terminals and on
+    python-can's virtual bus or, `deterministic`, on a discrete-event clock (station.event_clock) with the
+    synchronous transports (the `station_sim` CAN interface, sim:// serial lines): the same seed then gives
+    the same session to the bit, however busy the host (the threads that act in station time are parties
+    of the clock: the controller's engine, the supervisor's safe stop, or a lone caller). There `speed`
+    caps the pace at that many station seconds per wall second and keeps time flowing, as a real
+    station's, whoever acts on it (a Pacemaker), for watching it live; without it the station runs as
+    fast as the CPU allows.
     """
     from devices.world import SimStation
 
     if not config.simulated:
         raise InterlockError("station", f"{config.path} is a real station's configuration (simulated = false)")
-    clock: Clock = EventClock() if deterministic else VirtualClock(speed)
+    clock: Clock = EventClock(ceiling=speed) if deterministic else VirtualClock(speed or 1.0)
     world = SimStation(
         twin, clock, seed=seed, index_speed_deg_s=config.indexing_head.speed_deg_s, sim_lines=deterministic
     )
@@ -450,4 +456,5 @@ def simulated_station(
         _stop_emulators(emulators)
         sim_can.bind_clock(channel, None)
         raise
-    return SimulatedStation(world, emulators, devices, channel)
+    pacemaker = Pacemaker(clock) if isinstance(clock, EventClock) and clock.ceiling is not None else None
+    return SimulatedStation(world, emulators, devices, channel, pacemaker)

@@ -131,6 +131,7 @@ class Engine:
         self.store = store
         self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user
         self.publish: Publisher = publish or (lambda topic, msg: None)
+        self.watched = publish is not None  # someone reads the telemetry: windows stream a display trace
         self.progress = Progress()
         self._lock = threading.Lock()
         self._resume = threading.Event()
@@ -274,8 +275,11 @@ class Engine:
 
         return on_event
 
-    def trace_sink(self) -> Callable:
-        """The on_trace callback of a window: grating samples published as a decimated displacement trace."""
+    def trace_sink(self) -> Callable | None:
+        """The on_trace callback of a window: grating samples published as a decimated displacement trace;
+        None when nobody watches (no publisher): the grating then stays quiet between its stretches."""
+        if not self.watched:
+            return None
         t_parts: list = []
         z_parts: list = []
         last_wall = [-math.inf]

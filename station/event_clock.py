@@ -17,7 +17,10 @@ cannot move between a thread's start and its registration.
 A wait on which nothing can ever happen (every party waits, no timer is left,
 no timeout is set) raises `ClockDeadlockError`, naming each party and what it waits on.
 `ceiling` paces the clock to at most that many station seconds per wall second,
-for watching a run live; without it time runs as fast as the CPU allows.
+for watching a run live; without it time runs as fast as the CPU allows. A
+`Pacemaker` makes a paced clock live: station time then flows on at that pace
+whenever every other party waits, as a real station's does between sessions
+and while a person acts on it (an emergency stop ramps the crank down).
 The clock is its own link: a reply timeout counts station time exactly.
 """
 
@@ -30,7 +33,9 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from station.clock import ClockCondition, ClockEvent, TimerHandle, TimerQueue, fire
+from station.clock import ClockCondition, ClockEvent, TimerHandle, TimerQueue, fire, spawn_party
+
+PACE_STEP_WALL_S = 0.01  # a pacemaker's sleep, in wall time at the ceiling: what a live clock's idle steps last
 
 
 class ClockDeadlockError(RuntimeError):
@@ -144,6 +149,8 @@ class EventClock:
                 self._waiters.discard(waiter)
                 if party is not None:
                     party.waiter = None
+                else:  # a lone thread's ended wait may have been all that held time (see _idle)
+                    self._advance_if_idle()
 
     def _wake(self, waiters: list[_Waiter]) -> None:
         for w in waiters:
@@ -209,6 +216,27 @@ class EventClock:
             for p in self._parties.values()
         )
         return f"station time {self._now_s:.6f} s: every party waits and nothing is due: {waits}"
+
+
+class Pacemaker:
+    """A party of a paced EventClock that only sleeps: station time never stands still (see the module)."""
+
+    def __init__(self, clock: EventClock) -> None:
+        if clock.ceiling is None:
+            raise ValueError("a pacemaker needs a paced clock (EventClock(ceiling=...))")
+        self._clock = clock
+        self._step_s = PACE_STEP_WALL_S * clock.ceiling
+        self._stopped = False
+        self._thread = spawn_party(clock, "pacemaker", self._beat)
+
+    def _beat(self) -> None:
+        while not self._stopped:
+            self._clock.sleep_s(self._step_s)
+
+    def stop(self) -> None:
+        """Leave the clock (within one step once the other parties wait)."""
+        self._stopped = True
+        self._thread.join()
 
 
 def _label(on: object) -> str:

@@ -12,7 +12,7 @@ import pytest
 from busy import busy_loops
 
 from station.clock import Clock, spawn_party
-from station.event_clock import ClockDeadlockError, EventClock
+from station.event_clock import PACE_STEP_WALL_S, ClockDeadlockError, EventClock, Pacemaker
 
 
 def test_it_implements_the_station_clock_and_is_its_own_link() -> None:
@@ -178,6 +178,56 @@ def test_a_ceiling_paces_station_time_against_the_wall() -> None:
     clock.sleep_s(2.0)
     assert time.perf_counter() - t0 >= 0.02 * 0.99
     assert clock.now_s() == 2.0
+
+
+def test_a_pacemaker_keeps_a_paced_clock_flowing_while_nobody_acts() -> None:
+    """A live station (paced, with a Pacemaker): time flows at most `ceiling` station s per wall s whoever waits,
+    and no faster; timers on the way run. 0.3 s of wall time at 100x: at most 30 station s (plus one pacemaker
+    step, 1 s), and on an idle machine about 30; at least 3 s here even on a host loaded 10-fold."""
+    import time
+
+    clock = EventClock(ceiling=100.0)
+    ticks: list[float] = []
+    clock.call_every(1.0, lambda: ticks.append(clock.now_s()))
+    pacemaker = Pacemaker(clock)
+    t0 = time.perf_counter()
+    time.sleep(0.3)  # nobody waits on the clock: a person at the panel
+    moved_s, wall_s = clock.now_s(), time.perf_counter() - t0
+    pacemaker.stop()
+    assert 3.0 <= moved_s <= 100.0 * wall_s + 100.0 * PACE_STEP_WALL_S
+    assert ticks == [float(k) for k in range(1, len(ticks) + 1)] and len(ticks) >= 3
+    stopped_s = clock.now_s()
+    time.sleep(0.05)
+    assert clock.now_s() == stopped_s  # stopped: time stands still again
+    with pytest.raises(ValueError, match="paced clock"):
+        Pacemaker(EventClock())
+
+
+def test_the_end_of_a_lone_threads_wait_lets_time_move_on() -> None:
+    """A lone thread's wait that ends (its event set) may be all that kept a waiting party from moving time:
+    when it leaves, time moves on for the party (before, the party waited for ever)."""
+    clock = EventClock()
+    ready = clock.event()
+    lone_done = threading.Event()
+
+    def lone() -> None:
+        ready.wait()  # no deadline: with no party, time stands still for it
+        lone_done.set()
+
+    t = threading.Thread(target=lone, daemon=True)
+    t.start()
+    while not clock._waiters:
+        threading.Event().wait(0.001)
+    woke: list[float] = []
+
+    def party() -> None:
+        ready.set()  # wakes the lone thread; its wait ends before or after this party sleeps
+        clock.sleep_s(0.5)
+        woke.append(clock.now_s())
+
+    spawn_party(clock, "sleeper", party).join(timeout=10.0)
+    t.join(timeout=10.0)
+    assert lone_done.is_set() and woke == [0.5]
 
 
 def _scenario() -> list[tuple[str, float]]:

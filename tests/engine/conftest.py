@@ -36,7 +36,7 @@ def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
 
     def make(
         twin: TwinConfig | None = None,
-        speed: float = 1000.0,
+        speed: float | None = 1000.0,
         seed: int = 1,
         db: Path | None = None,
         deterministic: bool = False,

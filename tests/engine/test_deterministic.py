@@ -39,7 +39,7 @@ def test_a_session_is_the_same_to_the_bit_beside_two_busy_loops(make_rig, tmp_pa
     procedure, params = SESSIONS[name]
 
     def once(db_name: str) -> tuple[str, list, list, list]:
-        rig = make_rig(seed=11, db=tmp_path / db_name, deterministic=True)
+        rig = make_rig(seed=11, db=tmp_path / db_name, speed=None, deterministic=True)
         out = rig.controller.run(procedure, params)
         assert out.state == State.FINISHED, out.faults
         session = rig.store.load_session(out.session_uid)
