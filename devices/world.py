@@ -150,7 +150,9 @@ class SimStation:
         latency = self.twin.param("readhead_latency", "delta")
         a, b = t0_s - latency, t1_s - latency
         p_a, p_b = self.crank.phase_rad(a), self.crank.phase_rad(b)
-        levels = TWO_PI * np.arange(math.floor(p_a / TWO_PI), math.floor(p_b / TWO_PI) + 1)
+        # One level beyond each end: times_at_phases decides each level exactly against the crank's segment,
+        # whose phase at an end may differ from phase_rad's in the last bit (a crossing on an end was lost).
+        levels = TWO_PI * np.arange(math.floor(p_a / TWO_PI), math.floor(p_b / TWO_PI) + 2)
         return self.crank.times_at_phases(levels, a, b) + latency
 
     def table_moving(self, t_s: float) -> bool:
