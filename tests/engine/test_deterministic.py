@@ -5,10 +5,9 @@ raw records and results, to the bit (session uids, time stamps of the provenance
 
 from __future__ import annotations
 
-from typing import Any
-
 import pytest
 from busy import busy_loops
+from procedure_runs import stable
 
 from engine.runner import State
 from station.interchange import content_hash
@@ -23,15 +22,6 @@ SESSIONS = {
                  {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 5, "settle_s": 1, "raw": True}),
     "alignment": ("seed000.self_alignment", {"positions_deg": [0, 180], "window_s": 10}),
 }  # fmt: skip
-UNSTABLE = {"created_utc", "provenance", "uid", "session_uid", "store_uid"}  # not part of the promise
-
-
-def _stable(doc: Any) -> Any:
-    if isinstance(doc, dict):
-        return {k: _stable(v) for k, v in doc.items() if k not in UNSTABLE}
-    if isinstance(doc, list):
-        return [_stable(v) for v in doc]
-    return doc
 
 
 @pytest.mark.parametrize("name", SESSIONS)
@@ -44,7 +34,7 @@ def test_a_session_is_the_same_to_the_bit_beside_two_busy_loops(make_rig, tmp_pa
         assert out.state == State.FINISHED, out.faults
         session = rig.store.load_session(out.session_uid)
         assert session.points, "the session measured nothing"
-        results = [_stable(r) for r in rig.store.results(out.session_uid)]
+        results = [stable(r) for r in rig.store.results(out.session_uid)]
         values = [(p.point_id, p.start_s, p.pulses, p.Tm_s, p.t1_s, p.t2_s, p.Np) for p in session.points]
         return content_hash(session), values, results, out.faults
 
