@@ -8,7 +8,7 @@ Tolerances and bounds, derived:
   rounded crank speed, so the driver's reading equals the target to 1 count.
 - mid-ramp velocity: a TPDO is sampled at most one event period (10 ms) plus one emulator
   tick (2 ms) before the driver time-stamps it; with scheduling slack, 50 ms of ramp.
-- heartbeat loss: the consumer time is 3 x heartbeat_ms (of the simulated station's file)
+- heartbeat loss: the consumer time is 3 x heartbeat_ms (HEARTBEAT_MS below)
   after the last heartbeat, which came at most one period before the fault; the driver's
   watchdog is a deadline timer of the link clock at that instant. Bound 3 heartbeat periods +
   slack = 3 x HB_S + SLACK_S from the injection.
@@ -55,7 +55,11 @@ pytestmark = pytest.mark.timeout(20)
 CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
 LIMITS = ServoLimits.from_config(CONFIG)
 TIMEOUT_S = 0.2  # SDO/TPDO timeout for the tests (the config's 0.5 s would only slow them)
-HB_S = CONFIG.servo.heartbeat_ms / 1000
+# These rigs run in wall time (or a VirtualClock) on a shared machine: a 500 ms heartbeat so that a host stall of
+# 0.6-0.7 s seen under load is not a lost master, and the EDS's 10 ms TPDO timers so that reads are quick.
+HEARTBEAT_MS = 500
+TPDO_EVENT_TIMER_MS = 10
+HB_S = HEARTBEAT_MS / 1000
 SLACK_S = 0.3  # how late a thread of the emulator or driver may run on the shared 2-core machine (load ~9 seen)
 HB_DETECT_BOUND_S = 3 * HB_S + SLACK_S
 VELOCITY_LSB_HZ = 1e-6
@@ -95,7 +99,8 @@ def make_rig(interface: str) -> Iterator[RigFactory]:
     ) -> Rig:
         clock = clock or WallClock()
         channel = f"servo-test-{uuid.uuid4().hex[:8]}"
-        cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=TIMEOUT_S)
+        cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=TIMEOUT_S,
+                                  heartbeat_ms=HEARTBEAT_MS, tpdo_event_timer_ms=TPDO_EVENT_TIMER_MS)  # fmt: skip
         emu = ServoEmulator.from_config(cfg, clock, crank)
         emu.start()
         rig = Rig(emu, VibrationTableServo(cfg, limits, clock), clock, cfg)

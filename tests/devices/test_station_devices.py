@@ -21,9 +21,17 @@ REAL = load_station_config(CONFIG_DIR / "station.toml")
 pytestmark = pytest.mark.timeout(60)
 
 
-@pytest.fixture
-def sim():
-    with simulated_station(SIM, default_twin(), seed=2, speed=100.0) as s:
+# The same drivers on the discrete-event station (sim:// lines) and on the paced transports a real tty and bus
+# behave like (VirtualClock, ptys, python-can's virtual bus).
+PORT_PREFIX = {"sim": "sim://", "pty": "/dev/pts/"}
+
+
+@pytest.fixture(params=["sim", "pty"])
+def sim(request):
+    deterministic = request.param == "sim"
+    with simulated_station(SIM, default_twin(), seed=2, speed=None if deterministic else 100.0,
+                           deterministic=deterministic) as s:  # fmt: skip
+        s.transport = request.param
         yield s
 
 
@@ -32,7 +40,7 @@ def test_every_driver_talks_to_its_emulator_through_the_configured_port(sim) -> 
     ports = {name: emu.port for name, emu in sim.emulators.items() if name != "servo"}
     assert ports == {"grating": d.grating.port, "reference": d.reference.port, "counter": d.counter.port,
                      "indexing_head": d.head.port}  # fmt: skip
-    assert all(p.startswith("/dev/pts/") for p in ports.values())
+    assert all(p.startswith(PORT_PREFIX[sim.transport]) for p in ports.values())
     assert d.servo.state == "SWITCH ON DISABLED"
     assert d.counter.status()["state"] == "idle"
     assert d.move_index(36.0) == pytest.approx(36.0, abs=SIM.indexing_head.settle_tol_deg)

@@ -40,6 +40,7 @@ from .conftest import CONFIG, PROCEDURE, QUICK
 
 pytestmark = pytest.mark.timeout(120)
 HB_S = CONFIG.servo.heartbeat_ms / 1000
+PAIR_HB_S = 0.5  # a drive and its driver alone in wall time on a shared machine: host stalls of 0.6-0.7 s are seen
 
 
 def wait_until(predicate, timeout_s: float) -> float:
@@ -138,7 +139,8 @@ def test_the_drive_is_configured_to_stop_on_its_own_and_the_driver_reads_it_back
 
 def _servo_pair(clock=None):
     clock = clock or WallClock()
-    cfg = dataclasses.replace(CONFIG.servo, channel=f"sup-test-{uuid.uuid4().hex[:8]}", timeout_s=0.2)
+    cfg = dataclasses.replace(CONFIG.servo, channel=f"sup-test-{uuid.uuid4().hex[:8]}", timeout_s=0.2,
+                              heartbeat_ms=round(PAIR_HB_S * 1000), tpdo_event_timer_ms=10)  # fmt: skip
     emu = ServoEmulator.from_config(cfg, clock)
     emu.start()
     return emu, VibrationTableServo(cfg, ServoLimits.from_config(CONFIG), clock), clock
@@ -164,7 +166,7 @@ def test_without_the_options_a_lost_master_leaves_the_crank_turning() -> None:
         servo.enable()
         servo.set_frequency(1.5)
         servo.master_alive = lambda: False  # the master falls silent
-        time.sleep(4 * HB_S + 0.3)
+        time.sleep(4 * PAIR_HB_S + 0.3)
         assert emu.state == "OPERATION ENABLED"
         assert emu.crank.speed_radps(clock.now_s()) / (2 * math.pi) == pytest.approx(1.5, abs=1e-6)
         servo.master_alive = lambda: True
