@@ -32,7 +32,7 @@ import numpy as np
 from gap.design import PointDesign
 from models.config import TwinConfig
 from models.inputs import instrument_inputs, instrument_rate_radps
-from models.precession import N_PHASES
+from models.precession import N_PHASES, fourier_series
 
 CALIBRATED: tuple[str, ...] = ("kz", "kzz", "ky", "k3")
 
@@ -105,18 +105,6 @@ def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray)
     return rate, period_identity_s(design, cfg)
 
 
-def _series(samples_at_phases: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """c0, alpha_k, beta_k (k = 1 .. N/2 - 1) of rates sampled at N equal crank phases (last axis), as
-    models.precession.PeriodicRate.from_samples, for many series at once: rate = c0 + sum_k alpha_k cos k psi
-    + beta_k sin k psi; a harmonic that from_samples drops (|coef| <= 1e-17 |c0|) is zero here."""
-    n = samples_at_phases.shape[-1]
-    spectrum = np.fft.rfft(samples_at_phases, axis=-1) / n
-    c0 = spectrum[..., 0].real
-    coef = spectrum[..., 1 : n // 2]
-    keep = np.abs(coef) > 1e-17 * np.maximum(np.abs(c0), 1e-30)[..., None]
-    return c0, np.where(keep, 2.0 * coef.real, 0.0), np.where(keep, -2.0 * coef.imag, 0.0)
-
-
 def _vibration_means(series, key: np.ndarray, w_radps: np.ndarray, gamma0_rad: np.ndarray, Tm_s: np.ndarray):
     """phi(Tm) / Tm of every window (rows) for every output, each window on the series of its key.
 
@@ -163,5 +151,5 @@ def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> 
             stacked[m, c] = np.broadcast_to(np.asarray(r, dtype=float), psi.shape)
     w = 2.0 * math.pi * f_true
     gamma0 = -w * (design.t1_s[vib] - latency_s)
-    out[vib] = _vibration_means(_series(stacked), np.ravel(key), w, gamma0, design.Tm_s[vib])
+    out[vib] = _vibration_means(fourier_series(stacked), np.ravel(key), w, gamma0, design.Tm_s[vib])
     return out

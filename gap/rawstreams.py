@@ -358,8 +358,7 @@ def _pulse_lsq(
     to_rate = np.zeros((jw.size, coef.size))  # d meas / d coef
     to_rate[0::2, 3::2] = -np.diag(jw[0::2])
     to_rate[1::2, 2::2] = np.diag(jw[1::2])
-    return PulseFit(to_rate @ coef, np.sqrt(np.diag(to_rate @ np.diag(se**2) @ to_rate.T)),
-                    to_rate @ walk_coef @ to_rate.T, density)  # fmt: skip
+    return PulseFit(to_rate @ coef, np.abs(to_rate) @ se, to_rate @ walk_coef @ to_rate.T, density)
 
 
 def _pulse_prediction(design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray:

@@ -42,6 +42,18 @@ class WindowNeverClosesError(StationFault):
     """The mean precession rate is too small (or reverses) for the window ever to close."""
 
 
+def fourier_series(rate_at_phases: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """c0, alpha_k, beta_k (k = 1 .. N/2 - 1) of rates sampled at N equal crank phases (the last axis; many series
+    at once): r = c0 + sum_k alpha_k cos k psi + beta_k sin k psi. A harmonic below 1e-17 |c0| (round-off of the
+    FFT) is zero."""
+    n = rate_at_phases.shape[-1]
+    spectrum = np.fft.rfft(rate_at_phases, axis=-1) / n
+    c0 = spectrum[..., 0].real
+    coef = spectrum[..., 1 : n // 2]
+    keep = np.abs(coef) > 1e-17 * np.maximum(np.abs(c0), 1e-30)[..., None]
+    return c0, np.where(keep, 2.0 * coef.real, 0.0), np.where(keep, -2.0 * coef.imag, 0.0)
+
+
 @dataclass(frozen=True)
 class PeriodicRate:
     """r(psi) = c0 + sum_k (alpha_k cos k psi + beta_k sin k psi)."""
@@ -53,13 +65,9 @@ class PeriodicRate:
 
     @classmethod
     def from_samples(cls, rate_at_phases: np.ndarray) -> PeriodicRate:
-        n = rate_at_phases.size
-        spectrum = np.fft.rfft(rate_at_phases) / n
-        coef = spectrum[1 : n // 2]
-        k = np.arange(1, n // 2)
-        alpha, beta = 2.0 * coef.real, -2.0 * coef.imag
-        keep = np.abs(coef) > 1e-17 * max(abs(spectrum[0].real), 1e-30)
-        return cls(float(spectrum[0].real), k[keep], alpha[keep], beta[keep])
+        c0, alpha, beta = fourier_series(rate_at_phases)
+        keep = (alpha != 0.0) | (beta != 0.0)
+        return cls(float(c0), np.arange(1, alpha.size + 1)[keep], alpha[keep], beta[keep])
 
     @classmethod
     def constant(cls, c0_radps: float) -> PeriodicRate:
