@@ -27,6 +27,7 @@ import numpy as np
 from devices.errors import DriverError
 from models.config import TwinConfig, default_twin
 from models.crank import CrankModel
+from models.effects import terms
 from models.inputs import table_position_m
 from models.precession import PrecessionWindow, periodic_rate
 from models.raw import pulse_edges
@@ -91,7 +92,7 @@ class SimStation:
         self.clock = clock or WallClock()
         self.rng = np.random.default_rng(seed)
         t0 = self.clock.now_s()
-        self.crank = _TrackedCrank(self, eps_f=self.twin.param("frequency_error", "eps_f"), t0_s=t0)
+        self.crank = _TrackedCrank(self, eps_f=terms.frequency_error(self.twin.effects), t0_s=t0)
         self.index_speed_deg_s = index_speed_deg_s
         self._lock = threading.RLock()
         self._head = _HeadMove(t0, 0.0, 0.0, index_speed_deg_s)
@@ -147,7 +148,7 @@ class SimStation:
 
     def reference_crossings_s(self, t0_s: float, t1_s: float) -> np.ndarray:
         """Times of psi = 0 mod 2 pi crossings in (t0, t1], as stamped (read-head latency included)."""
-        latency = self.twin.param("readhead_latency", "delta")
+        latency = terms.reference_latency_s(self.twin.effects)
         a, b = t0_s - latency, t1_s - latency
         p_a, p_b = self.crank.phase_rad(a), self.crank.phase_rad(b)
         # One level beyond each end: times_at_phases decides each level exactly against the crank's segment,
@@ -191,7 +192,7 @@ class SimStation:
             tm_est = preset_pulses * self.twin.station.pulse_angle_rad / max(abs(rate.c0_radps), 1e-12)
             offset = self.rng.normal(0.0, noise.rate_noise_radps * math.sqrt(noise.rate_noise_ref_s / tm_est))
         gamma0 = self.crank.phase_rad(t_s) % TWO_PI
-        return PrecessionWindow(rate, w, gamma0, offset, self.twin.param("bias_drift", "d"), t_s)
+        return PrecessionWindow(rate, w, gamma0, offset, terms.bias_drift_radps2(self.twin.effects), t_s)
 
     def _anchor_at(
         self, t_s: float, *, force: bool = False, draw_noise: bool = False, preset_pulses: int = 819_200

@@ -70,20 +70,22 @@ class Scored:
 
 
 def beyond_bounds(fit: ModelFit, name: str, w_radps: np.ndarray) -> list[str]:
-    """Parameters of effect `name` whose fitted |value| exceeds its bound by more than BOUND_SIGMAS sd, and
-    the waveform's Zs1(w) = z0 + z1 w at the design's vibration frequencies w (cl.ZS1_BOUND_M)."""
+    """Parameters of effect `name` whose fitted |value| exceeds its bound by more than BOUND_SIGMAS sd, and its
+    joint bound (models.effects.base.JointBound, such as the waveform's Zs1(w) = z0 + z1 w) at the design's
+    vibration frequencies w."""
     rows = zip(fit.free, fit.values, fit.sigmas, strict=True)
     out = [fp.param for fp, v, sd in rows if fp.effect == name and abs(v) - BOUND_SIGMAS * sd > fp.bound]
     keys = [fp.key for fp in fit.free]
-    if name == "waveform_fundamental" and {"waveform_fundamental.z0", "waveform_fundamental.z1"} <= set(keys):
-        j = [keys.index("waveform_fundamental.z0"), keys.index("waveform_fundamental.z1")]
+    jb = cl.LIBRARY[name].effect.joint_bound
+    if jb is not None and {f"{name}.{k}" for k in jb.params} <= set(keys):
+        j = [keys.index(f"{name}.{k}") for k in jb.params]
         n_lin = fit.J.shape[1] - len(fit.free)
         scale = np.array([fit.free[i].scale for i in j])
         cov = fit.cov[np.ix_([n_lin + i for i in j], [n_lin + i for i in j])] * np.outer(scale, scale)
-        A = np.column_stack([np.ones_like(w_radps), w_radps])
-        zs1, sd = A @ fit.values[j], np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, cov, A), 0, None))
-        if np.any(np.abs(zs1) - BOUND_SIGMAS * sd > cl.ZS1_BOUND_M):
-            out.append("Zs1 = z0 + z1 w")
+        A = jb.columns(w_radps)
+        combo, sd = A @ fit.values[j], np.sqrt(np.clip(np.einsum("ij,jk,ik->i", A, cov, A), 0, None))
+        if np.any(np.abs(combo) - BOUND_SIGMAS * sd > jb.bound):
+            out.append(jb.label)
     return out
 
 
@@ -92,7 +94,7 @@ def chi2_total(fit: ModelFit, s2_rate: float) -> float:
 
 
 def _timing_params(fit: ModelFit) -> int:
-    return sum(1 for fp in fit.free if fp.effect == "frequency_error")
+    return sum(1 for fp in fit.free if fp.timing)
 
 
 def _other_params(fit: ModelFit, n_rate: int) -> int:

@@ -313,7 +313,7 @@ def _finish(ch, free, p0, scale, u, state: State, J_u, converged: bool) -> Model
     J = np.hstack([state.X_white, J_u])
     lin = state.lin
     rss = float(np.sum(ch.weights * lin.residuals**2))
-    n_rate_free = sum(1 for fp in free if fp.effect != "frequency_error")
+    n_rate_free = sum(1 for fp in free if not fp.timing)
     n_rate_params = n_pos + len(CALIBRATED) + n_rate_free
     dof = d.n_points - n_rate_params
     # Rate rows re-whitened by this model's own sigma0 estimate for the uncertainties.

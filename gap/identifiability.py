@@ -53,21 +53,6 @@ ABSORBED_RHO = 0.01
 COLLINEAR_COS = 0.9
 DETECT_SIGMA = 3.0
 
-# What a raw stream measures directly (physics.md, piga-session/1 raw/<point_id>.npz).
-RAW_MEASURES = {
-    "waveform_fundamental.z0": "the grating measures Zs1 at each frequency directly",
-    "waveform_fundamental.z1": "the grating measures Zs1 at each frequency directly",
-    "waveform_fundamental.Zc1": "the grating measures the fundamental's phase, but only relative to the "
-    "reference mark, so it cannot tell Zc1 from read-head latency either",
-    "waveform_harmonics.Zs2": "the grating measures the harmonics directly",
-    "waveform_harmonics.Zc2": "the grating measures the harmonics directly",
-    "waveform_harmonics.Zs3": "the grating measures the harmonics directly",
-    "waveform_harmonics.Zc3": "the grating measures the harmonics directly",
-    "frequency_error.eps_f": "the grating and reference marks give the true frequency directly",
-    "readhead_latency.delta": "grating and reference marks see latency as a phase, like Zc1; "
-    "a second reference (or frequencies far apart) separates them",
-}
-
 
 def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
@@ -291,8 +276,10 @@ def _collinear(
 
 def _raw_stream(p: ParamId, has_raw: bool) -> None:
     """Where a raw stream measures a parameter the rates fix poorly (absorbed, degenerate, weak or collinear)."""
-    if p.key in RAW_MEASURES and (p.status in ("absorbed", "degenerate", "weak") or p.collinear_with):
-        p.raw_stream = ("recorded in this session (see where.raw_streams): " if has_raw else "") + RAW_MEASURES[p.key]
+    effect, _, name = p.key.partition(".")
+    measures = cl.LIBRARY[effect].effect.params[name].raw_measures  # piga-session/1 raw/<point_id>.npz
+    if measures and (p.status in ("absorbed", "degenerate", "weak") or p.collinear_with):
+        p.raw_stream = ("recorded in this session (see where.raw_streams): " if has_raw else "") + measures
 
 
 def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> IdentifiabilityReport:

@@ -28,6 +28,7 @@ import numpy as np
 
 from gap.design import PointDesign
 from models.config import TwinConfig
+from models.effects import terms
 from models.inputs import table_position_m
 from models.precession import N_PHASES, periodic_rate
 from station.session import Session
@@ -171,8 +172,8 @@ class GratingRecord:
 
     def predict(self, cfg: TwinConfig) -> np.ndarray:
         """What the twin gives for the same numbers (its table motion, latency, eps_f), point-major."""
-        delta = cfg.param("readhead_latency", "delta")
-        eps = cfg.param("frequency_error", "eps_f")
+        delta = terms.reference_latency_s(cfg.effects)
+        eps = terms.frequency_error(cfg.effects)
         return np.concatenate([np.append(_twin_grating(float(w), delta, cfg), eps) for w in self.w_radps])
 
     def white(self, values: np.ndarray) -> np.ndarray:
@@ -212,14 +213,14 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
         return {}
     points = []
     rows_w, rows_d, rows_s = [], [], []
-    delta = cfg.param("readhead_latency", "delta")
+    delta = terms.reference_latency_s(cfg.effects)
     for i, pid in enumerate(design.point_ids):
         raw = session.raw.get(pid)
         if raw is None or not design.vib[i]:
             continue
         t1 = design.t1_s[i]
         w = _apparent_w(design, i)
-        f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+        f_true = design.freq_hz[i] * (1 + terms.frequency_error(cfg.effects))
         entry: dict = {
             "point_id": pid,
             "position_deg": float(design.position_deg[i]),
@@ -265,7 +266,7 @@ def _pulse_directions(raw, design: PointDesign, i: int, cfg: TwinConfig) -> np.n
     reverses over a crank turn (every edge then counts one way); None when it reverses (a > 1 near IA)."""
     if raw.pulse_dir is not None:
         return np.asarray(raw.pulse_dir)
-    f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
+    f_true = design.freq_hz[i] * (1 + terms.frequency_error(cfg.effects))
     pr = periodic_rate(float(design.theta_rad[i]), float(f_true), cfg)
     psi = 2 * math.pi * np.arange(N_PHASES) / N_PHASES
     rate = pr.c0_radps + sum(
@@ -362,8 +363,8 @@ def _pulse_lsq(
 
 
 def _pulse_prediction(design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray:
-    f_true = design.freq_hz[i] * (1 + cfg.param("frequency_error", "eps_f"))
-    return _twin_rate_harmonics(float(design.theta_rad[i]), f_true, cfg.param("readhead_latency", "delta"), cfg)
+    f_true = design.freq_hz[i] * (1 + terms.frequency_error(cfg.effects))
+    return _twin_rate_harmonics(float(design.theta_rad[i]), f_true, terms.reference_latency_s(cfg.effects), cfg)
 
 
 def _pulse_harmonics(

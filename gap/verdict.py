@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from gap import candidates as cl
 from gap.attribute import ALPHA, Selection
 from gap.identifiability import PULSE_TEST_HOW, IdentifiabilityReport
 from gap.localise import Detector, significant
@@ -115,17 +116,18 @@ def family_level(n_tests: int) -> float:
     return ALPHA * n_tests / (n_tests + 1)
 
 
-# Exact aliases of physics.md: a constant parasitic rotation ax0 enters theta_e exactly as dtheta_mount.
-ALIASES = {"mount_misalignment": ("parasitic_rotation",)}
+def _aliases(name: str) -> tuple[str, ...]:
+    """The effects that enter the twin exactly as `name` does (its module's `aliases`, physics.md)."""
+    return cl.LIBRARY[name].effect.aliases
 
 
 def _look_alikes(selection: Selection) -> dict[str, list[str]]:
     """For each chosen effect, the candidates that reproduce its fit within their bounds on every channel,
-    and its exact aliases (ALIASES) unless chosen too."""
+    and its exact aliases unless chosen too."""
     chosen = {s.name for s in selection.chosen}
     out = {}
     for s in selection.chosen:
-        alike = list(s.rivals) + [a for a in ALIASES.get(s.name, ()) if a not in s.rivals and a not in chosen]
+        alike = list(s.rivals) + [a for a in _aliases(s.name) if a not in s.rivals and a not in chosen]
         if alike:
             out[s.name] = alike
     return out
@@ -150,8 +152,8 @@ def _rejected(selection: Selection) -> list[str]:
 
 
 def _aliases_chosen(effects: list[str]) -> bool:
-    """Whether the chosen effects include an exact alias of one another (ALIASES)."""
-    return any(a in effects for e in effects for a in ALIASES.get(e, ()))
+    """Whether the chosen effects include an exact alias of one another."""
+    return any(a in effects for e in effects for a in _aliases(e))
 
 
 def _rest_only_text(rest_only: dict[str, list[str]]) -> str:

@@ -1,7 +1,7 @@
 """Twin configuration: station geometry, instrument coefficients, effects and noise.
 
 Every effect of the table in physics.md is switchable by name with its
-parameters (`TwinConfig.with_effect`). Units: metres, seconds, radians,
+parameters (`TwinConfig.with_effect`), as its module in models.effects declares them. Units: metres, seconds, radians,
 rad/s for rates, g for accelerations inside the instrument model.
 """
 
@@ -18,6 +18,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError, create_model
 
+from models.effects import EFFECTS, Effect
 from station import constants
 from station.errors import InputError
 from station.session import StationInfo
@@ -61,102 +62,30 @@ class NoiseModel:
     grating_noise_m: float = spec(NON_NEGATIVE, default=0.0)
 
 
-@dataclass(frozen=True)
-class EffectSpec:
-    name: str
-    cause: str
-    parameters: Mapping[str, str]  # parameter name -> unit
-    defaults: Mapping[str, float]
-
-
-def _spec(name: str, cause: str, params: dict[str, tuple[str, float]]) -> EffectSpec:
-    return EffectSpec(
-        name,
-        cause,
-        MappingProxyType({k: u for k, (u, _) in params.items()}),
-        MappingProxyType({k: d for k, (_, d) in params.items()}),
-    )
-
-
-_INDEX_PARAMS = {f"{p}{k}": ("rad", 0.0) for k in range(1, 5) for p in ("c", "s")}
-
-EFFECTS: Mapping[str, EffectSpec] = MappingProxyType(
-    {
-        s.name: s
-        for s in (
-            _spec(
-                "waveform_fundamental",
-                "crank/guide geometry changes the fundamental (seed 000 Table 5, eq. 32)",
-                {"z0": ("m", 0.0), "z1": ("m s/rad", 0.0), "Zc1": ("m", 0.0)},
-            ),
-            _spec(
-                "waveform_harmonics",
-                "higher harmonics of the table motion",
-                {"Zs2": ("m", 0.0), "Zc2": ("m", 0.0), "Zs3": ("m", 0.0), "Zc3": ("m", 0.0)},
-            ),
-            _spec(
-                "parasitic_rotation",
-                "table top rocks about x each cycle (seed 000 Table 7, eq. 34)",
-                {"ax0": ("rad", 0.0), "axs1": ("rad", 0.0), "axc1": ("rad", 0.0)},
-            ),
-            _spec(
-                "lateral_resonance",
-                "lateral motion near a structural resonance, seen through kx (seed 000 6.1.4)",
-                {
-                    "L0": ("1", 0.0),
-                    "fr": ("Hz", 30.0),
-                    "Q": ("1", 10.0),
-                    "phiL": ("rad", 0.0),
-                    "kx": ("rad/s/g^2", 0.0),
-                },
-            ),
-            _spec("odd_quadratic", "instrument term koq aI|aI|", {"koq": ("rad/s/g^2", 0.0)}),
-            _spec("cross_coupling", "instrument term kip aI aP", {"kip": ("rad/s/g^2", 0.0)}),
-            _spec("index_harmonics", "indexing head angle error (seed 003)", _INDEX_PARAMS),
-            _spec(
-                "mount_misalignment",
-                "installation tilt in the rotation plane (seed 000 eqs. 25-27)",
-                {"dtheta_mount": ("rad", 0.0)},
-            ),
-            _spec("bias_drift", "bias wanders over the session", {"d": ("rad/s^2", 0.0)}),
-            _spec(
-                "readhead_latency",
-                "reference crossings are time-stamped late",
-                {"delta": ("s", 0.0)},
-            ),
-            _spec(
-                "frequency_error",
-                "true frequency differs from the commanded one",
-                {"eps_f": ("1", 0.0)},
-            ),
-        )
-    }
-)
-
-
 @functools.cache
-def _effect_model(name: str) -> type[BaseModel]:
+def _effect_model(effect: Effect) -> type[BaseModel]:
     """The declared parameters of one effect, each a finite number with its default."""
-    spec = EFFECTS[name]
-    return create_model(f"Effect[{name}]", __config__=SETTINGS, **{k: (float, d) for k, d in spec.defaults.items()})
+    declared = {k: (float, d) for k, d in effect.defaults.items()}
+    return create_model(f"Effect[{effect.name}]", __config__=SETTINGS, **declared)
 
 
 def effect_params(name: str, given: Mapping[str, float] | None = None) -> Mapping[str, float]:
     """Defaults of effect `name` overlaid with `given`, validated."""
     if name not in EFFECTS:
         raise TwinConfigError(f"unknown effect {name!r}; known effects: {', '.join(EFFECTS)}")
-    spec = EFFECTS[name]
+    effect = EFFECTS[name]
     try:
-        params = _effect_model(name).model_validate(dict(given or {})).model_dump()
+        params = _effect_model(effect).model_validate(dict(given or {})).model_dump()
     except ValidationError as exc:
-        d = next(defects(exc, _effect_model(name).model_fields))
+        d = next(defects(exc, _effect_model(effect).model_fields))
         if d.is_unknown:
-            allowed = ", ".join(spec.parameters)
+            allowed = ", ".join(effect.params)
             raise TwinConfigError(f"effect {name!r} has no parameter {d.field!r}; allowed: {allowed}") from None
         where = f"effect {name!r} parameter {d.field!r}"
         raise TwinConfigError(f"{where} = {d.value!r}: expected a finite number") from None
-    if name == "lateral_resonance" and (params["fr"] <= 0 or params["Q"] <= 0):
-        raise TwinConfigError(f"effect 'lateral_resonance': fr = {params['fr']!r} and Q = {params['Q']!r} must be > 0")
+    problem = effect.check(params) if effect.check else ""
+    if problem:
+        raise TwinConfigError(f"effect {name!r}: {problem}")
     return MappingProxyType(params)
 
 

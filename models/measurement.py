@@ -6,7 +6,7 @@ and the counter/timer time-stamps both edges and every reference crossing in
 ticks of its timebase (50 ns, with a random timebase phase), after Gaussian
 timing jitter. The read head's reference crossing is psi = reference_phase
 mod 2 pi (0 by physics.md; pi reproduces seed 000's convention), stamped
-`readhead_latency` late.
+late by the effects' reference latency (models.effects.terms).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.config import TwinConfig
+from models.effects import terms
 from models.plan import PointSpec
 from models.precession import PrecessionWindow, periodic_rate
 from station.session import PointRecord, RawStreams
@@ -71,7 +72,7 @@ def simulate_point(
     """Simulate one point: pulses, Tm, t1, t2, Np (and the raw streams on request)."""
     theta = math.radians(spec.position_deg)
     vib = spec.freq_hz != 0.0
-    f_true = spec.freq_hz * (1.0 + cfg.param("frequency_error", "eps_f")) if vib else 0.0
+    f_true = spec.freq_hz * (1.0 + terms.frequency_error(cfg.effects)) if vib else 0.0
     w_true = 2.0 * math.pi * f_true
     rate = periodic_rate(theta, f_true, cfg)
     target = spec.preset_pulses * cfg.station.pulse_angle_rad
@@ -81,7 +82,7 @@ def simulate_point(
         sd = cfg.noise.rate_noise_radps * math.sqrt(cfg.noise.rate_noise_ref_s / tm_est)
         offset = rng.normal(0.0, sd)
     gamma0 = rng.uniform(0.0, 2.0 * math.pi) if vib else 0.0
-    window = PrecessionWindow(rate, w_true, gamma0, offset, cfg.param("bias_drift", "d"), start_s)
+    window = PrecessionWindow(rate, w_true, gamma0, offset, terms.bias_drift_radps2(cfg.effects), start_s)
     tm_true = window.first_passage_s(target)
     sign = 1 if window.mean_rate_radps >= 0 else -1
     stamper = _Stamper(cfg, start_s, rng)
@@ -128,7 +129,7 @@ def _reference_crossings(
 ) -> np.ndarray:
     """Recorded times of every reference crossing from one period before the opening to one after Tm."""
     w = window.w_radps
-    latency = cfg.param("readhead_latency", "delta")
+    latency = terms.reference_latency_s(cfg.effects)
     # psi(t) = w t + gamma0 = reference_phase + 2 pi m  ->  t_m = (reference_phase + 2 pi m - gamma0) / w
     m0 = math.floor((window.gamma0_rad - reference_phase_rad) / (2 * math.pi)) - 1
     m1 = math.ceil((w * (tm_true_s + abs(latency)) + window.gamma0_rad - reference_phase_rad) / (2 * math.pi)) + 2

@@ -9,20 +9,22 @@ import pytest
 
 from gap.design import PointDesign
 from gap.forward import CALIBRATED, predict, predict_full
-from gap.validate import FIXED_INJECTION, INJECTIONS
+from gap.validate import injected_effects
 from models.config import NoiseModel
+from models.effects import EFFECTS
 from models.plan import multiposition_plan
 from models.session_sim import simulate_session
 
 PLAN = multiposition_plan([0.0, 72.0, 144.0, 216.0, 288.0], (8.0, 10.0))
 
 
-@pytest.mark.parametrize("effect", sorted(INJECTIONS))
+@pytest.mark.parametrize("effect", sorted(injected_effects()))
 def test_window_means_and_period_identities_match_the_simulator(twin, effect):
     """Noise-free (tick 0): recorded wbar = phi(Tm) / Tm exactly, and tau = Np (T_true - T_cmd).
 
     Each effect at 100x its seed-000 size so that it moves the rates far above the 1e-12 tolerance."""
-    params = {k: 100 * v for k, v in INJECTIONS[effect].items()} | FIXED_INJECTION.get(effect, {})
+    declared = EFFECTS[effect]
+    params = {k: 100 * v for k, v in declared.injection.items()} | dict(declared.nominal)
     cfg = replace(twin, noise=NoiseModel(timer_tick_s=0.0)).with_effect(effect, **params)
     d = PointDesign.from_session(simulate_session(PLAN, cfg, 2))
     K = np.array([getattr(cfg.instrument, c) for c in CALIBRATED])

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from models.config import EFFECTS, NoiseModel, TwinConfig, TwinConfigError
+from models.config import NoiseModel, TwinConfig, TwinConfigError
+from models.effects import EFFECTS
 from models.measurement import simulate_point
 from models.plan import PointSpec
 from models.precession import periodic_rate
