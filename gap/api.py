@@ -170,6 +170,8 @@ def _identification(name: str, ident: IdentifiabilityReport, twin: TwinConfig, a
         },
         "fixed_parameters": cl.fixed_params(cand, twin),
         "notes": cand.notes,
+        "explanation": cand.effect.explanation,
+        "separating": cand.effect.separating,
         "accepted": accepted,
         "rank": None,
         "parameters": {},

@@ -112,8 +112,32 @@ def _grid(report: GapReport, z: np.ndarray) -> tuple[np.ndarray, list[float], li
         return np.where(count > 0, total / np.maximum(count, 1), np.nan), pos, freqs
 
 
+def _named(report: GapReport) -> list[str]:
+    """The effects the verdict names: explained, partial or those it cannot tell apart."""
+    v = report.verdict
+    return list(v.effects or v.partial or v.ambiguous)
+
+
+def _named_entries(report: GapReport) -> list[dict]:
+    """The candidate entries of the named effects, in the report's order."""
+    named = _named(report)
+    return [c for c in report.candidates if c["name"] in named]
+
+
+def _meaning(report: GapReport) -> list[str]:
+    """What each named effect means at the station and which test points separate it (its module's texts,
+    models.effects)."""
+    items = [
+        f"<li><b>{esc(c['name'])}</b> ({esc(c['cause'])}). {esc(c['explanation'])} "
+        f"<i>Separated by</i>: {esc(c['separating'])}.</li>"
+        for c in _named_entries(report)
+        if c.get("explanation")
+    ]
+    return ["<h2>What the named effect(s) mean</h2>", f"<ul>{''.join(items)}</ul>"] if items else []
+
+
 def _position_frequency_map(report: GapReport) -> str:
-    after = report.verdict.effects or report.verdict.partial or report.verdict.ambiguous
+    after = _named(report)
     panels = [("twin, coefficients refitted", report.z_before)]
     if after:
         panels.append((f"with {', '.join(after)}", report.z_after))
@@ -317,6 +341,7 @@ def render(report: GapReport) -> str:
         f"{', '.join(f'{f:g}' for f in info['frequencies_hz'])} Hz; {info['raw_streams']} points with raw streams; "
         f"{info['residual_dof']} residual dof after the calibrated terms; diagnosed in {report.elapsed_s:.1f} s.</p>",
         f"<h2>Verdict: <span class={_VERDICT_CLASS[v.verdict]}>{esc(v.verdict)}</span></h2><p>{esc(v.text)}</p>",
+        *_meaning(report),
         "<h2>Held-out gap</h2>",
         "<p>Metric: mean of z² − 1 over held-out vibration points (leave one position, one frequency, one block "
         "of the run order out), z = held-out residual / √(σ² + xᵀ Cov x); 0 when the model is right. "
@@ -413,8 +438,7 @@ def _noise_line(report: GapReport) -> str:
 def summary_text(report: GapReport) -> str:
     """A short human summary: verdict, effects with parameters and uncertainty, shrink, what is untestable."""
     v = report.verdict
-    named = v.effects or v.partial or v.ambiguous
-    effects = [_effect_line(e) for e in report.candidates if e["name"] in named and e["parameters"]]
+    effects = [_effect_line(e) for e in _named_entries(report) if e["parameters"]]
     lines = [f"verdict: {v.verdict}", f"  {v.text}", *effects, _heldout_line(report)]
     lines += _rejecting_tests(report) + _untestable(report)
     lines += [_noise_line(report), f"{report.session_info['n_points']} points, {report.elapsed_s:.1f} s"]

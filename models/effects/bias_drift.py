@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-from models.effects.base import Effect, Param, Params, Terms
+from operator import itemgetter
 
-
-def bias_drift_radps2(p: Params) -> float:
-    return p["d"]
-
+from models.effects.base import Effect, Param, Terms
 
 EFFECT = Effect(
     name="bias_drift",
@@ -18,5 +15,5 @@ EFFECT = Effect(
     explanation="The instrument's bias drifts over the session (thermal settling, seed 001). Let it warm up "
     "longer, control its temperature, or repeat a reference position through the run to track the drift.",
     separating="repeats of one position through the run, or the frequencies in alternating order",
-    terms=Terms(bias_drift_radps2=bias_drift_radps2),
+    terms=Terms(bias_drift_radps2=itemgetter("d")),
 )

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-from models.effects.base import Effect, Param, Params, Terms
+from operator import itemgetter
 
-
-def frequency_error(p: Params) -> float:
-    return p["eps_f"]
-
+from models.effects.base import Effect, Param, Terms
 
 EFFECT = Effect(
     name="frequency_error",
@@ -28,5 +25,5 @@ EFFECT = Effect(
     "t1 + Np T - Tm = t2 breaks by about eps_f Np / f. Calibrate the drive's speed (or its encoder's clock) and "
     "use the measured period.",
     separating="the period identities of every vibration point measure it; longer windows measure it better",
-    terms=Terms(frequency_error=frequency_error),
+    terms=Terms(frequency_error=itemgetter("eps_f")),
 )

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-from models.effects.base import Effect, Param, Params, Terms
+from operator import itemgetter
 
-
-def reference_latency_s(p: Params) -> float:
-    return p["delta"]
-
+from models.effects.base import Effect, Param, Terms
 
 EFFECT = Effect(
     name="readhead_latency",
@@ -28,5 +25,5 @@ EFFECT = Effect(
     "subtract it from t1 and t2.",
     separating="a second low frequency with short windows, or a second reference mark, separates latency from the "
     "fundamental's phase Zc1",
-    terms=Terms(reference_latency_s=reference_latency_s),
+    terms=Terms(reference_latency_s=itemgetter("delta")),
 )

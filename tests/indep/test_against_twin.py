@@ -20,6 +20,7 @@ import pytest
 
 from indep.world import Coefficients, Perturbation, Stamper, Window, window_timing
 from models.config import InstrumentCoefficients, NoiseModel, TwinConfig
+from models.effects import EFFECTS as TWIN_EFFECTS
 from models.measurement import simulate_point
 from models.plan import PointSpec
 
@@ -97,6 +98,12 @@ def test_window_agrees_with_twin(name: str) -> None:
             assert ours.Np == twin.record.Np, where
             assert abs(ours.t1_s - twin.record.t1_s) <= T1_TOL_S, where
             assert abs(ours.t2_s - twin.record.t2_s) <= T1_TOL_S + tol * tm, where
+
+
+def test_every_effect_of_the_twin_has_its_independent_counterpart_here() -> None:
+    """A new effect module (models.effects) is compared here too: its independent implementation is part of its
+    tests (README, "Adding an effect")."""
+    assert set(EFFECTS) - {"none"} == set(TWIN_EFFECTS)
 
 
 def test_effects_change_tm_beyond_the_tolerance() -> None:
