@@ -92,7 +92,7 @@ class SimStation:
         self.clock = clock or WallClock()
         self.rng = np.random.default_rng(seed)
         t0 = self.clock.now_s()
-        self.crank = _TrackedCrank(self, eps_f=terms.frequency_error(self.twin.effects), t0_s=t0)
+        self.crank = _TrackedCrank(self, eps_f=terms.frequency_offset(self.twin.effects), t0_s=t0)
         self.index_speed_deg_s = index_speed_deg_s
         self._lock = threading.RLock()
         self._head = _HeadMove(t0, 0.0, 0.0, index_speed_deg_s)
@@ -192,7 +192,7 @@ class SimStation:
             tm_est = preset_pulses * self.twin.station.pulse_angle_rad / max(abs(rate.c0_radps), 1e-12)
             offset = self.rng.normal(0.0, noise.rate_noise_radps * math.sqrt(noise.rate_noise_ref_s / tm_est))
         gamma0 = self.crank.phase_rad(t_s) % TWO_PI
-        return PrecessionWindow(rate, w, gamma0, offset, terms.bias_drift_radps2(self.twin.effects), t_s)
+        return PrecessionWindow(rate, w, gamma0, offset, terms.bias_slope_radps2(self.twin.effects), t_s)
 
     def _anchor_at(
         self, t_s: float, *, force: bool = False, draw_noise: bool = False, preset_pulses: int = 819_200

@@ -6,9 +6,8 @@ seed 000 Tables 5-7 and section 6.1 where the seed gives one) used for
 scaling the fit and for the design-level identifiability report, a
 finite-difference step and a plausible bound. Parameters that are set instead
 of fitted (`fixed`, declared with a nominal value) take the twin's value when
-the twin has the effect on, else the nominal one; the module's notes say why
-(parasitic_rotation's ax0 enters exactly as dtheta_mount does; a lateral
-resonance is seen only through kx L0^2).
+the twin has the effect on, else the nominal one; a module's notes say why a
+parameter is not fitted (the rates see it only through another, or not at all).
 """
 
 from __future__ import annotations

@@ -67,7 +67,7 @@ def period_identity_s(design: PointDesign, cfg: TwinConfig) -> np.ndarray:
     """tau = Np (T_true - T_cmd), T_true = T_cmd / (1 + eps_f), for vibration points; 0 for static ones."""
     tau = np.zeros(design.n_points)
     v = design.vib
-    eps = terms.frequency_error(cfg.effects)
+    eps = terms.frequency_offset(cfg.effects)
     tau[v] = design.Np[v] / design.freq_hz[v] * (1.0 / (1.0 + eps) - 1.0)
     return tau
 
@@ -85,7 +85,7 @@ def predict(design: PointDesign, cfg: TwinConfig) -> Prediction:
         return [base, a_i, a_i**2, a_p**2, a_i**3]
 
     means = _window_means(design, cfg, samples, 1 + len(CALIBRATED))
-    base = means[:, 0] + drift_mean_radps(terms.bias_drift_radps2(cfg.effects), design.start_s, design.Tm_s)
+    base = means[:, 0] + drift_mean_radps(terms.bias_slope_radps2(cfg.effects), design.start_s, design.Tm_s)
     return Prediction(base, means[:, 1:], period_identity_s(design, cfg))
 
 
@@ -102,7 +102,7 @@ def predict_full(design: PointDesign, cfg: TwinConfig, coefficients: np.ndarray)
         return [np.asarray(instrument_rate_radps(theta, psi, w, full), dtype=float)]
 
     rate = _window_means(design, cfg, samples, 1)[:, 0]
-    rate = rate + drift_mean_radps(terms.bias_drift_radps2(cfg.effects), design.start_s, design.Tm_s)
+    rate = rate + drift_mean_radps(terms.bias_slope_radps2(cfg.effects), design.start_s, design.Tm_s)
     return rate, period_identity_s(design, cfg)
 
 
@@ -141,7 +141,7 @@ def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> 
     vib = np.flatnonzero(design.vib)
     if not vib.size:
         return out
-    f_true = design.freq_hz[vib] * (1.0 + terms.frequency_error(cfg.effects))
+    f_true = design.freq_hz[vib] * (1.0 + terms.frequency_offset(cfg.effects))
     latency_s = terms.reference_latency_s(cfg.effects)
     psi = 2.0 * np.pi * np.arange(N_PHASES) / N_PHASES
     keys, key = np.unique(np.column_stack([design.pos_index[vib], f_true]), axis=0, return_inverse=True)

@@ -27,6 +27,7 @@ is left after the chosen effects.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -39,6 +40,7 @@ from gap.design import PointDesign
 from gap.fit import Channels, ModelFit
 from gap.forward import CALIBRATED
 from gap.heldout import BLOCKS
+from models.config import TwinConfig
 
 
 @dataclass(frozen=True)
@@ -209,11 +211,39 @@ def detectors(ch: Channels, fit: ModelFit) -> list[Detector]:
     return [x for x in out if x is not None]
 
 
-# Parameters that the window means do not see but the pulse edges do (physics.md's table), profiled in the pulse
-# test: the lateral motion's phase phiL (kx aO^2 has window mean kx L^2 a^2 / 2 whatever phiL; its 2nd rate harmonic
-# turns with 2 phiL) and the static tilt ax0 = dtheta_mount beside a fitted rocking axs1, axc1 (the rates fold
-# ax0 into mount_misalignment; the fundamental's in-phase part kz a cos(theta + ax0) is measured to ~1e-7 rad/s).
+# Parameters that the window means do not see but the pulse edges do are profiled in the pulse test, as the
+# chosen effects' modules declare them (models.effects.base.Effect: pulse_phase, pulse_folded): a phase on a grid
+# over one turn, then bounded; a folded parameter as a column within its bound.
 PHASE_GRID = 24
+
+
+def _pulse_only(chosen: list[str]) -> tuple[list[tuple[str, str]], list[cl.FreeParam]]:
+    """The phases the chosen effects declare, and the parameters they fold whose effect is not chosen too."""
+    effects = [cl.LIBRARY[n].effect for n in chosen]
+    phases = [(e.name, e.pulse_phase) for e in effects if e.pulse_phase]
+    folded: dict[str, cl.FreeParam] = {}
+    for e in effects:
+        if e.pulse_folded and e.pulse_folded[0] not in chosen:
+            name, param = e.pulse_folded
+            fp = next(fp for fp in cl.LIBRARY[name].free if fp.param == param)
+            folded[fp.key] = fp
+    return phases, list(folded.values())
+
+
+def _profile_phase(
+    cfg: TwinConfig, name: str, param: str, chi2_at: Callable[[TwinConfig], float]
+) -> tuple[TwinConfig, float]:
+    """The twin with effect `name`'s phase `param` at the minimum of chi2_at over a turn, and that minimum."""
+    current = dict(cfg.effects[name])
+
+    def at_phase(phi: float) -> float:
+        return chi2_at(cfg.with_effect(name, **{**current, param: float(phi)}))
+
+    grid = 2 * math.pi * np.arange(PHASE_GRID) / PHASE_GRID
+    best = grid[int(np.argmin([at_phase(x) for x in grid]))]
+    step = 2 * math.pi / PHASE_GRID
+    res = minimize_scalar(at_phase, bounds=(best - step, best + step), method="bounded", options={"xatol": 1e-4})
+    return cfg.with_effect(name, **{**current, param: float(res.x)}), float(res.fun)
 
 
 def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
@@ -232,14 +262,14 @@ def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
         return None
     d = ch.design
     walk_D = np.minimum(pulses.walk_density, ch.sigma0_radps**2 / ch.weights[pulses.index] * d.Tm_s[pulses.index])
-    chosen = {fp.effect for fp in fit.free}
-    tilt = "parasitic_rotation" in chosen and "mount_misalignment" not in chosen
-    n_nuisance = int(tilt) + int("lateral_resonance" in chosen)
+    chosen = [n for n in cl.LIBRARY if n in {fp.effect for fp in fit.free}]
+    phases, folded = _pulse_only(chosen)
+    n_nuisance = len(phases) + len(folded)
 
     # The prior covariance of what the columns below move, the same at every phiL: K as fitted, the effects'
     # parameters free within their plausible bounds (a wide prior, in units of their scale): the pulses are not in
     # the fit, so the test asks whether the chosen effects can reproduce them at all (the rate fit's own values,
-    # pulled by what the rates cannot separate, need not); ax0 as dtheta_mount within its bound when tilt.
+    # pulled by what the rates cannot separate, need not); a folded parameter within its bound.
     n_k = len(CALIBRATED)
     sd_K = np.sqrt(np.clip(np.diag(fit.cov)[d.n_levels : d.n_levels + n_k], 0, None))
     steps_K = [max(float(sd), 1e-9 * max(abs(float(k)), 1e-6)) for k, sd in zip(fit.K, sd_K, strict=True)]
@@ -247,11 +277,10 @@ def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
     cov[n_k:, :] = 0.0
     cov[:, n_k:] = 0.0
     cov[n_k:, n_k:] = np.diag([min(fp.bound, 1e3 * fp.scale) ** 2 / fp.scale**2 for fp in fit.free])
-    tilt_fp = cl.LIBRARY["mount_misalignment"].free[0]
-    if tilt:
+    for fp in folded:
         m = cov.shape[0]
         cov = np.pad(cov, ((0, 1), (0, 1)))
-        cov[m, m] = tilt_fp.bound**2
+        cov[m, m] = fp.bound**2
 
     def chi2_at(cfg) -> float:
         p0 = pulses.predict(d, cfg)
@@ -262,28 +291,20 @@ def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
         for fp, v in zip(fit.free, fit.values, strict=True):
             cfg_h = cl.apply(cfg, [fp], [float(v) + fp.fd_step], {})
             cols.append((pulses.predict(d, cfg_h) - p0) / fp.fd_step * fp.scale)
-        if tilt:
-            cfg_h = cl.apply(cfg, [tilt_fp], [tilt_fp.fd_step], {})
-            cols.append((pulses.predict(d, cfg_h) - p0) / tilt_fp.fd_step)
+        for fp in folded:
+            cfg_h = cl.apply(cfg, [fp], [fp.fd_step], {})
+            cols.append((pulses.predict(d, cfg_h) - p0) / fp.fd_step)
         return pulses.chi2(d, cfg, np.column_stack(cols), cov, walk_D)
 
     cfg = fit.refitted_cfg()
-    if "lateral_resonance" in chosen:
-        lateral = dict(cfg.effects["lateral_resonance"])
-
-        def at_phase(phi: float) -> float:
-            return chi2_at(cfg.with_effect("lateral_resonance", **{**lateral, "phiL": float(phi)}))
-
-        grid = 2 * math.pi * np.arange(PHASE_GRID) / PHASE_GRID
-        best = grid[int(np.argmin([at_phase(x) for x in grid]))]
-        step = 2 * math.pi / PHASE_GRID
-        res = minimize_scalar(at_phase, bounds=(best - step, best + step), method="bounded", options={"xatol": 1e-4})
-        chi2 = float(res.fun)
-    else:
-        chi2 = chi2_at(cfg)
+    chi2 = None
+    for name, param in phases:
+        cfg, chi2 = _profile_phase(cfg, name, param, chi2_at)
+    chi2 = chi2_at(cfg) if chi2 is None else chi2
     what = "chi-square of the rate harmonics the pulse edges give (raw records) against the fitted twin"
     if n_nuisance:
-        what += f" ({n_nuisance} parameter(s) only the pulses see profiled: lateral phiL, static tilt ax0)"
+        only = ", ".join([f"{n}.{p}" for n, p in phases] + [fp.key for fp in folded])
+        what += f" ({n_nuisance} parameter(s) only the pulses see profiled: {only})"
     return goodness_of_fit("pulse_goodness_of_fit", chi2, pulses.n_rows - n_nuisance, what, "pulse")
 
 

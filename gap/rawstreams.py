@@ -173,7 +173,7 @@ class GratingRecord:
     def predict(self, cfg: TwinConfig) -> np.ndarray:
         """What the twin gives for the same numbers (its table motion, latency, eps_f), point-major."""
         delta = terms.reference_latency_s(cfg.effects)
-        eps = terms.frequency_error(cfg.effects)
+        eps = terms.frequency_offset(cfg.effects)
         return np.concatenate([np.append(_twin_grating(float(w), delta, cfg), eps) for w in self.w_radps])
 
     def white(self, values: np.ndarray) -> np.ndarray:
@@ -220,7 +220,7 @@ def raw_evidence(session: Session, design: PointDesign, cfg: TwinConfig, sd_stam
             continue
         t1 = design.t1_s[i]
         w = _apparent_w(design, i)
-        f_true = design.freq_hz[i] * (1 + terms.frequency_error(cfg.effects))
+        f_true = design.freq_hz[i] * (1 + terms.frequency_offset(cfg.effects))
         entry: dict = {
             "point_id": pid,
             "position_deg": float(design.position_deg[i]),
@@ -266,7 +266,7 @@ def _pulse_directions(raw, design: PointDesign, i: int, cfg: TwinConfig) -> np.n
     reverses over a crank turn (every edge then counts one way); None when it reverses (a > 1 near IA)."""
     if raw.pulse_dir is not None:
         return np.asarray(raw.pulse_dir)
-    f_true = design.freq_hz[i] * (1 + terms.frequency_error(cfg.effects))
+    f_true = design.freq_hz[i] * (1 + terms.frequency_offset(cfg.effects))
     pr = periodic_rate(float(design.theta_rad[i]), float(f_true), cfg)
     psi = 2 * math.pi * np.arange(N_PHASES) / N_PHASES
     rate = pr.c0_radps + sum(
@@ -363,7 +363,7 @@ def _pulse_lsq(
 
 
 def _pulse_prediction(design: PointDesign, i: int, cfg: TwinConfig) -> np.ndarray:
-    f_true = design.freq_hz[i] * (1 + terms.frequency_error(cfg.effects))
+    f_true = design.freq_hz[i] * (1 + terms.frequency_offset(cfg.effects))
     return _twin_rate_harmonics(float(design.theta_rad[i]), f_true, terms.reference_latency_s(cfg.effects), cfg)
 
 

@@ -72,7 +72,7 @@ def simulate_point(
     """Simulate one point: pulses, Tm, t1, t2, Np (and the raw streams on request)."""
     theta = math.radians(spec.position_deg)
     vib = spec.freq_hz != 0.0
-    f_true = spec.freq_hz * (1.0 + terms.frequency_error(cfg.effects)) if vib else 0.0
+    f_true = spec.freq_hz * (1.0 + terms.frequency_offset(cfg.effects)) if vib else 0.0
     w_true = 2.0 * math.pi * f_true
     rate = periodic_rate(theta, f_true, cfg)
     target = spec.preset_pulses * cfg.station.pulse_angle_rad
@@ -82,7 +82,7 @@ def simulate_point(
         sd = cfg.noise.rate_noise_radps * math.sqrt(cfg.noise.rate_noise_ref_s / tm_est)
         offset = rng.normal(0.0, sd)
     gamma0 = rng.uniform(0.0, 2.0 * math.pi) if vib else 0.0
-    window = PrecessionWindow(rate, w_true, gamma0, offset, terms.bias_drift_radps2(cfg.effects), start_s)
+    window = PrecessionWindow(rate, w_true, gamma0, offset, terms.bias_slope_radps2(cfg.effects), start_s)
     tm_true = window.first_passage_s(target)
     sign = 1 if window.mean_rate_radps >= 0 else -1
     stamper = _Stamper(cfg, start_s, rng)

@@ -54,9 +54,9 @@ class Terms:
     motion_angle_rad(p, psi): added to theta_e over the crank phase (alpha_x);
     lateral_accel_mps2(p, psi, w_radps, A0_m): a_lat;
     rate_radps(p, aI, aP, aO): added to the instrument rate w_out;
-    frequency_error(p): eps_f of w = w_cmd (1 + eps_f);
+    frequency_offset(p): eps_f of w = w_cmd (1 + eps_f);
     reference_latency_s(p): added to every reference-crossing stamp;
-    bias_drift_radps2(p): d of k0 + d t_session.
+    bias_slope_radps2(p): d of k0 + d t_session.
     """
 
     table_harmonics: Callable[[Params, float], Sequence[tuple[int, float, float]]] | None = None
@@ -64,9 +64,9 @@ class Terms:
     motion_angle_rad: Callable[[Params, np.ndarray], np.ndarray] | None = None
     lateral_accel_mps2: Callable[[Params, np.ndarray, float, float], np.ndarray] | None = None
     rate_radps: Callable[[Params, np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
-    frequency_error: Callable[[Params], float] | None = None
+    frequency_offset: Callable[[Params], float] | None = None
     reference_latency_s: Callable[[Params], float] | None = None
-    bias_drift_radps2: Callable[[Params], float] | None = None
+    bias_slope_radps2: Callable[[Params], float] | None = None
 
 
 @dataclass(frozen=True, eq=False)  # one object per effect: hashed by identity
@@ -90,6 +90,9 @@ class Effect:
     notes: str = ""
     joint_bound: JointBound | None = None
     aliases: tuple[str, ...] = ()
+    pulse_phase: str = ""  # a phase only the pulse edges see (window means do not): profiled in their test
+    pulse_folded: tuple[str, str] | None = None  # (effect, parameter) the rates fold a set parameter into; the
+    # pulse edges see it apart, so their test profiles it within that parameter's bound unless that effect is chosen
     check: Callable[[Params], str] | None = None
 
     def __post_init__(self) -> None:

@@ -15,5 +15,5 @@ EFFECT = Effect(
     explanation="The instrument's bias drifts over the session (thermal settling, seed 001). Let it warm up "
     "longer, control its temperature, or repeat a reference position through the run to track the drift.",
     separating="repeats of one position through the run, or the frequencies in alternating order",
-    terms=Terms(bias_drift_radps2=itemgetter("d")),
+    terms=Terms(bias_slope_radps2=itemgetter("d")),
 )

@@ -25,5 +25,5 @@ EFFECT = Effect(
     "t1 + Np T - Tm = t2 breaks by about eps_f Np / f. Calibrate the drive's speed (or its encoder's clock) and "
     "use the measured period.",
     separating="the period identities of every vibration point measure it; longer windows measure it better",
-    terms=Terms(frequency_error=itemgetter("eps_f")),
+    terms=Terms(frequency_offset=itemgetter("eps_f")),
 )

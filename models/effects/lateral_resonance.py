@@ -48,5 +48,6 @@ EFFECT = Effect(
     separating="more vibration frequencies, nearer fr, separate the resonance's shape from the frequency shape of "
     "the calibrated terms",
     terms=Terms(lateral_accel_mps2=lateral_accel_mps2, rate_radps=rate_radps),
+    pulse_phase="phiL",  # kx aO^2 has window mean kx L^2 a^2 / 2 whatever phiL; its 2nd rate harmonic turns with 2 phiL
     check=check,
 )

@@ -32,4 +32,7 @@ EFFECT = Effect(
     separating="a second crank amplitude, or positions half-way between the recorded ones, separate the rocking "
     "from a mount tilt and the index head's angle errors",
     terms=Terms(motion_angle_rad=motion_angle_rad),
+    # the static tilt ax0 beside a fitted rocking: the rates fold it into dtheta_mount, the pulse edges see it (the
+    # fundamental's in-phase part kz a cos(theta + ax0) is measured to ~1e-7 rad/s)
+    pulse_folded=("mount_misalignment", "dtheta_mount"),
 )

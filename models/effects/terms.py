@@ -67,9 +67,9 @@ def _scalar(effects: Effects, term: Callable[[Terms], Callable[[Params], float] 
     return sum((hook(p) for hook, p in _hooks(effects, term)), 0.0)
 
 
-def frequency_error(effects: Effects) -> float:
+def frequency_offset(effects: Effects) -> float:
     """eps_f of the true frequency w = w_cmd (1 + eps_f)."""
-    return _scalar(effects, lambda t: t.frequency_error)
+    return _scalar(effects, lambda t: t.frequency_offset)
 
 
 def reference_latency_s(effects: Effects) -> float:
@@ -77,6 +77,6 @@ def reference_latency_s(effects: Effects) -> float:
     return _scalar(effects, lambda t: t.reference_latency_s)
 
 
-def bias_drift_radps2(effects: Effects) -> float:
+def bias_slope_radps2(effects: Effects) -> float:
     """d of the bias k0 + d t_session."""
-    return _scalar(effects, lambda t: t.bias_drift_radps2)
+    return _scalar(effects, lambda t: t.bias_slope_radps2)
