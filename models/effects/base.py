@@ -103,18 +103,8 @@ class Effect:
             raise ValueError(f"effect {self.name!r}: injection of unknown parameter(s) {sorted(unknown)}")
 
     @property
-    def parameters(self) -> Mapping[str, str]:
-        """Parameter name -> unit."""
-        return {k: p.unit for k, p in self.params.items()}
-
-    @property
     def defaults(self) -> Mapping[str, float]:
         return {k: p.default for k, p in self.params.items()}
-
-    @property
-    def fitted(self) -> tuple[str, ...]:
-        """The parameters the gap diagnosis fits (those with a typical size)."""
-        return tuple(k for k, p in self.params.items() if p.typical is not None)
 
     @property
     def nominal(self) -> Mapping[str, float]:
