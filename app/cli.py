@@ -18,7 +18,6 @@ from tqdm import tqdm
 
 from app.console import (
     DEFAULT_PROCEDURE,
-    DEFAULT_SPEED,
     controller_for,
     describe_plan,
     exit_code,
@@ -64,6 +63,10 @@ def positive_float(text: str) -> float:
     return value
 
 
+def _pace(speed: float | None) -> str:
+    return "as fast as the CPU allows" if speed is None else f"at most {speed:g}x real time"
+
+
 ENDPOINT = re.compile(r"^(tcp://([^:/\s\[\]]+|\[[0-9A-Fa-f:.]+\]):(\d{1,5}|\*)|ipc://\S+|inproc://\S+)$")
 
 
@@ -105,7 +108,7 @@ def _run(
         given = args.serial or serial
         make_provenance(station_id=config.station_id, simulated=config.simulated, instrument_serial=given)
     with SessionStore(args.db or out / "station.sqlite") as store:
-        kind = f"simulated, seed {args.seed}, {args.speed:g}x real time" if config.simulated else "real"
+        kind = f"simulated, seed {args.seed}, {_pace(args.speed)}" if config.simulated else "real"
         print(f"station: {config.path} ({kind}); store: {store.path}")
         with (
             open_station(config, twin, seed=args.seed, speed=args.speed) as hw,
@@ -271,9 +274,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument(
             "--speed",
             type=positive_float,
-            default=DEFAULT_SPEED,
-            help=f"simulated station seconds per wall second, > 0 (default {DEFAULT_SPEED:g}; ignored by a real "
-            "station)",
+            help="at most this many simulated station seconds per wall second, > 0, for watching a run live "
+            "(default: as fast as the CPU allows; ignored by a real station)",
         )
         p.add_argument(
             "--serial",

@@ -35,16 +35,18 @@ from station.telemetry import TelemetryPublisher
 CONFIG_DIR = config_dir()  # the shipped defaults (station.defaults): package data, or config/ in a source tree
 DEFAULT_SIM_STATION = CONFIG_DIR / "station-sim.toml"
 DEFAULT_PROCEDURE = CONFIG_DIR / "procedures" / "seed000_integral.toml"
-DEFAULT_SPEED = 1000.0  # simulated station time per wall second
 
 
 @contextmanager
 def open_station(
-    config: StationConfig, twin: TwinConfig, *, seed: int = 0, speed: float = DEFAULT_SPEED
+    config: StationConfig, twin: TwinConfig, *, seed: int = 0, speed: float | None = None
 ) -> Iterator[StationHardware]:
-    """The station's devices (its emulators first, when the configuration is simulated); closed on exit."""
+    """The station's devices (its emulators first, when the configuration is simulated); closed on exit.
+
+    A simulated station runs on the discrete-event clock: as fast as the CPU allows, or at most `speed`
+    station seconds per wall second for watching it live."""
     if config.simulated:
-        sim = simulated_station(config, twin, seed=seed, speed=speed)
+        sim = simulated_station(config, twin, seed=seed, speed=speed, deterministic=True)
         try:
             yield sim.devices
         finally:

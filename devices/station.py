@@ -2,10 +2,11 @@
 
 `StationDevices.open(config, clock)` opens every driver on the ports and bus
 that the configuration names. `simulated_station(config, twin, ...)` first
-starts a simulated world (devices.world.SimStation) on a VirtualClock,
-its emulators behind pseudo-terminals and on a python-can virtual bus, fills
-their ports into the configuration, then calls the same `open`: hardware and
-simulation share every line of driver code.
+starts a simulated world (devices.world.SimStation) on a discrete-event clock,
+its emulators on `sim://` serial lines and the `station_sim` CAN interface (or,
+for the wire tests, on a VirtualClock behind pseudo-terminals and python-can's
+virtual bus), fills their ports into the configuration, then calls the same
+`open`: hardware and simulation share every line of driver code.
 
 Interlocks kept here, whatever the procedure asks: the indexing head never
 moves while the crank turns (`motion_permitted`), a drive fault or lost bus
@@ -413,19 +414,19 @@ def simulated_station(
     *,
     seed: int = 0,
     speed: float | None = None,
-    deterministic: bool = False,
+    deterministic: bool = True,
 ) -> SimulatedStation:
     """Start the simulated station of `config` (which must say simulated = true) and open its drivers.
 
-    Each station gets its own CAN channel so that several can run in one process. The world runs on a
-    VirtualClock `speed` (default 1) times real time with the emulators behind pseudo-terminals and on
-    python-can's virtual bus or, `deterministic`, on a discrete-event clock (station.event_clock) with the
+    Each station gets its own CAN channel so that several can run in one process. The world runs,
+    `deterministic` (the default), on a discrete-event clock (station.event_clock) with the
     synchronous transports (the `station_sim` CAN interface, sim:// serial lines): the same seed then gives
     the same session to the bit, however busy the host (the threads that act in station time are parties
     of the clock: the controller's engine, the supervisor's safe stop, or a lone caller). There `speed`
     caps the pace at that many station seconds per wall second and keeps time flowing, as a real
     station's, whoever acts on it (a Pacemaker), for watching it live; without it the station runs as
-    fast as the CPU allows.
+    fast as the CPU allows. Not `deterministic` (the wire tests): on a VirtualClock `speed` (default 1)
+    times real time, the emulators behind pseudo-terminals and on python-can's virtual bus.
     """
     from devices.world import SimStation
 

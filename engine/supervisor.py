@@ -245,6 +245,7 @@ class MotionSupervisor:
     def _on_lost(self, w: _Watch, reason: str) -> None:
         log.error("motion supervisor: %s", reason)
         if w.thread.is_alive():  # stuck, perhaps holding the counter's port: motion only, at once
+            self._station_clock.dismiss(w.thread)  # a stuck engine holds no station time (station.event_clock)
             state = self.emergency_state(reason)
         else:  # gone: the window is aborted and the crank ramped, then everything is stopped and held
             state = self.safe_state(reason)

@@ -101,9 +101,11 @@ class CrankModel:
     def times_at_phases(self, psi_levels: np.ndarray, t0_s: float, t1_s: float) -> np.ndarray:
         """Times in (t0, t1] at which psi passes each level (the crank turning forwards); exact per segment."""
         levels = np.sort(np.asarray(psi_levels, dtype=float))
-        with self._lock:
-            bounds = [*self._starts[1:], math.inf]
-            pieces = list(zip(self._segments, bounds, strict=True))
+        with self._lock:  # only the segments that overlap (t0, t1]: a session's history grows with every command
+            first = max(bisect.bisect_right(self._starts, t0_s) - 1, 0)
+            last = bisect.bisect_right(self._starts, t1_s)
+            bounds = [*self._starts[first + 1 : last + 1], math.inf][: last - first]
+            pieces = list(zip(self._segments[first:last], bounds, strict=True))
         out = []
         for seg, seg_end in pieces:
             a, b = max(t0_s, seg.t_start_s), min(t1_s, seg_end)

@@ -131,6 +131,8 @@ class Clock(Protocol):
 
     def party(self, name: str) -> AbstractContextManager[None]: ...
 
+    def dismiss(self, thread: threading.Thread) -> None: ...
+
 
 def spawn_party(clock: Clock, name: str, target: Callable[[], object]) -> threading.Thread:
     """Start a daemon thread that runs target() as a party of `clock` named `name` (station.event_clock);
@@ -171,6 +173,9 @@ class _PacedClock:
     def party(self, name: str) -> AbstractContextManager[None]:
         """A paced clock's time moves by itself: a party changes nothing."""
         return nullcontext()
+
+    def dismiss(self, thread: threading.Thread) -> None:
+        """Nothing to dismiss: time moves by itself."""
 
     def sleep_s(self, duration_s: float) -> None:
         if duration_s > 0:

@@ -59,7 +59,7 @@ def procedure_spec(name: str) -> ProcedureSpec:
     return spec
 
 
-def record(name: str, db: Path, *, deterministic: bool = False, tpdo_event_timer_ms: int | None = None) -> str:
+def record(name: str, db: Path, *, deterministic: bool = True, tpdo_event_timer_ms: int | None = None) -> str:
     """The shortened session of procedure file `name` (seed 11) stored in `db`; its uid. On the paced station at
     1000x or, `deterministic`, on the discrete-event one as fast as the CPU allows (the calling thread its party);
     `tpdo_event_timer_ms` instead of the station file's."""

@@ -78,7 +78,7 @@ def _control_rig(tmp_path, seed: int):
     from station.control_channel import ControlClient
 
     config = load_station_config(CONFIG / "station-sim.toml")
-    sim = simulated_station(config, default_twin(), seed=seed, speed=1000.0)
+    sim = simulated_station(config, default_twin(), seed=seed)
     db = SessionStore(tmp_path / "s.db")
     controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)
     server = ControlServer(controller, "tcp://127.0.0.1:*", token="t" * 32).start()

@@ -453,7 +453,8 @@ class VibrationTableServo:
         with self._watchdog_lock:
             now_s = self._link.now_s()
             silent_s = now_s - self._hb_last_link_s
-            if not self._watching or silent_s < self._hb_timeout_s:
+            # against the deadline as armed: now - last may fall a rounding error short of the timeout
+            if not self._watching or now_s < self._hb_last_link_s + self._hb_timeout_s:
                 return  # closed, or a heartbeat came in while this timer fell due
             self._watching = False
             allowed = f"<= {self._hb_timeout_s * 1000:.0f} ms ({HEARTBEAT_FACTOR} periods)"

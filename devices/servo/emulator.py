@@ -489,7 +489,7 @@ class ServoEmulator:
         with self._lock:
             if not self._running or self._hb_last_s is None:
                 return  # stopped, or the consumer was reconfigured while this timer fell due
-            if self._bus_clock.now_s() - self._hb_last_s < self._hb_timeout_s:
+            if self._bus_clock.now_s() < self._hb_last_s + self._hb_timeout_s:  # the deadline as armed, to the bit
                 return  # a heartbeat came in while this timer fell due (it armed the next deadline)
             self._hb_deadline = None
             self._master_heartbeat_lost()

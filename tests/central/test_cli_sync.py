@@ -64,7 +64,7 @@ def test_serve_takes_sync_options():
 
 def test_a_station_under_control_pushes_each_session_once_it_ended(tmp_path, central_url, arrays_dir):
     with contextlib.ExitStack() as stack:  # closed in reverse: sync, controller (aborts a run), store, station
-        sim = simulated_station(CONFIG, default_twin(), seed=1, speed=1000.0)
+        sim = simulated_station(CONFIG, default_twin(), seed=1)
         stack.callback(sim.close)
         store = stack.enter_context(SessionStore(tmp_path / "station.sqlite"))
         controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=tmp_path)

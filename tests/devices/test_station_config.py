@@ -72,7 +72,7 @@ BAD = [
     ([(r"^freq_max_hz = 10.0", "freq_max_hz = -1.0")], "[limits] freq_max_hz", "-1.0"),
     ([(r"^latitude_deg = 39.94", "latitude_deg = 91")], "[station] latitude_deg", "91"),
     ([(r"^heartbeat_ms = 100", "heartbeat_ms = 0")], "[servo] heartbeat_ms", "0"),
-    ([(r"^tpdo_event_timer_ms = 10", "tpdo_event_timer_ms = 0")], "[servo] tpdo_event_timer_ms", "0"),
+    ([(r"^tpdo_event_timer_ms = 250", "tpdo_event_timer_ms = 0")], "[servo] tpdo_event_timer_ms", "0"),
     ([(r"^timeout_s = 0.5", "timeout_s = inf")], "[servo] timeout_s", "inf"),
     ([(r'^channel = "can0"', 'channel = ""')], "[servo] channel", "''"),
     ([(r"^freq_min_hz = 0.1", "freq_min_hz = 20.0")], "[limits] freq_min_hz", "20.0"),

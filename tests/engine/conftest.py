@@ -39,7 +39,7 @@ def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
         speed: float | None = 1000.0,
         seed: int = 1,
         db: Path | None = None,
-        deterministic: bool = False,
+        deterministic: bool = True,
     ) -> Rig:
         sim = simulated_station(CONFIG, twin or default_twin(), seed=seed, speed=speed, deterministic=deterministic)
         store = SessionStore(db or tmp_path / "station.sqlite")

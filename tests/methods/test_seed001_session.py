@@ -39,14 +39,13 @@ PROCEDURE = "seed001.tumble"
 # the drift between temperatures) identifiable; about 1 h of station time.
 QUICK = {"temperatures_c": [20, 45, -5, 20], "cycles": 1, "ramp_c_per_min": 5, "soak_s": 300, "dwell_s": 2,
          "nplc": 10, "samples": 4}  # fmt: skip
-SPEED = 500.0  # the indexing head settles within 120 s of station time: 240 ms of wall time, loaded machine or not
 # A 4-sigma miss has probability 6e-5 for an honest estimate; over the ~40 comparisons below, 0.3 %.
 Z_MAX = 4.0
 
 
 @pytest.fixture
 def station(tmp_path) -> Iterator[tuple]:
-    sim = simulated_station(CONFIG, default_twin(), seed=7, speed=SPEED)
+    sim = simulated_station(CONFIG, default_twin(), seed=7)
     store = SessionStore(tmp_path / "station.sqlite")
     controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=tmp_path)
     try:

@@ -197,7 +197,7 @@ QUICK = {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0, "se
 @pytest.fixture
 def dual_station(tmp_path):
     config = load_station_config(CONFIG_DIR / "station-dual-sim.toml")
-    sim = simulated_station(config, TWIN, seed=4, speed=1000.0)
+    sim = simulated_station(config, TWIN, seed=4)
     store = SessionStore(tmp_path / "station.sqlite")
     controller = StationController(sim.devices, store, config.station_model(), reports_dir=tmp_path)
     try:

@@ -64,7 +64,7 @@ def _window_sigma_radps(twin: TwinConfig, tm_s: np.ndarray) -> np.ndarray:
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("seed003")
     twin = _noise_for(REV)
-    sim = simulated_station(CONFIG, twin, seed=3, speed=1000.0)
+    sim = simulated_station(CONFIG, twin, seed=3)
     store = SessionStore(out / "station.sqlite")
     try:
         controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=out)

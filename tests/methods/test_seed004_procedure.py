@@ -72,7 +72,7 @@ def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
     loaded machine a reader that lags 107 ms of wall time at 1000 x (half a wrap of the 50 ns time stamps,
     214.7 s of station time) puts time stamps on the wrong wrap (a TimingFault of exactly 48 364.8 us at
     10 Hz); 500 x doubles that margin. About 100 s of wall time."""
-    args = ["run", str(PROCEDURE), "--station", str(STATION), "--out", str(tmp_path), "--seed", "5", "--speed", "500"]
+    args = ["run", str(PROCEDURE), "--station", str(STATION), "--out", str(tmp_path), "--seed", "5"]
     assert main(args) == 0
     printed = capsys.readouterr().out
     assert "remove" in printed and "reduced" in printed

@@ -74,10 +74,10 @@ class StationProcess:
         raise AssertionError(f"station {self.name} still busy after {timeout_s} s")
 
 
-def start_station(out: Path, name: str = "sim", speed: float = 1000.0) -> StationProcess:
+def start_station(out: Path, name: str = "sim", speed: float | None = None) -> StationProcess:
     control, telemetry = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
     cmd = [sys.executable, "-m", "app.cli", "serve", "--out", str(out), "--name", name, "--control", control,
-           "--telemetry", telemetry, "--speed", str(speed)]  # fmt: skip
+           "--telemetry", telemetry, *(["--speed", str(speed)] if speed else [])]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + STATION_START_S
     line = proc.stdout.readline()  # the serve command prints one line once it listens

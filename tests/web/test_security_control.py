@@ -30,7 +30,7 @@ TOKEN = "t0ken" * 8
 @pytest.fixture(scope="module")
 def server(tmp_path_factory) -> Iterator[ControlServer]:
     tmp = tmp_path_factory.mktemp("control")
-    sim = simulated_station(CONFIG, default_twin(), speed=1000.0)
+    sim = simulated_station(CONFIG, default_twin())
     store = SessionStore(tmp / "station.sqlite")
     controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=tmp)
     srv = ControlServer(controller, "tcp://127.0.0.1:*", token=TOKEN).start()
