@@ -40,16 +40,13 @@ from devices.registry import device_kinds
 from devices.servo.driver import ServoLimits, VibrationTableServo
 from engine.protocols import Event, FrequencyEstimate, MotionRecord, ServoReading, Stoppable, WindowResult
 from models.config import TwinConfig
-from station.clock import Clock, VirtualClock, WallClock, speed_at_most
+from station.clock import Clock, VirtualClock, WallClock
 from station.event_clock import EventClock, Pacemaker
 from station.session import StationInfo
 
 log = logging.getLogger(__name__)
 
 GRATING_RATE_HZ = 5000.0
-# A grating stretch crosses the serial line as it is sampled: 19-byte frames at 3 Mbaud carry
-# about 15 800 samples per wall second, so station time may run at most 2x while it records.
-GRATING_MAX_SPEED = 2.0
 GRATING_ATTEMPTS = 3  # a host stall of a few hundred ms overflows the board's FIFO: record the stretch again
 # The display trace: at most this many grating samples per wall second over the line, so that a
 # fast virtual clock gets a thinned (equivalent-time) sample of the motion instead of a backlog.
@@ -58,9 +55,6 @@ TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often than this
 # A drain waits this long for bytes: a window at 1000x may last 36 ms of wall time, and its only drain, at
 # the OPEN event, comes just after the stream starts (what the serial link's 20 ms poll used to grant).
 TRACE_WAIT_WALL_S = 0.02
-# Reference marks report each crossing as an ASCII line of about 35 bytes at 115 200 baud
-# (330 lines per wall second): at 10 Hz, station time may run at most 10x while they are timed.
-REFERENCE_MAX_SPEED = 10.0
 # The vibration table's devices (devices.registry kinds with core=True), in the order they open: the drive
 # first, the serial devices after it.
 CORE_DEVICES = ("servo", "grating", "reference", "counter", "indexing_head")
@@ -227,8 +221,7 @@ class StationDevices:
 
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
         """duration_s of the 5 kHz grating record: (t_s, z_m) with no sample lost."""
-        with speed_at_most(self.clock, GRATING_MAX_SPEED):
-            return self._grating_stretch(duration_s)
+        return self._grating_stretch(duration_s)
 
     def capture_motion(self, duration_s: float) -> MotionRecord:
         """A grating stretch and the reference crossings (psi = 0) that fall in it, on one time base.
@@ -236,16 +229,15 @@ class StationDevices:
         The crossings fix the crank phase of every sample, so that the harmonics of z(t)
         come out relative to psi as physics.md defines them (seed 000 eq. 30).
         """
-        with speed_at_most(self.clock, min(GRATING_MAX_SPEED, REFERENCE_MAX_SPEED)):
-            self.reference.start()
-            try:
-                t_s, z_m = self._grating_stretch(duration_s)
-                crossings: list[float] = []
-                while not crossings or crossings[-1] <= t_s[-1]:
-                    crossings.append(self.reference.next_crossing().t_s)
-            finally:
-                with contextlib.suppress(DriverError):
-                    self.reference.stop()
+        self.reference.start()
+        try:
+            t_s, z_m = self._grating_stretch(duration_s)
+            crossings: list[float] = []
+            while not crossings or crossings[-1] <= t_s[-1]:
+                crossings.append(self.reference.next_crossing().t_s)
+        finally:
+            with contextlib.suppress(DriverError):
+                self.reference.stop()
         ref = np.asarray(crossings)
         return MotionRecord(t_s, z_m, ref[(ref >= t_s[0]) & (ref <= t_s[-1])])
 
@@ -270,13 +262,12 @@ class StationDevices:
 
     def measure_frequency(self, periods: int) -> FrequencyEstimate:
         """Frequency and stability from `periods` consecutive reference-mark periods (seed 000 6.1.2)."""
-        with speed_at_most(self.clock, REFERENCE_MAX_SPEED):
-            self.reference.start()
-            try:
-                return self.reference.measure_frequency(periods)
-            finally:
-                with contextlib.suppress(DriverError):
-                    self.reference.stop()
+        self.reference.start()
+        try:
+            return self.reference.measure_frequency(periods)
+        finally:
+            with contextlib.suppress(DriverError):
+                self.reference.stop()
 
     def safe_stop(self) -> None:
         """Abort any window, ramp the crank to rest and disable it; the first error is raised after all."""
@@ -329,11 +320,12 @@ class StationDevices:
         self.servo.master_alive = alive
 
     def safe_stop_bound_s(self) -> float:
-        """Wall seconds a safe stop may take: the crank's ramp from the highest frequency (station time, at the
-        clock's speed) plus the drive's confirmations (3 SDO writes, 2 state transitions) and the counter abort."""
+        """Seconds of the clock's link a safe stop may take: the crank's ramp from the highest frequency (station
+        time) plus the drive's confirmations (3 SDO writes, 2 state transitions) and the counter abort."""
         lim = self.config.limits
-        ramp_wall_s = lim.freq_max_hz / lim.ramp_max_hz_per_s / getattr(self.clock, "speed", 1.0)
-        return ramp_wall_s + 3 * self.config.servo.timeout_s + 2 * 1.0 + 1.0
+        return (
+            self.clock.link_s(lim.freq_max_hz / lim.ramp_max_hz_per_s) + 3 * self.config.servo.timeout_s + 2 * 1.0 + 1.0
+        )
 
     def _extra_actions(self, name: str) -> list[Callable[[], object]]:
         """The safe_stop / emergency_stop of every further device that moves something (engine.protocols.Stoppable)."""
@@ -347,8 +339,9 @@ class _DisplayTrace:
     """
 
     def __init__(self, grating: GratingReadHead, clock: Clock, sink: Callable[[np.ndarray, np.ndarray], None]) -> None:
-        speed = getattr(clock, "speed", 1.0)
-        divider = min(max(math.ceil(GRATING_RATE_HZ * speed / TRACE_SAMPLES_PER_WALL_S), 10), grating.max_divider)
+        pace = clock.pace  # None: as fast as the CPU allows, the sparsest trace
+        divider = grating.max_divider if pace is None else math.ceil(GRATING_RATE_HZ * pace / TRACE_SAMPLES_PER_WALL_S)
+        divider = min(max(divider, 10), grating.max_divider)
         self.grating = grating
         self.sink = sink
         self._link = clock.link  # the drain's pace is the line's

@@ -31,8 +31,8 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any, Protocol, runtime_checkable
 
 log = logging.getLogger(__name__)
@@ -133,6 +133,16 @@ class Clock(Protocol):
 
     def dismiss(self, thread: threading.Thread) -> None: ...
 
+    def link_s(self, duration_s: float) -> float:
+        """How many seconds of the clock's link `duration_s` of its time lasts (a reply timeout that covers
+        a device's own station-time work)."""
+        ...
+
+    @property
+    def pace(self) -> float | None:
+        """At most this many of its seconds per wall second; None: as fast as the CPU allows."""
+        ...
+
 
 def spawn_party(clock: Clock, name: str, target: Callable[[], object]) -> threading.Thread:
     """Start a daemon thread that runs target() as a party of `clock` named `name` (station.event_clock);
@@ -176,6 +186,9 @@ class _PacedClock:
 
     def dismiss(self, thread: threading.Thread) -> None:
         """Nothing to dismiss: time moves by itself."""
+
+    def link_s(self, duration_s: float) -> float:
+        return self.wall_s(duration_s)  # its link is the wall clock
 
     def sleep_s(self, duration_s: float) -> None:
         if duration_s > 0:
@@ -293,6 +306,10 @@ class WallClock(_PacedClock):
         return duration_s
 
     @property
+    def pace(self) -> float:
+        return 1.0
+
+    @property
     def link(self) -> WallClock:
         return self
 
@@ -333,6 +350,10 @@ class VirtualClock(_PacedClock):
         return duration_s / self.speed
 
     @property
+    def pace(self) -> float:
+        return self.speed
+
+    @property
     def link(self) -> WallClock:
         return _HOST_CLOCK
 
@@ -343,34 +364,3 @@ class VirtualClock(_PacedClock):
             self._offset_s += duration_s
         with self._timer_cond:
             self._timer_cond.notify()
-
-    def set_speed(self, speed: float) -> None:
-        """Run `speed` times faster than the wall clock from now on; time stays continuous."""
-        if not speed > 0:
-            raise ValueError(f"clock speed must be > 0, got {speed!r}")
-        with self._lock:
-            wall = time.monotonic()
-            self._offset_s += (wall - self._wall0) * self.speed
-            self._wall0 = wall
-            self.speed = float(speed)
-        with self._timer_cond:
-            self._timer_cond.notify()
-
-
-@contextmanager
-def speed_at_most(clock: Clock, speed: float) -> Iterator[None]:
-    """Inside the block station time runs at most `speed` times wall time.
-
-    For work whose data must cross a real transport as it happens (a stretch
-    of the 5 kHz grating stream): a fast VirtualClock slows down for it; a
-    WallClock already runs at 1.
-    """
-    current = getattr(clock, "speed", 1.0)
-    if not isinstance(clock, VirtualClock) or current <= speed:
-        yield
-        return
-    clock.set_speed(speed)
-    try:
-        yield
-    finally:
-        clock.set_speed(current)

@@ -111,6 +111,13 @@ class EventClock:
     def link(self) -> EventClock:
         return self
 
+    def link_s(self, duration_s: float) -> float:
+        return duration_s
+
+    @property
+    def pace(self) -> float | None:
+        return self.ceiling
+
     def sleep_s(self, duration_s: float) -> None:
         with self._cv:
             self._wait_until(lambda: False, self._now_s + max(duration_s, 0.0), None)

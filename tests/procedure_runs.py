@@ -2,7 +2,6 @@
 wall time, recorded through the simulated station (engine, drivers, emulators): the round-trip and the
 determinism tests share them."""
 
-import dataclasses
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -59,21 +58,17 @@ def procedure_spec(name: str) -> ProcedureSpec:
     return spec
 
 
-def record(name: str, db: Path, *, deterministic: bool = True, tpdo_event_timer_ms: int | None = None) -> str:
-    """The shortened session of procedure file `name` (seed 11) stored in `db`; its uid. On the paced station at
-    1000x or, `deterministic`, on the discrete-event one as fast as the CPU allows (the calling thread its party);
-    `tpdo_event_timer_ms` instead of the station file's."""
+def record(name: str, db: Path) -> str:
+    """The shortened session of procedure file `name` (seed 11) stored in `db`; its uid. On the simulated station
+    (discrete-event clock) as fast as the CPU allows, the calling thread its party."""
     station, shorter = RUNS[name]
     cfg = load_station_config(CONFIG / f"{station}.toml")
-    if tpdo_event_timer_ms is not None:
-        cfg = dataclasses.replace(cfg, servo=dataclasses.replace(cfg.servo, tpdo_event_timer_ms=tpdo_event_timer_ms))
     path = CONFIG / "procedures" / f"{name}.toml"
     spec = procedure_spec(name)
     params = spec.validate(tomllib.loads(path.read_text()).get("params", {}) | shorter)
     plan = plan_procedure(spec, params, cfg.station_model())
-    speed = None if deterministic else 1000.0
     with (
-        simulated_station(cfg, default_twin(), seed=11, speed=speed, deterministic=deterministic) as sim,
+        simulated_station(cfg, default_twin(), seed=11) as sim,
         SessionStore(db) as store,
         sim.devices.clock.party("engine"),
     ):

@@ -2,9 +2,7 @@
 transports; issue 27 d2), run twice with the same seed, the second time beside two busy loops that keep both
 cores of a 2-core machine busy: the same stored points, measurements, raw records and analysis results, to the
 bit. Session uids, provenance time stamps and wall durations are not part of the promise (content_hash leaves
-the provenance out). The shortened sessions of tests/procedure_runs.py, with the drive's TPDO event timers at
-250 ms instead of the station files' 10 ms (the frames of long static sessions, seed 003's and seed 001's hours of
-station time, would cost minutes of CPU at 10 ms: BENCHMARKS.md, step 3); the promise is the same at any timer."""
+the provenance out). The shortened sessions of tests/procedure_runs.py, on the station files as shipped."""
 
 from __future__ import annotations
 
@@ -21,11 +19,10 @@ from station.jsonsafe import json_safe
 from station.store import SessionStore
 
 pytestmark = pytest.mark.timeout(300)
-TPDO_EVENT_TIMER_MS = 250
 
 
 def _once(name: str, db: Path) -> tuple[str, list, dict, str]:
-    uid = record(name, db, deterministic=True, tpdo_event_timer_ms=TPDO_EVENT_TIMER_MS)
+    uid = record(name, db)
     with SessionStore(db) as store:
         session = store.load_session(uid)
     raw = {pid: {k: np.asarray(v).tobytes() for k, v in vars(streams).items()} for pid, streams in session.raw.items()}

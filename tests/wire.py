@@ -52,6 +52,9 @@ class FrozenClock:
         """Replies are timed on the host's wall clock, as on a wall-paced simulated station."""
         return host_clock()
 
+    def link_s(self, duration_s: float) -> float:
+        return duration_s  # an instrument's own wait, granted as that much wall time
+
 
 def _read_exactly(fd: int, n: int, timeout_s: float) -> bytes:
     got = b""

@@ -51,15 +51,12 @@ from devices.imu.protocol import (
     RATES_HZ,
     SAMPLE,
     SAMPLE_DTYPE,
-    SAMPLE_FRAME_BYTES,
     START,
     STATUS_BITS,
     STOP,
 )
 from devices.serial_port import TICK_S, Frame, FramedDevice, TickUnwrapper
 from station.clock import Clock
-
-LINE_MARGIN = 0.5  # share of the line a lossless stream may fill (UART pacing, host reads, bursts)
 
 
 @dataclass(frozen=True)
@@ -155,11 +152,6 @@ class StrapdownImu(FramedDevice):
     @property
     def dt_s(self) -> float:
         return 1.0 / self.rate_hz
-
-    @property
-    def max_lossless_speed(self) -> float:
-        """How many times faster than real time station time may run while every sample must cross the line."""
-        return LINE_MARGIN * (self.baud / 10.0) / (SAMPLE_FRAME_BYTES * self.rate_hz)
 
     # ---- commands
 

@@ -9,9 +9,9 @@ quantised to the LSBs of the INFO reply with the remainder carried, as a real IM
 
 Pacing: each poll makes the samples whose time has come on world.clock. What does not fit the
 transmit FIFO is dropped with its seq counted (a visible gap), as an IMU whose FIFO overflows
-would; the driver records with station time capped to what the line carries
-(`StrapdownImu.max_lossless_speed`), since strapdown integration needs every sample. Samples
-that would not fit (a reader that stopped) are dropped without being made.
+would (a pty line at a virtual clock faster than the line carries; a sim:// line carries its
+baud in station time). Samples that would not fit (a reader that stopped) are dropped without
+being made.
 
 Faults: NO_ANSWER (commands ignored, `count` of them; the stream goes silent while armed),
 GARBLE / TRUNCATE / CRC_ERROR (the next frame), DISCONNECT; device-specific `sensor_fault(bits)`

@@ -401,7 +401,7 @@ class VibrationTableServo:
     def _on_heartbeat(self, nmt_state: int) -> None:
         with self._watchdog_lock:
             self._hb_last_link_s = self._link.now_s()
-            if self._watching:
+            if self._watching and self._watchdog is None:  # an armed deadline moves itself on when due (cheaper)
                 self._arm_watchdog()
         self._hb_heard.set()
 
@@ -435,7 +435,8 @@ class VibrationTableServo:
         return {"0x6007": self._sdo_read(0x6007), "0x605A": self._sdo_read(0x605A)}
 
     def _arm_watchdog(self) -> None:
-        """The heartbeat watchdog: a deadline timer, moved on by every heartbeat (hold _watchdog_lock)."""
+        """The heartbeat watchdog: a deadline timer at the last heartbeat + the timeout; when it falls due with a
+        later heartbeat heard, it is armed again from that one (hold _watchdog_lock)."""
         if self._watchdog is not None:
             self._watchdog.cancel()
         self._watchdog = self._link.call_at(self._hb_last_link_s + self._hb_timeout_s, self._heartbeat_overdue)
@@ -453,9 +454,13 @@ class VibrationTableServo:
         with self._watchdog_lock:
             now_s = self._link.now_s()
             silent_s = now_s - self._hb_last_link_s
+            self._watchdog = None
+            if not self._watching:
+                return  # closed while this timer fell due
             # against the deadline as armed: now - last may fall a rounding error short of the timeout
-            if not self._watching or now_s < self._hb_last_link_s + self._hb_timeout_s:
-                return  # closed, or a heartbeat came in while this timer fell due
+            if now_s < self._hb_last_link_s + self._hb_timeout_s:
+                self._arm_watchdog()  # heartbeats came in since it was armed
+                return
             self._watching = False
             allowed = f"<= {self._hb_timeout_s * 1000:.0f} ms ({HEARTBEAT_FACTOR} periods)"
             if now_s - self._tpdo.last_rx_link_s > self._pdo_silence_s:

@@ -361,7 +361,8 @@ class ServoEmulator:
         with self._lock:
             if not (self._bus_off or self._master_hb_ignored):
                 self._hb_last_s = self._bus_clock.now_s()
-                self._arm_consumer()
+                if self._hb_deadline is None:  # a deadline armed stays: it moves itself on when due (cheaper)
+                    self._arm_consumer()
 
     # ---- device behaviour (called with the lock held) ---------------------------------
 
@@ -473,7 +474,8 @@ class ServoEmulator:
         tpdo.transmit()
 
     def _arm_consumer(self) -> None:
-        """The heartbeat consumer's deadline: consumer time after the last master heartbeat heard."""
+        """The heartbeat consumer's deadline: consumer time after the last master heartbeat heard (when it falls
+        due with a later heartbeat heard, it is armed again from that one)."""
         self._cancel_consumer()
         if self._running and self._hb_master_id and self._hb_last_s is not None:
             self._hb_deadline = self._bus_clock.call_at(
@@ -489,9 +491,10 @@ class ServoEmulator:
         with self._lock:
             if not self._running or self._hb_last_s is None:
                 return  # stopped, or the consumer was reconfigured while this timer fell due
-            if self._bus_clock.now_s() < self._hb_last_s + self._hb_timeout_s:  # the deadline as armed, to the bit
-                return  # a heartbeat came in while this timer fell due (it armed the next deadline)
             self._hb_deadline = None
+            if self._bus_clock.now_s() < self._hb_last_s + self._hb_timeout_s:  # the deadline as armed, to the bit
+                self._arm_consumer()  # heartbeats came in since it was armed: the deadline follows the last
+                return
             self._master_heartbeat_lost()
 
     def _master_heartbeat_lost(self) -> None:

@@ -85,7 +85,7 @@ class Voltmeter(SerialDevice):
     def query(self, command: str, parse: Callable[[bytes], T] = bytes, *, wait_s: float = 0.0) -> T:  # type: ignore[assignment]
         """A query's reply line through `parse` (both retried); `wait_s`: station time the instrument needs first."""
         lines = self.lines
-        timeout_s = self.timeout_s + wait_s / getattr(self.clock, "speed", 1.0)
+        timeout_s = self.timeout_s + self.clock.link_s(wait_s)
 
         def once() -> T:
             with self._io:

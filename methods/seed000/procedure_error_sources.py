@@ -33,7 +33,6 @@ from methods.seed000.parasitic_rotation import AXES, eq34, fit_rotation, slot_me
 from methods.seed000.table_motion import crank_phase, fit_zs1, sampling_delay_error_m, waveform
 from models.table_tilt import ARCSEC_RAD
 from station import constants
-from station.clock import speed_at_most
 from station.records import Field, declare
 from station.session import Measurement, Session
 
@@ -192,9 +191,6 @@ def frequency_stability(p: dict):
 # Crossings recorded before and after the readings fix the crank phase between them:
 # a little over one turn of grating record holds at least one crossing.
 CROSSING_CAPTURE_TURNS = 1.05
-# A reading is polled at its crank phase; its reply takes about 1 ms of wall time, so
-# station time runs at most this fast meanwhile (5 ms of station time, 0.2 deg at 0.1 Hz).
-TILT_MAX_SPEED = 5.0
 
 
 TILT = declare(
@@ -258,11 +254,10 @@ class RecordTilt(Step):
             raise DriverError("reference mark monitor", f"no crossing in {CROSSING_CAPTURE_TURNS} turns")
         slot = period / self.readings_per_turn
         readings = []
-        with speed_at_most(ctx.clock, TILT_MAX_SPEED):
-            first = math.floor((ctx.clock.now_s() - before[-1]) / slot) + 1
-            for k in range(first, first + self.turns * self.readings_per_turn):
-                ctx.wait_s(before[-1] + k * slot - ctx.clock.now_s())
-                readings.append(grad.read())
+        first = math.floor((ctx.clock.now_s() - before[-1]) / slot) + 1
+        for k in range(first, first + self.turns * self.readings_per_turn):
+            ctx.wait_s(before[-1] + k * slot - ctx.clock.now_s())
+            readings.append(grad.read())
         after = ctx.hw.capture_motion(CROSSING_CAPTURE_TURNS * period).reference_t_s
         arrays = {"t_s": np.array([r.t_s for r in readings])}
         for axis in AXES:

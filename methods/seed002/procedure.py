@@ -8,10 +8,6 @@ reduced to the attitude-error observation of eqs. 17-22. The twelve flexure coef
 follow by least squares (eq. 21). Verification runs (sine along Y, random along the SINS's
 diagonal, seed §4) are then navigated with and without compensation of Gamma tau_hat, the
 estimate of the runs before them.
-
-Pacing: strapdown integration needs every sample, so a run records with station time capped
-to what the IMU's line carries (`StrapdownImu.max_lossless_speed`, about 19x real time at
-200 Hz on 3 Mbaud); the rest of the session runs at the station's speed.
 """
 
 from __future__ import annotations
@@ -33,7 +29,6 @@ from methods.seed002.analysis import RunRecord, least_squares_tau, navigate, obs
 from methods.seed002.report import analyse_session
 from models.fixture_poses import CALIBRATION_POSES, POSES
 from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site
-from station.clock import speed_at_most
 from station.records import Field, declare
 from station.session import Measurement
 
@@ -179,11 +174,8 @@ class VibrationRun(Step):
         else:
             shaker.set_random(self.level_g, *self.band_hz)
         rec = ImuRecording(imu.dt_s)
-        # Station time runs no faster than the line while recording, nor while the run is reduced (a second
-        # of computing is not a thousand seconds of the station's time).
-        with speed_at_most(ctx.clock, imu.max_lossless_speed):
-            t0_s, tk_s = self._record(ctx, imu, shaker, rec)
-            return self._reduce(ctx, rec, imu.rate_hz, t0_s, tk_s)
+        t0_s, tk_s = self._record(ctx, imu, shaker, rec)
+        return self._reduce(ctx, rec, imu.rate_hz, t0_s, tk_s)
 
     def _reduce(self, ctx: Any, rec: ImuRecording, rate_hz: int, t0_s: float, tk_s: float) -> Measurement:
         """The run's observation (eqs. 17-22) and, for a verification run, its navigation."""
