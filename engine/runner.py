@@ -49,6 +49,7 @@ from engine.registry import ProcedureSpec
 from engine.steps import Recorded, Step
 from engine.supervisor import MotionSupervisor
 from engine.timing import TimingFault
+from station.clock import host_clock
 from station.errors import DeviceError, TransientFault
 from station.provenance import make_provenance
 from station.session import Measurement, PointRecord
@@ -111,7 +112,7 @@ class Progress:
 Publisher = Callable[[str, dict], None]
 POINT_REPEATS = 2  # a point that meets a transient fault is measured again at most this many times
 log = logging.getLogger(__name__)
-WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second
+WINDOW_PUBLISH_WALL_S = 0.1  # window progress and trace at most 10 times per wall second (the host's)
 TRACE_POINTS = 250  # samples per trace message, at most
 
 
@@ -260,7 +261,7 @@ class Engine:
             self.check_abort()
             if ev.kind == "open":
                 opened_s.append(ev.t_s)
-            now = self.clock.link.now_s()
+            now = host_clock().now_s()  # what a person watching sees: wall time, whatever the clock
             if ev.kind not in ("open", "close") and now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
                 return
             last_wall[0] = now
@@ -287,7 +288,7 @@ class Engine:
         def on_trace(t_s, z_m) -> None:
             t_parts.append(t_s)
             z_parts.append(z_m)
-            now = self.clock.link.now_s()
+            now = host_clock().now_s()  # what a person watching sees: wall time, whatever the clock
             if now - last_wall[0] < WINDOW_PUBLISH_WALL_S:
                 return
             last_wall[0] = now
