@@ -7,7 +7,9 @@ unit-bearing columns (station/records.py) and carries the session's `provenance`
 physics.md's fields still imports.
 
 `read_session` reads and validates everything before returning, so a malformed session is refused whole:
-every error names the file, the row, the column, the value and what is allowed. `content_hash` identifies
+every error names the file, the row, the column, the value and what is allowed. Files are read as data only
+(station.safe_files, station.safe_arrays): a link or special file anywhere in the directory is refused, and every
+array's declared size is checked against station.raw_limits before it is read. `content_hash` identifies
 a session's measured content (independent of BOMs, line ends and column order), so that a store recognises
 a re-import. Export writes to a temporary directory and renames it into place.
 """
@@ -16,13 +18,13 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 import math
 import os
 import re
 import shutil
 import tempfile
-import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import asdict
 from pathlib import Path
@@ -34,8 +36,11 @@ import numpy as np
 from station import constants
 from station.errors import InputError
 from station.provenance import ProvenanceError, check_provenance
-from station.rawfile import LazyRaw, RawWriter
+from station.raw_limits import DEFAULT_LIMITS, Budget, RawInputError, RawLimits
+from station.rawfile import RAW_SPECS, LazyRaw, RawWriter
 from station.records import Field, RecordError, RecordType, declared
+from station.safe_arrays import NUMERIC_KINDS, Spec, load_npz, members, open_h5, read_group
+from station.safe_files import check_tree, open_regular
 from station.session import RAW_FIELDS, STATION_FIELDS, Measurement, PointRecord, RawStreams, Session, StationInfo
 
 FORMAT = "piga-session/1"
@@ -62,7 +67,6 @@ POINT_FIELDS: dict[str, Field] = {
 # eps_f Np T. The real table's frequency stability is < 5e-4 (seed 000 Table 4): allow twice that.
 MAX_PERIOD_MISMATCH = 2 * constants.FREQ_STABILITY_MAX
 MAX_JSON_BYTES = 64 << 20  # session.json: declarations, provenance, notes; never arrays
-MAX_ARRAY_BYTES = 4 << 30  # one decompressed array of an .npz (raw streams of a long window reach ~100 MB)
 MEASUREMENTS_DIR = "measurements"
 RAW_FILE = "raw.h5"  # the points' raw streams, one HDF5 group per point_id (physics.md's raw/*.npz is read too)
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,127}$")
@@ -73,12 +77,22 @@ OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results
 class SessionFormatError(InputError):
     """A session directory that does not follow piga-session/1."""
 
-    def __init__(self, file: str, message: str, row: int | None = None, column: str | None = None, value=None):
+    def __init__(
+        self,
+        file: str,
+        message: str,
+        row: int | None = None,
+        column: str | None = None,
+        value=None,
+        dataset: str | None = None,
+    ):
         where = file
         if row is not None:
             where += f" row {row}"
         if column is not None:
             where += f", column {column!r}"
+        if dataset is not None:
+            where += f", dataset {dataset!r}"
         if value is not None:
             where += f", value {value!r}"
         super().__init__(f"{where}: {message}")
@@ -114,10 +128,13 @@ def _ranged(text: str, file: str, row: int, column: str) -> float | int:
 def _read_json(path: Path, name: str) -> Any:
     if not path.is_file():
         raise SessionFormatError(name, f"missing: a {FORMAT} directory needs {path}")
-    if path.stat().st_size > MAX_JSON_BYTES:
-        raise SessionFormatError(name, f"{path.stat().st_size} bytes; at most {MAX_JSON_BYTES >> 20} MiB")
+    with open_regular(path, name) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size > MAX_JSON_BYTES:
+            raise SessionFormatError(name, f"{size} bytes; at most {MAX_JSON_BYTES >> 20} MiB")
+        text = fh.read(size)
     try:
-        return json.loads(path.read_text(encoding="utf-8-sig"))
+        return json.loads(text.decode("utf-8-sig"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SessionFormatError(name, f"not valid JSON ({exc})") from None
     except RecursionError:
@@ -221,7 +238,7 @@ def _csv_rows(path: Path, name: str, required: tuple[str, ...]) -> Iterator[tupl
     if not path.is_file():
         raise SessionFormatError(name, f"missing: {path}")
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
+        with io.TextIOWrapper(open_regular(path, name), encoding="utf-8-sig", newline="") as fh:
             reader = csv.reader(fh)
             header = next(reader, [])
             header = [h.strip() for h in header]
@@ -266,21 +283,6 @@ def _read_points(path: Path) -> list[PointRecord]:
     return points
 
 
-def _load_npz(path: Path, name: str) -> dict[str, np.ndarray]:
-    """The arrays of an .npz, each member's size bounded before it is decompressed."""
-    try:
-        with zipfile.ZipFile(path) as zf:
-            for info in zf.infolist():
-                if info.file_size > MAX_ARRAY_BYTES:
-                    raise SessionFormatError(
-                        name, f"array larger than {MAX_ARRAY_BYTES >> 20} MiB", column=info.filename
-                    )
-        with np.load(path, allow_pickle=False) as npz:
-            return {k: np.array(npz[k]) for k in npz.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise SessionFormatError(name, f"not a readable .npz archive ({exc})") from None
-
-
 def _check_raw(arrays: Mapping[str, np.ndarray], name: str) -> None:
     """physics.md's raw record: grating_t, grating_z, pulse_t (optional pulse_dir, reference_t); 1-D, numeric,
     finite, grating_t and grating_z of one length, times non-decreasing."""
@@ -307,7 +309,7 @@ def _check_raw(arrays: Mapping[str, np.ndarray], name: str) -> None:
             raise SessionFormatError(name, "times must not decrease", column=key)
 
 
-def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
+def _read_raw(d: Path, ids: set[str], budget: Budget) -> Mapping[str, RawStreams]:
     """raw/<point_id>.npz (physics.md), read whole; or raw.h5 (one group per point), checked point by point and
     then read lazily (a session's raw streams may not fit in memory)."""
     raw_dir, h5 = d / "raw", d / RAW_FILE
@@ -316,25 +318,18 @@ def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
         raise SessionFormatError(RAW_FILE, "a session has raw/*.npz or raw.h5, not both")
     if h5.exists():
         digests: dict[str, bytes] = {}
-        try:
-            with h5py.File(h5, "r", locking=False) as f:
-                for pid in f:
-                    name = f"{RAW_FILE}:/{pid}"
-                    if pid not in ids:
-                        raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
-                    group = f[pid]
-                    if not isinstance(group, h5py.Group) or any(not isinstance(group[k], h5py.Dataset) for k in group):
-                        raise SessionFormatError(name, "expected a group of datasets (one per array)")
-                    for key in group:
-                        if group[key].nbytes > MAX_ARRAY_BYTES:
-                            raise SessionFormatError(name, f"array larger than {MAX_ARRAY_BYTES >> 20} MiB", column=key)
-                    arrays = {k: group[k][()] for k in group}
-                    _check_raw(arrays, name)
-                    digests[pid] = raw_digest(RawStreams.from_arrays(arrays))
-                    del arrays  # one point's arrays in memory at a time
-        except OSError as exc:
-            raise SessionFormatError(RAW_FILE, f"not a readable HDF5 file ({exc})") from None
-        lazy = LazyRaw.of_file(h5, list(digests))
+        with open_h5(h5, RAW_FILE) as f:
+            for pid, group in members(f, RAW_FILE):
+                name = f"{RAW_FILE}:/{pid}"
+                if pid not in ids:
+                    raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
+                if not isinstance(group, h5py.Group):
+                    raise SessionFormatError(name, "expected a group of datasets (one per array)")
+                arrays = read_group(group, RAW_FILE, RAW_SPECS, budget)
+                _check_raw(arrays, name)
+                digests[pid] = raw_digest(RawStreams.from_arrays(arrays))
+                del arrays  # one point's arrays in memory at a time
+        lazy = LazyRaw.of_file(h5, list(digests), budget.limits)
         lazy.digests = digests
         return lazy
     raws: dict[str, RawStreams] = {}
@@ -343,7 +338,7 @@ def _read_raw(d: Path, ids: set[str]) -> Mapping[str, RawStreams]:
         pid = path.stem
         if pid not in ids:
             raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
-        arrays = _load_npz(path, name)
+        arrays = load_npz(path, name, RAW_SPECS, budget)
         _check_raw(arrays, name)
         raws[pid] = RawStreams(
             arrays["grating_t"].astype(float),
@@ -380,7 +375,7 @@ def _cell(f: Field, text: str, file: str, n: int) -> Any:
         raise SessionFormatError(file, f"must be {f.allowed()}", n, f.name, text[:80]) from None
 
 
-def _read_measurements(d: Path, tables: list[Any]) -> tuple[list[Measurement], list[RecordType]]:
+def _read_measurements(d: Path, tables: list[Any], budget: Budget) -> tuple[list[Measurement], list[RecordType]]:
     name = "session.json"
     types: list[RecordType] = []
     found: list[tuple[int, Measurement]] = []
@@ -419,33 +414,44 @@ def _read_measurements(d: Path, tables: list[Any]) -> tuple[list[Measurement], l
             keys[key] = sequences[seq] = f"{file} row {n}"
             values = {f.name: _cell(f, row[f.name], file, n) for f in rt.fields if f.name in row}
             values = {k: v for k, v in values.items() if v is not None or rt.field(k).nullable}
-            arrays = _measurement_arrays(d, rt, row.get("arrays_file", ""), file, n)
+            arrays = _measurement_arrays(d, rt, row.get("arrays_file", ""), file, n, budget)
             found.append((seq, Measurement(key, rt.kind, values, arrays)))
     return [m for _, m in sorted(found, key=lambda sm: sm[0])], types
 
 
-def _measurement_arrays(d: Path, rt: RecordType, ref: str, file: str, n: int) -> dict[str, np.ndarray]:
+def _array_specs(rt: RecordType) -> dict[str, Spec]:
+    """What a record type's arrays may be in a file: declared dimensions, numeric (a 'str' array: unicode)."""
+    return {a.name: (max(a.ndim, 1), "U" if a.dtype == "str" else NUMERIC_KINDS) for a in rt.arrays}
+
+
+def _measurement_arrays(d: Path, rt: RecordType, ref: str, file: str, n: int, budget: Budget) -> dict[str, np.ndarray]:
     if not ref:
         return {}
     rel = Path(ref)
     if rel.is_absolute() or ".." in rel.parts or rel.parts[:2] != (MEASUREMENTS_DIR, "arrays"):
         raise SessionFormatError(file, f"must name a file in {MEASUREMENTS_DIR}/arrays/", n, "arrays_file", ref)
-    arrays = _load_npz(d / rel, ref)
+    arrays = load_npz(d / rel, ref, _array_specs(rt), budget)
     try:
         return rt.check_arrays(arrays, ref)
     except RecordError as exc:
         raise SessionFormatError(ref, f"must be {exc.allowed}", column=exc.name, value=exc.value) from None
 
 
-def read_session(directory: str | os.PathLike) -> Session:
-    """Read and validate a piga-session/1 directory; raise SessionFormatError on any defect."""
+def read_session(directory: str | os.PathLike, limits: RawLimits = DEFAULT_LIMITS) -> Session:
+    """Read and validate a piga-session/1 directory; raise SessionFormatError on any defect. Its arrays together
+    and each one are held to `limits` before they are read."""
     d = Path(directory)
     if not d.is_dir():
         raise SessionFormatError(str(d), "not a directory")
-    station, notes, meta, provenance, tables = _read_station(d / "session.json")
-    points = _read_points(d / "points.csv")
-    raw = _read_raw(d, {p.point_id for p in points})
-    measurements, types = _read_measurements(d, tables)
+    budget = Budget(limits)
+    try:
+        check_tree(d)
+        station, notes, meta, provenance, tables = _read_station(d / "session.json")
+        points = _read_points(d / "points.csv")
+        raw = _read_raw(d, {p.point_id for p in points}, budget)
+        measurements, types = _read_measurements(d, tables, budget)
+    except RawInputError as exc:
+        raise SessionFormatError(exc.file, exc.reason, dataset=exc.dataset) from None
     results = meta.pop("results")
     if not points and not measurements and not meta.pop("declares_measurements"):
         raise SessionFormatError("points.csv", "no points (and no 'measurements' in session.json)")

@@ -4,7 +4,8 @@ A raw record of one window (5 kHz grating, every pulse edge) is tens of megabyte
 So raw streams are written point by point (`RawWriter.add`: the group, then a flush, so a crash keeps every
 finished point readable) and read point by point (`LazyRaw`: a mapping that loads a point's arrays when asked),
 never all at once. Used by the interchange (raw.h5 of a piga-session/1 directory) and the store (one file per
-point beside the SQLite file).
+point beside the SQLite file). Every read goes through station.safe_arrays: no link followed, only the expected
+1-D numeric datasets, sizes checked against station.raw_limits before the data is read.
 """
 
 from __future__ import annotations
@@ -16,9 +17,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from station import leftovers
+from station.leftovers import writing
+from station.raw_limits import DEFAULT_LIMITS, Budget, RawInputError, RawLimits
+from station.safe_arrays import NUMERIC_KINDS, Spec, member, open_h5, read_group
 from station.session import RAW_FIELDS, RawStreams
 
 REQUIRED = ("grating_t", "grating_z", "pulse_t")
+RAW_SPECS: dict[str, Spec] = {name: (1, NUMERIC_KINDS) for name in RAW_FIELDS}  # every raw stream: 1-D numeric
 CHUNK = 1 << 16  # elements per chunk: 512 KiB of float64
 COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}  # shuffle: times compress ~3x
 
@@ -41,8 +47,14 @@ def write_arrays(group: h5py.Group, raw: RawStreams) -> None:
         group.create_dataset(name, data=a, chunks=chunks, **(COMPRESSION if a.size else {}))
 
 
-def read_arrays(group: h5py.Group) -> RawStreams:
-    return RawStreams.from_arrays({name: group[name][()] for name in RAW_FIELDS if name in group})
+def read_arrays(group: h5py.Group, file: str, budget: Budget) -> RawStreams:
+    """A point's raw streams from its group, checked (station.safe_arrays) and taken from `budget`."""
+    try:
+        return RawStreams.from_arrays(read_group(group, file, RAW_SPECS, budget))
+    except RawInputError:
+        raise
+    except ValueError as exc:  # a required stream missing
+        raise RawInputError(file, group.name, str(exc)) from None
 
 
 class RawWriter:
@@ -71,39 +83,47 @@ def write_point_file(path: str | os.PathLike, raw: RawStreams) -> None:
     so that the file either holds the whole point or does not exist."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with h5py.File(tmp, "w", locking=False) as f:
-        write_arrays(f, raw)
-    with open(tmp, "rb+") as fh:
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    with writing(path.with_name(f".{path.name}{leftovers.SUFFIX}")) as tmp:  # locked: not a leftover while written
+        with h5py.File(tmp, "w", locking=False) as f:
+            write_arrays(f, raw)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
 
 
-def read_point_file(path: str | os.PathLike) -> RawStreams:
-    with h5py.File(path, "r", locking=False) as f:
-        return read_arrays(f)
+def read_point_file(path: str | os.PathLike, limits: RawLimits = DEFAULT_LIMITS) -> RawStreams:
+    path = Path(path)
+    with open_h5(path, path.name) as f:
+        return read_arrays(f, path.name, Budget(limits))
 
 
 class LazyRaw(Mapping[str, RawStreams]):
     """point_id -> RawStreams, each read from its HDF5 location only when asked (and not kept)."""
 
     def __init__(
-        self, locations: Mapping[str, tuple[Path, str]], loaded: Mapping[str, RawStreams] | None = None
+        self,
+        locations: Mapping[str, tuple[Path, str]],
+        loaded: Mapping[str, RawStreams] | None = None,
+        limits: RawLimits = DEFAULT_LIMITS,
     ) -> None:
         self._where = dict(locations)  # point_id -> (file, group inside it; "/" for a file of its own)
+        self._limits = limits  # each point's read: every array within limits.max_array_bytes
         self._loaded = dict(loaded or {})  # points already in memory (raw streams of an older store's blobs)
         self.digests: dict[str, bytes] = {}  # point_id -> SHA-256 of its arrays, where a reader computed it
 
     @classmethod
-    def of_file(cls, path: Path, point_ids: Iterable[str]) -> LazyRaw:
-        return cls({pid: (path, _group_name(pid)) for pid in point_ids})
+    def of_file(cls, path: Path, point_ids: Iterable[str], limits: RawLimits = DEFAULT_LIMITS) -> LazyRaw:
+        return cls({pid: (path, _group_name(pid)) for pid in point_ids}, limits=limits)
 
     def __getitem__(self, point_id: str) -> RawStreams:
         if point_id in self._loaded:
             return self._loaded[point_id]
         path, group = self._where[point_id]
-        with h5py.File(path, "r", locking=False) as f:
-            return read_arrays(f[group])
+        with open_h5(path, path.name) as f:
+            where = f if group == "/" else member(f, group, path.name)
+            if not isinstance(where, h5py.Group):
+                raise RawInputError(path.name, group, "expected a group of raw streams")
+            return read_arrays(where, path.name, Budget(self._limits))
 
     def __contains__(self, point_id: object) -> bool:  # without reading the arrays
         return point_id in self._loaded or point_id in self._where
@@ -116,8 +136,3 @@ class LazyRaw(Mapping[str, RawStreams]):
 
     def __repr__(self) -> str:
         return f"LazyRaw({len(self)} points)"
-
-
-def file_groups(path: str | os.PathLike) -> list[str]:
-    with h5py.File(path, "r", locking=False) as f:
-        return list(f.keys())

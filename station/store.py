@@ -7,13 +7,16 @@ events, results. The schema version is SQLite's `PRAGMA user_version`, raised by
 user_version kept its version in a table `schema_version` (2), which is read once and kept in step so that
 older software refuses a newer store too. Each point and its raw arrays are committed together with
 synchronous=FULL, so a point is durable before the next one starts and a crash (even kill -9) leaves every
-finished point readable. An import is one transaction: all of it or none of it.
+finished point readable. An import is one transaction: all of it or none of it. Opening the store removes the
+temporary files a killed import or run left in its raw folder (station.leftovers), and logs each one.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import logging
+import re
 import shutil
 import sqlite3
 import threading
@@ -27,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import StationFault
+from station.leftovers import SUFFIX, remove_leftovers, writing
 from station.provenance import local_provenance, software_version, unknown_provenance
 from station.rawfile import LazyRaw, write_point_file
 from station.records import RecordError, RecordType, declared, infer_record_type
@@ -119,6 +123,9 @@ _V5 = """
 ALTER TABLE points ADD COLUMN raw_file TEXT;
 """
 INFERRED = "inferred from records stored before records were declared: units unknown"
+IMPORT_MARK = ".import-"  # raw folder: .import-<uid>.tmp, held locked while an import writes <uid>/
+_UID = re.compile(r"^[0-9A-Za-z-]{1,64}$")
+log = logging.getLogger(__name__)
 
 
 class StoreError(StationFault):
@@ -248,9 +255,23 @@ class SessionStore:
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
             self._migrate()
+            self._remove_leftovers()
         except BaseException:
             self._db.close()
             raise
+
+    def _remove_leftovers(self) -> None:
+        """The temporary files of killed writers in the raw folder, and the raw files of a killed import."""
+
+        def killed_import(marker: Path) -> None:
+            uid = marker.name.removeprefix(IMPORT_MARK).removesuffix(SUFFIX)
+            ours = marker.parent == self.raw_dir and marker.name.startswith(IMPORT_MARK) and _UID.match(uid)
+            if ours and not self._db.execute("SELECT 1 FROM sessions WHERE uid = ?", (uid,)).fetchone():
+                shutil.rmtree(self.raw_dir / uid, ignore_errors=True)
+                log.warning("%s: removed %s, the raw files of an import that was killed", self.path, uid)
+
+        for path in remove_leftovers(self.raw_dir, killed_import):
+            log.warning("%s: removed %s, left by a killed import or run", self.path, path)
 
     def _version(self) -> int:
         (version,) = self._db.execute("PRAGMA user_version").fetchone()
@@ -475,14 +496,24 @@ class SessionStore:
             row = self._db.execute("SELECT uid FROM sessions WHERE content_hash = ?", (content_hash,)).fetchone()
         if row is not None:
             return str(row[0]), False
+        uid = _new_uid()
+        self.raw_dir.mkdir(parents=True, exist_ok=True)
+        with writing(self.raw_dir / f"{IMPORT_MARK}{uid}{SUFFIX}") as marker:  # a killed import's files: leftovers
+            try:
+                self._import_rows(session, content_hash, uid)
+            finally:
+                marker.unlink()
+        return uid, True
+
+    def _import_rows(self, session: Session, content_hash: str, uid: str) -> None:
+        """The raw files, then the rows in one transaction; on any failure the raw files are removed."""
+        raw_files: dict[str, str] = {}
         meta = session.meta
         procedure = str(meta.get("procedure") or "imported")
         config = {"imported_procedure": meta.get("procedure"), "params": meta.get("params", {})}
         provenance = session.provenance or unknown_provenance()
         serial = str(meta.get("instrument_serial") or provenance.get("instrument_serial") or "")
         types = {rt.kind: rt for rt in session.record_types}
-        uid = _new_uid()
-        raw_files: dict[str, str] = {}
         try:
             for p in session.points:  # one point's arrays in memory at a time
                 if p.point_id in session.raw:
@@ -506,7 +537,6 @@ class SessionStore:
         except BaseException:
             shutil.rmtree(self.raw_dir / uid, ignore_errors=True)
             raise
-        return uid, True
 
     def measurements(self, uid: str, *, with_arrays: bool = True) -> list[Measurement]:
         rows = self._query(

@@ -9,6 +9,10 @@ zip in a zip), counted together against MAX_UNPACKED_BYTES. An array inside an
 object arrays are refused. Archives nested deeper than one level are refused.
 Members are copied out in chunks and never beyond their declared size (zipfile
 stops there and checks the CRC), so a lying header cannot overrun the bound.
+The session's arrays are then read within `UPLOAD_LIMITS` (station.raw_limits):
+what raw.h5's compressed datasets and the .npz arrays hold once decompressed is
+bounded by MAX_UNPACKED_BYTES too, each array by UPLOAD_ARRAY_BYTES, whatever the
+compression, and checked before it is read.
 """
 
 from __future__ import annotations
@@ -20,9 +24,9 @@ import zipfile
 from pathlib import Path, PurePosixPath
 from typing import IO, BinaryIO
 
-import numpy as np
-
 from station.interchange import SessionFormatError, read_session, write_session
+from station.raw_limits import RawInputError, RawLimits
+from station.safe_arrays import npy_header
 from station.session import Session
 
 MAX_UPLOAD_BYTES = 256 << 20  # the zip as uploaded
@@ -30,6 +34,8 @@ MAX_UNPACKED_BYTES = 1 << 30  # every member and nested member, decompressed, to
 MAX_MEMBERS = 10_000  # members, nested ones included
 ZIP_MAGIC = b"PK\x03\x04"
 CHUNK_BYTES = 1 << 20
+UPLOAD_ARRAY_BYTES = 128 << 20  # one decompressed array of an uploaded session (a long window's stream: ~100 MB)
+UPLOAD_LIMITS = RawLimits(max_array_bytes=UPLOAD_ARRAY_BYTES, max_session_bytes=MAX_UNPACKED_BYTES)
 
 
 def pack(session: Session, name: str) -> Path:
@@ -60,11 +66,9 @@ class _Budget:
 def _npy_bytes(member: IO[bytes], where: str) -> int:
     """Bytes an .npy member decompresses to by its header (shape x itemsize); object arrays refused."""
     try:
-        version = np.lib.format.read_magic(member)
-        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-        shape, _, dtype = read(member)
-    except ValueError as exc:
-        raise SessionFormatError("upload", f"not a readable .npy array ({exc})", column=where) from None
+        shape, dtype = npy_header(member, "upload", where)
+    except RawInputError as exc:
+        raise SessionFormatError("upload", exc.reason, column=where) from None
     if dtype.hasobject:
         raise SessionFormatError("upload", "object arrays are not allowed", column=where, value=str(dtype))
     return math.prod(shape) * dtype.itemsize
@@ -142,4 +146,4 @@ def unpack(upload: BinaryIO, into: Path) -> Session:
     found = sorted(into.glob("session.json")) or sorted(into.glob("*/session.json"))
     if len(found) != 1:
         raise SessionFormatError("upload", "expected one session.json, at the root or in one folder")
-    return read_session(found[0].parent)
+    return read_session(found[0].parent, UPLOAD_LIMITS)

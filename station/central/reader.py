@@ -7,7 +7,9 @@ filtered, newest-first listing that the indexes of migration 2 serve without a s
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 from dataclasses import dataclass
 from datetime import UTC, date, datetime, time, timedelta
 from pathlib import Path
@@ -16,8 +18,10 @@ from typing import Any
 import numpy as np
 import sqlalchemy as sa
 
-from station.central.content import ArrayFile
 from station.central.sync import open_central
+from station.raw_limits import DEFAULT_LIMITS, Budget, RawInputError
+from station.safe_arrays import NUMERIC_KINDS, load_npy
+from station.safe_files import open_regular
 from station.session import Measurement, PointRecord, RawStreams, Session, StationInfo
 from station.store import StoreError
 
@@ -138,12 +142,23 @@ class CentralStore:
         return [{"t_utc": r.t_utc, "level": r.level, "kind": r.kind, "message": r.message} for r in rows]
 
     def _array(self, rel: str, sha256: str) -> np.ndarray:
+        """An array file of the root, read as data only (station.safe_files, safe_arrays) and checked against its
+        SHA-256 on the descriptor it is then read from."""
         path = self.arrays / rel
-        if not path.is_file():
+        if Path(rel).is_absolute() or ".." in Path(rel).parts:
+            raise StoreError(f"array file {rel!r} of the central history: not inside the array root {self.arrays}")
+        if not os.path.lexists(path):
             raise StoreError(f"array file {path} of the central history is missing")
-        if ArrayFile.sha256_of_file(path) != sha256:
-            raise StoreError(f"array file {path} does not match its SHA-256 {sha256}: it was altered or truncated")
-        return np.load(path, allow_pickle=False)
+        try:
+            with open_regular(path, str(path)) as f:
+                if hashlib.file_digest(f, "sha256").hexdigest() != sha256:
+                    raise StoreError(
+                        f"array file {path} does not match its SHA-256 {sha256}: it was altered or truncated"
+                    )
+                f.seek(0)
+                return load_npy(f, str(path), Budget(DEFAULT_LIMITS), NUMERIC_KINDS + "U")
+        except RawInputError as exc:
+            raise StoreError(f"array file of the central history: {exc}") from None
 
     def _arrays(self, sid: int, owner: str) -> dict[str, dict[str, np.ndarray]]:
         out: dict[str, dict[str, np.ndarray]] = {}

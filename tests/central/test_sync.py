@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import sqlite3
 import subprocess
@@ -186,15 +187,35 @@ def test_a_url_that_is_not_postgresql_is_refused():
         open_central("sqlite:///x.db")
 
 
-def test_an_altered_array_file_is_an_error_naming_it(tmp_path, central_url, arrays_dir, fill):
+def _one_synced_session(tmp_path, central_url, arrays_dir, fill) -> str:
     with SessionStore(tmp_path / "s.sqlite") as store:
         (uid,) = fill(store, ("finished",))
         engine = open_central(central_url)
         sync_store(store, engine, arrays_dir, "sim")
         engine.dispose()
+    return uid
+
+
+def test_an_altered_array_file_is_an_error_naming_it(tmp_path, central_url, arrays_dir, fill):
+    uid = _one_synced_session(tmp_path, central_url, arrays_dir, fill)
     victim = sorted(arrays_dir.rglob("*.npy"))[0]
     victim.write_bytes(victim.read_bytes()[:-8])
     with CentralStore(central_url, arrays_dir) as central, pytest.raises(StoreError, match=f"{victim}.*SHA-256"):
+        central.load_session(uid)
+
+
+def test_an_array_file_swapped_for_a_link_or_a_fifo_is_refused_unopened(tmp_path, central_url, arrays_dir, fill):
+    """Issue 30: the array root is read as data only; a link (to /dev/zero, which would never end) or a FIFO
+    (which would block) in place of an array file is refused before it is opened."""
+    uid = _one_synced_session(tmp_path, central_url, arrays_dir, fill)
+    victim = sorted(arrays_dir.rglob("*.npy"))[0]
+    victim.unlink()
+    victim.symlink_to("/dev/zero")
+    with CentralStore(central_url, arrays_dir) as central, pytest.raises(StoreError, match="a symbolic link"):
+        central.load_session(uid)
+    victim.unlink()
+    os.mkfifo(victim)
+    with CentralStore(central_url, arrays_dir) as central, pytest.raises(StoreError, match="a FIFO"):
         central.load_session(uid)
 
 

@@ -12,6 +12,7 @@ import io
 import json
 import time
 import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -174,6 +175,54 @@ def test_npz_arrays_are_bounded_by_their_header_and_object_arrays_refused(panel,
     np.lib.format.write_array_header_1_0(obj, {"descr": "|O", "fortran_order": False, "shape": (1,)})
     reply = _upload(victor, _zip({"session/session.json": b"{}", "session/raw/p.npz": _zip({"z.npy": obj.getvalue()})}))
     assert reply.status_code == 422 and "object arrays are not allowed" in reply.json()["detail"]
+
+
+def _zipped_session_with_raw(tmp_path: Path, make) -> bytes:
+    """A small raw session's directory, its first point's pulse_t replaced by make(group, name), zipped."""
+    import h5py
+
+    from models.config import TwinConfig
+    from models.plan import multiposition_plan
+    from models.session_sim import simulate_session
+    from station.interchange import write_session
+
+    session = simulate_session(multiposition_plan([0.0], [10.0], window_s=2.0), TwinConfig(), seed=3, raw=True)
+    d = write_session(session, tmp_path / "s")
+    with h5py.File(d / "raw.h5", "r+") as f:
+        group = f[next(iter(f))]
+        del group["pulse_t"]
+        make(group, "pulse_t")
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for path in d.rglob("*"):
+            zf.write(path, f"s/{path.relative_to(d)}")
+    return buf.getvalue()
+
+
+def test_an_uploads_compressed_hdf5_arrays_are_held_to_the_bound(panel, log_in, tmp_path) -> None:
+    """Issue 30: a small upload whose raw.h5 declares gigabytes, or whose chunk inflates past its size, or whose
+    dataset is stored in a server file, is refused before it is read (the panel took 2.3 GB on a 2 kB upload)."""
+    client, _ = panel
+    victor = log_in(client, "victor")
+    huge = _zipped_session_with_raw(
+        tmp_path / "a", lambda g, n: g.create_dataset(n, (3 << 27,), "<f8", chunks=(1 << 16,), compression="gzip")
+    )
+    assert len(huge) < 1 << 20  # 3 GiB declared in under 1 MiB
+    reply = _upload(victor, huge)
+    assert reply.status_code == 422, reply.text
+    assert f"at most {archive.UPLOAD_ARRAY_BYTES} bytes (128 MiB) per array" in reply.json()["detail"]
+
+    def bomb(g, n):
+        ds = g.create_dataset(n, (100_000,), "<f8", chunks=(100_000,), compression="gzip")
+        ds.id.write_direct_chunk((0,), zlib.compress(bytes(32 << 20), 9))
+
+    reply = _upload(victor, _zipped_session_with_raw(tmp_path / "b", bomb))
+    assert reply.status_code == 422 and "inflates to more than its declared 800000 bytes" in reply.json()["detail"]
+    outside = _zipped_session_with_raw(
+        tmp_path / "c", lambda g, n: g.create_dataset(n, (8,), "<f8", external=[("/etc/passwd", 0, 64)])
+    )
+    reply = _upload(victor, outside)
+    assert reply.status_code == 422 and "external storage (in /etc/passwd)" in reply.json()["detail"]
 
 
 def test_a_lawful_upload_still_unpacks(tmp_path: Path) -> None:
