@@ -323,6 +323,12 @@ def host_clock() -> WallClock:
     return _HOST_CLOCK
 
 
+def utc_s() -> float:
+    """The host's UTC time in seconds since the Unix epoch: a time stamp another host can compare with its own
+    (the control channel's freshness), never a duration or a wait."""
+    return time.time()
+
+
 class VirtualClock(_PacedClock):
     """Virtual time running `speed` times faster than the wall clock.
 

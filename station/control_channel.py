@@ -1,14 +1,18 @@
 """The control channel's contract, as both ends speak it: framing, authentication, bounds, the token, the client.
 
-One request at a time, as three frames, and one JSON reply:
+One request at a time, as four frames, and one JSON reply:
 
-    request  [identity, HMAC-SHA256(token, identity NUL body) in hex, body]
-             body = {"cmd": ..., "args": {...}, "user": "for whom a delegate (the panel) asks"}
+    request  [identity, MAC, stamp, body]
+             stamp = sender (8 random bytes per client) | seq (u64, +1 per request) | t_ms (u64, UTC ms)
+             MAC   = HMAC-SHA256(token, identity NUL stamp body) in hex
+             body  = {"cmd": ..., "args": {...}, "user": "for whom a delegate (the panel) asks"}
     reply    {"ok": true, "result": ...} | {"ok": false, "error": {"type": ..., "message": ...}}
 
 The station's end is app.control.ControlServer; the panel's is `ControlClient`. A request is
-authenticated (`request_mac` under the station's token, `ensure_token`) before anything is parsed,
-and bounded (MAX_REQUEST_BYTES, MAX_DEPTH by `nesting_depth`) before json.loads.
+authenticated (`request_mac` under the station's token, `ensure_token`) before anything is parsed, then
+fresh (its time stamp within FRESH_WINDOW_S of the station's UTC clock) and new (a seq above the last one
+its sender used): a captured frame sent again is refused. Bounded (MAX_REQUEST_BYTES, MAX_DEPTH by
+`nesting_depth`) before json.loads.
 """
 
 from __future__ import annotations
@@ -18,11 +22,14 @@ import hmac
 import json
 import os
 import secrets
+import struct
 import threading
 from pathlib import Path
+from typing import NamedTuple
 
 import zmq
 
+from station.clock import utc_s
 from station.errors import StationFault
 
 
@@ -35,6 +42,27 @@ MAX_REQUEST_BYTES = 64 * 1024  # a start with a few hundred positions is under 1
 MAX_DEPTH = 5  # {"args": {"params": {"positions_deg": [...]}}} is 4 deep
 DEFAULT_IDENTITY = "panel"
 TOKEN_FILE = "control.token"
+FRESH_WINDOW_S = 30.0  # a frame's time stamp this close to the station's UTC clock, either way; NTP keeps hosts closer
+STAMP = struct.Struct(">8sQQ")  # sender, seq, t_ms
+
+
+class Stamp(NamedTuple):
+    """Who sent a frame (a client's random sender id), its place in that sender's sequence and when (UTC s)."""
+
+    sender: bytes
+    seq: int
+    t_s: float
+
+    def pack(self) -> bytes:
+        return STAMP.pack(self.sender, self.seq, round(self.t_s * 1000))
+
+    @classmethod
+    def unpack(cls, raw: bytes) -> Stamp | None:
+        """The stamp in `raw`, None unless it is exactly STAMP.size bytes."""
+        if len(raw) != STAMP.size:
+            return None
+        sender, seq, t_ms = STAMP.unpack(raw)
+        return cls(sender, seq, t_ms / 1000)
 
 
 def ensure_token(path: str | Path) -> str:
@@ -56,9 +84,15 @@ def ensure_token(path: str | Path) -> str:
     return token
 
 
-def request_mac(token: str, identity: bytes, body: bytes) -> bytes:
-    """HMAC-SHA256 of identity NUL body under the token, hex: what authenticates a request."""
-    return hmac.new(token.encode(), identity + b"\0" + body, hashlib.sha256).hexdigest().encode()
+def request_mac(token: str, identity: bytes, stamp: bytes, body: bytes) -> bytes:
+    """HMAC-SHA256 of identity NUL stamp body under the token, hex: what authenticates a request and its stamp."""
+    return hmac.new(token.encode(), identity + b"\0" + stamp + body, hashlib.sha256).hexdigest().encode()
+
+
+def request_frames(token: str, identity: bytes, stamp: Stamp, body: bytes) -> list[bytes]:
+    """The four frames of one request."""
+    packed = stamp.pack()
+    return [identity, request_mac(token, identity, packed, body), packed, body]
 
 
 def nesting_depth(body: bytes, limit: int) -> int:
@@ -86,7 +120,8 @@ def nesting_depth(body: bytes, limit: int) -> int:
 
 
 class ControlClient:
-    """The panel's side: one request at a time, a bounded wait for the reply."""
+    """The panel's side: one request at a time, a bounded wait for the reply, each stamped anew (a random sender
+    id per client, seq counting up from 1, the host's UTC time)."""
 
     def __init__(
         self, endpoint: str, *, token: str | None, identity: str = DEFAULT_IDENTITY, timeout_s: float = 10.0
@@ -97,6 +132,8 @@ class ControlClient:
         self._timeout_ms = round(timeout_s * 1000)
         self._ctx: zmq.Context = zmq.Context.instance()
         self._lock = threading.Lock()
+        self._sender = secrets.token_bytes(8)
+        self._seq = 0
         self._sock = self._new_socket()
 
     def _new_socket(self) -> zmq.Socket:
@@ -110,8 +147,9 @@ class ControlClient:
     def request(self, cmd: str, args: dict | None = None, user: str = "") -> dict:
         """The reply document; {"ok": false, "error": {"type": "Timeout"}} if the station does not answer."""
         body = json.dumps({"cmd": cmd, "args": args or {}, "user": user}).encode()
-        frames = [self._identity, request_mac(self._token, self._identity, body), body]
         with self._lock:
+            self._seq += 1
+            frames = request_frames(self._token, self._identity, Stamp(self._sender, self._seq, utc_s()), body)
             try:
                 self._sock.send_multipart(frames)
                 return json.loads(self._sock.recv())
