@@ -29,6 +29,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--station-s", type=float, default=60.0, help="station seconds at speed, measured")
     ap.add_argument("--top", type=int, default=15, help="functions listed")
+    ap.add_argument("--sort", default="tottime", help="pstats sort key (tottime, cumulative)")
     args = ap.parse_args()
     clock = EventClock()
     channel = f"bench-tpdo-{uuid.uuid4().hex[:8]}"
@@ -60,7 +61,7 @@ def main() -> None:
     print(f"TPDO event timers {timers_s} s: {frames} frames in {args.station_s:g} s of station time")
     print(f"CPU {cpu_s:.3f} s: {cpu_s / args.station_s * 1e3:.1f} ms per station second, "
           f"{cpu_s / frames * 1e6:.1f} us per TPDO frame (timers, heartbeats and all)")  # fmt: skip
-    pstats.Stats(profile).sort_stats("tottime").print_stats(args.top)
+    pstats.Stats(profile).sort_stats(args.sort).print_stats(args.top)
 
 
 if __name__ == "__main__":

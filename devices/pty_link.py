@@ -87,11 +87,15 @@ class FaultBox:
 
     def active(self, fault: enum.Enum) -> bool:
         """True while armed, without consuming it."""
+        if not self._armed:  # checked on every frame: most boxes are empty (a racing inject counts from the next)
+            return False
         with self._lock:
             return fault in self._armed
 
     def take(self, fault: enum.Enum) -> bool:
         """True if armed; consumes one occurrence."""
+        if not self._armed:
+            return False
         with self._lock:
             if fault not in self._armed:
                 return False

@@ -663,6 +663,11 @@ def ticks_of(t_s: float, *, tick_s: float = TICK_S, bits: int = TICK_BITS) -> in
     return round(t_s / tick_s) % (1 << bits)
 
 
+def ticks_of_array(t_s: np.ndarray, *, tick_s: float = TICK_S, bits: int = TICK_BITS) -> np.ndarray:
+    """ticks_of of every element (int64; np.rint rounds half to even, as round() does)."""
+    return np.rint(np.asarray(t_s, dtype=float) / tick_s).astype(np.int64) % (1 << bits)
+
+
 # ---------------------------------------------------------------- retries
 
 T = TypeVar("T")

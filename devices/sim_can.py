@@ -20,7 +20,6 @@ its `now_s()` and `send_periodic` (heartbeats, cyclic frames) runs on its
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import threading
@@ -90,11 +89,22 @@ def bind_clock(channel: str, clock: Clock | None) -> None:
 
 
 def _received(msg: can.Message, timestamp_s: float, channel: str) -> can.Message:
-    """A receiver's own copy of the frame, stamped with the station time it crossed the bus."""
-    frame = copy.copy(msg)
-    frame.data = bytearray(msg.data)  # copy.copy shares it; a sender may change its message after send()
-    frame.timestamp, frame.channel, frame.is_rx = timestamp_s, channel, True
-    return frame
+    """A receiver's own copy of the frame (its own data: a sender may change its message after send()),
+    stamped with the station time it crossed the bus."""
+    return can.Message(
+        timestamp=timestamp_s,
+        arbitration_id=msg.arbitration_id,
+        is_extended_id=msg.is_extended_id,
+        is_remote_frame=msg.is_remote_frame,
+        is_error_frame=msg.is_error_frame,
+        channel=channel,
+        dlc=msg.dlc,
+        data=bytearray(msg.data),
+        is_fd=msg.is_fd,
+        is_rx=True,
+        bitrate_switch=msg.bitrate_switch,
+        error_state_indicator=msg.error_state_indicator,
+    )
 
 
 class StationSimBus(can.BusABC):
@@ -122,7 +132,9 @@ class StationSimBus(can.BusABC):
         with ch.lock:
             self._check_open()
             t_s = ch.clock.now_s()
-            ch.fifo.extend((bus, _received(msg, t_s, ch.name)) for bus in ch.buses if bus is not self)
+            for bus in ch.buses:
+                if bus is not self:
+                    ch.fifo.append((bus, _received(msg, t_s, ch.name)))
             if ch.draining:
                 return  # the outermost send() of the channel delivers it
             ch.draining = True

@@ -75,6 +75,10 @@ class _Anchor:
     version: int
 
 
+CROSSINGS_AHEAD_S = 60.0  # reference crossings computed at once (600 at 10 Hz)
+CROSSING_MARGIN_S = 1e-6  # far beyond a crossing time's rounding (1e-12 s), far below a period (0.1 s)
+
+
 class SimStation:
     """Shared state of one simulated station; thread-safe."""
 
@@ -86,6 +90,7 @@ class SimStation:
         index_speed_deg_s: float = 20.0,
         *,
         sim_lines: bool = False,
+        crossings_ahead_s: float = CROSSINGS_AHEAD_S,
     ) -> None:
         self.twin = twin or default_twin()
         self.sim_lines = sim_lines  # serial emulators serve sim:// lines (devices.sim_serial), else ptys
@@ -97,6 +102,8 @@ class SimStation:
         self._lock = threading.RLock()
         self._head = _HeadMove(t0, 0.0, 0.0, index_speed_deg_s)
         self._version = 0
+        self._crossings_ahead_s = crossings_ahead_s
+        self._crossings: tuple[int, float, float, np.ndarray] | None = None  # version, (t0, t1], stamped times
         self._anchor: _Anchor | None = None
         self._shared: dict[str, Any] = {}
         self._operator_handlers: dict[str, Callable[[Any, float], None]] = {}
@@ -147,7 +154,22 @@ class SimStation:
         return table_position_m(psi, w, self.twin)
 
     def reference_crossings_s(self, t0_s: float, t1_s: float) -> np.ndarray:
-        """Times of psi = 0 mod 2 pi crossings in (t0, t1], as stamped (read-head latency included)."""
+        """Times of psi = 0 mod 2 pi crossings in (t0, t1], as stamped (read-head latency included).
+
+        Computed crossings_ahead_s at a time and kept until the world changes (a crank command, a new twin):
+        the counter asks four times a second, and each crossing's time does not depend on the interval."""
+        with self._lock:
+            cached = self._crossings
+            if cached is None or cached[0] != self._version or not cached[1] <= t0_s <= t1_s <= cached[2]:
+                t_end_s = max(t1_s, t0_s + self._crossings_ahead_s)
+                # the stamped time alone decides which interval a crossing falls in: computed with a margin,
+                # none is lost to a last-bit difference between a crossing's phase and its time at an end
+                found = self._crossings_s(t0_s - CROSSING_MARGIN_S, t_end_s + CROSSING_MARGIN_S)
+                cached = self._crossings = (self._version, t0_s, t_end_s, found)
+        times = cached[3]
+        return times[np.searchsorted(times, t0_s, side="right") : np.searchsorted(times, t1_s, side="right")]
+
+    def _crossings_s(self, t0_s: float, t1_s: float) -> np.ndarray:
         latency = terms.reference_latency_s(self.twin.effects)
         a, b = t0_s - latency, t1_s - latency
         p_a, p_b = self.crank.phase_rad(a), self.crank.phase_rad(b)

@@ -124,9 +124,10 @@ class CrankModel:
                 out.append(seg.t_start_s + tau)
             lin_a = max(a, seg.t_ramp_end_s)
             if b > lin_a and seg.w_end_radps > 0:
-                p_a = seg.phase_rad(lin_a)
-                lv = levels[(levels > p_a) & (levels <= seg.phase_rad(b))]
-                out.append(lin_a + (lv - p_a) / seg.w_end_radps)
+                lv = levels[(levels > seg.phase_rad(lin_a)) & (levels <= seg.phase_rad(b))]
+                # from the ramp's end, not from a: a crossing's time is the same to the bit whatever interval asks
+                p_end = seg.phase_rad(seg.t_ramp_end_s)
+                out.append(seg.t_ramp_end_s + (lv - p_end) / seg.w_end_radps)
         if not out:
             return np.zeros(0)
         t = np.concatenate(out)

@@ -177,16 +177,17 @@ class EventClock:
 
     def _idle(self) -> bool:
         """Every party waits, nobody is advancing, and no wait has ended whose thread has yet to run."""
-        return (
-            not self._advancing
-            and all(p.waiting() for p in self._parties.values())
-            and not any(w.woken for w in self._waiters)
-        )
+        if self._advancing:
+            return False
+        for p in self._parties.values():  # a loop, not all() of a generator: this runs at every event
+            if not p.waiting():
+                return False
+        return True not in [w.woken for w in self._waiters]
 
     def _advance_if_idle(self) -> None:
         """If every party waits, move time to the next due instant and run what is due there."""
         while self._waiters and self._idle():  # time moves only to end someone's wait
-            due_s = min((w.deadline_s for w in self._waiters), default=math.inf)
+            due_s = min([w.deadline_s for w in self._waiters])
             if math.isinf(due_s) and not self._parties:
                 return  # nobody acts in station time and no wait has a deadline: time stands still
             due_s = min(due_s, self._timers.next_due_s())

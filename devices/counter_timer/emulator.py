@@ -30,7 +30,7 @@ import numpy as np
 from devices.counter_timer import protocol as c
 from devices.counter_timer.protocol import ARMED, CLOSING, COUNTING, DONE_STATE, FAULTED, IDLE
 from devices.pty_link import LINK_FAULTS, Fault, PtyEmulator, garble, truncate
-from devices.serial_port import FrameParser, encode_frame, ticks_of
+from devices.serial_port import FrameParser, encode_frame, ticks_of, ticks_of_array
 
 SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary edges are those
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
@@ -65,7 +65,10 @@ class CounterEmulator(PtyEmulator):
     # ---- output
 
     def _frame(self, frame_type: int, payload: bytes) -> None:
-        frame = encode_frame(frame_type, payload)
+        self._send_frame(encode_frame(frame_type, payload))
+
+    def _send_frame(self, frame: bytes) -> None:
+        """One encoded frame out, as an armed link fault leaves it."""
         if self.faults.take(Fault.GARBLE):
             frame = garble(frame)
         elif self.faults.take(Fault.TRUNCATE):
@@ -211,10 +214,10 @@ class CounterEmulator(PtyEmulator):
         return self._last_ref_s is not None and self._last_ref_s >= self.window.close_s
 
     def _refs(self, times: np.ndarray) -> None:
-        for t in np.asarray(times, dtype=float):
-            self._frame(c.REF, c.REF_PAYLOAD.pack(self._n_refs, ticks_of(float(t))))
+        for t in np.asarray(times, dtype=float).tolist():
+            self._frame(c.REF, c.REF_PAYLOAD.pack(self._n_refs, ticks_of(t)))
             self._n_refs += 1
-            self._last_ref_s = float(t)
+            self._last_ref_s = t
 
     def _edges(self, times: np.ndarray, dirs: np.ndarray) -> None:
         n = len(times)
@@ -224,7 +227,7 @@ class CounterEmulator(PtyEmulator):
         room_frames = max(self.tx_room() - 256, 0) // per_frame_bytes  # keep room for events
         fit = min(n, room_frames * c.MAX_EDGES_PER_FRAME)
         edges = np.zeros(fit, dtype=c.EDGE_DTYPE)
-        edges["ticks"] = np.rint(np.asarray(times[:fit]) / 50e-9).astype(np.int64) & 0xFFFFFFFF
+        edges["ticks"] = ticks_of_array(times[:fit])
         edges["dir"] = np.asarray(dirs[:fit])
         for i in range(0, fit, c.MAX_EDGES_PER_FRAME):
             chunk = edges[i : i + c.MAX_EDGES_PER_FRAME]

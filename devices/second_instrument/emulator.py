@@ -20,7 +20,7 @@ import numpy as np
 
 from devices.counter_timer.emulator import CounterEmulator
 from devices.errors import DriverError
-from devices.world import SimStation
+from devices.world import CROSSINGS_AHEAD_S, SimStation
 from models.config import InstrumentCoefficients, TwinConfig
 from models.fixture import POSES_DEG, SETUPS, mounted_twin, pose_rad
 from models.inputs import instrument_rate_radps
@@ -96,6 +96,8 @@ class InstrumentOnHead(SimStation):
         self.rng = np.random.default_rng(int(world.rng.integers(2**63)))
         self._lock = threading.RLock()
         self._anchor = None
+        self._crossings_ahead_s = CROSSINGS_AHEAD_S
+        self._crossings = None
         self._edge_phase_rad = float(self.rng.uniform(0.0, 2 * math.pi / world.twin.station.pulses_per_rev))
 
     @property

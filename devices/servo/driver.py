@@ -184,7 +184,7 @@ class _TpdoCache:
         t_s = self._clock.now_s()
         with self._cond:
             for var in pdo_map:
-                self._values[var.index] = int(var.raw)
+                self._values[var.index] = int(var.od.decode_raw(var.data))  # var.raw also formats a debug text
                 self._seq[var.index] = self._seq.get(var.index, 0) + 1
                 self._t_s[var.index] = t_s
             self.last_rx_link_s = self._link.now_s()
@@ -312,6 +312,10 @@ class VibrationTableServo:
         self._pdo_silence_s = min(self._hb_timeout_s, 5 * max(timers_s, default=self._hb_period_s))
         for tpdo in node.tpdo.values():
             if tpdo.enabled:
+                # this cache (on the station clock) is what the driver reads: BaseNode402's own copy
+                # (tpdo_values, read by none of its methods that we call) would decode every frame twice
+                if node.on_TPDOs_update_callback in tpdo.callbacks:
+                    tpdo.callbacks.remove(node.on_TPDOs_update_callback)
                 tpdo.add_callback(self._tpdo.on_pdo)
         node.nmt.state = "OPERATIONAL"
         for index in (0x6041, 0x606C):
