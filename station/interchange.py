@@ -25,8 +25,9 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping
-from dataclasses import asdict
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +40,7 @@ from station.provenance import ProvenanceError, check_provenance
 from station.raw_limits import DEFAULT_LIMITS, Budget, RawInputError, RawLimits
 from station.rawfile import RAW_SPECS, LazyRaw, RawWriter
 from station.records import Field, RecordError, RecordType, declared
-from station.safe_arrays import NUMERIC_KINDS, Spec, load_npz, members, open_h5, read_group
+from station.safe_arrays import DTYPES_ALLOWED, NUMERIC_KINDS, Spec, load_npz, members, open_h5, read_group
 from station.safe_files import check_tree, open_regular
 from station.session import RAW_FIELDS, STATION_FIELDS, Measurement, PointRecord, RawStreams, Session, StationInfo
 
@@ -63,13 +64,25 @@ POINT_FIELDS: dict[str, Field] = {
         Field("Np", "int64", "", lo=1, hi=2**31 - 1),
     )
 }
-# t1 + Np T - Tm = t2 holds for a perfect frequency; a frequency error eps_f breaks it by
-# eps_f Np T. The real table's frequency stability is < 5e-4 (seed 000 Table 4): allow twice that.
-MAX_PERIOD_MISMATCH = 2 * constants.FREQ_STABILITY_MAX
+# A vibration point's frequency: the table's lowest is 0.1 Hz (a station file may go lower, never to 0); below
+# MIN_VIBRATION_HZ the period is not a time the counter could span.
+MIN_VIBRATION_HZ = 1e-3
+# t1 + Np T - Tm - t2 = 0 (physics.md) holds to the timing noise of the two reference-crossing stamps it
+# involves, plus the frequency error eps_f of the table (its signature: eps_f Np T). session.json states them
+# (physics.md's "timing": {"timer_resolution_s", "timing_sigma_s"}, and "frequency_stability", the largest
+# |eps_f|); unstated, the counter's 50 ns ticks, 100 ns jitter and |eps_f| <= 1e-4 (5x seed 000 Table 6's
+# worst sigma_f / f, 2e-5): Np one period off is then refused on every window of up to 5000 periods.
+TIMING_DEFAULTS = {"timer_resolution_s": constants.TIMER_TICK_S, "timing_sigma_s": 1e-7,
+                   "frequency_stability": 1e-4}  # fmt: skip
+TIMING_MAX = {"timer_resolution_s": 1e-3, "timing_sigma_s": 1e-3,
+              "frequency_stability": constants.FREQ_STABILITY_MAX}  # fmt: skip
+TIMING_SIGMAS = 6.0  # the stamps' noise allowed in the identity: 6 sd
+ROUNDING_REL = 1e-12  # the identity's sums of doubles round to ~1e-16 relative; a crossing this close to T is at T
 MAX_JSON_BYTES = 64 << 20  # session.json: declarations, provenance, notes; never arrays
 MEASUREMENTS_DIR = "measurements"
 RAW_FILE = "raw.h5"  # the points' raw streams, one HDF5 group per point_id (physics.md's raw/*.npz is read too)
-_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,127}$")
+_SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,127}")  # a point_id, a record kind: a file name
+SAFE_NAME_ALLOWED = "1-128 letters, digits, . _ + -, starting with a letter or digit"
 _RESERVED = ("sequence", "key", "arrays_file")  # the columns of a measurements table before its fields
 OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results")  # the rest of session.json: meta
 
@@ -125,6 +138,21 @@ def _ranged(text: str, file: str, row: int, column: str) -> float | int:
     return value
 
 
+class NonFiniteError(Exception):
+    """NaN, Infinity or -Infinity in a JSON text (Python's json reads them; JSON has no such numbers)."""
+
+
+def _no_constant(text: str) -> Any:
+    raise NonFiniteError(text)
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)  # 1e999 reads as inf
+    if not math.isfinite(value):
+        raise NonFiniteError(text)
+    return value
+
+
 def _read_json(path: Path, name: str) -> Any:
     if not path.is_file():
         raise SessionFormatError(name, f"missing: a {FORMAT} directory needs {path}")
@@ -134,11 +162,46 @@ def _read_json(path: Path, name: str) -> Any:
             raise SessionFormatError(name, f"{size} bytes; at most {MAX_JSON_BYTES >> 20} MiB")
         text = fh.read(size)
     try:
-        return json.loads(text.decode("utf-8-sig"))
+        return json.loads(text.decode("utf-8-sig"), parse_constant=_no_constant, parse_float=_finite_float)
+    except NonFiniteError as exc:
+        raise SessionFormatError(name, "a number out of range: JSON numbers are finite doubles (no NaN, Infinity "
+                                 "or 1e999)", value=exc.args[0]) from None  # fmt: skip
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SessionFormatError(name, f"not valid JSON ({exc})") from None
     except RecursionError:
         raise SessionFormatError(name, "not valid JSON (nested too deeply)") from None
+
+
+@dataclass(frozen=True)
+class Timing:
+    """What session.json states of its timing noise (TIMING_DEFAULTS where it does not)."""
+
+    timer_resolution_s: float
+    timing_sigma_s: float
+    frequency_stability: float
+
+    @classmethod
+    def from_meta(cls, meta: Mapping[str, Any], file: str) -> Timing:
+        stated = meta.get("timing", {})
+        if not isinstance(stated, dict):
+            raise SessionFormatError(file, "'timing' must be an object", column="timing", value=stated)
+        values = dict(TIMING_DEFAULTS)
+        for key, v in stated.items():
+            if key not in TIMING_DEFAULTS:
+                continue  # physics.md allows extra keys
+            if v is None:
+                continue
+            top = TIMING_MAX[key]
+            if isinstance(v, bool) or not isinstance(v, int | float) or not 0 <= v <= top:
+                raise SessionFormatError(file, f"must be a number in [0, {top:g}]", column=f"timing.{key}", value=v)
+            values[key] = float(v)
+        return cls(**values)
+
+    def tolerance_s(self, periods_s: float) -> float:
+        """|t1 + Np T - Tm - t2| allowed over a span of Np T = periods_s: the two crossing stamps' noise and
+        the frequency error."""
+        stamp_sd = math.sqrt(self.timing_sigma_s**2 + self.timer_resolution_s**2 / 12.0)
+        return TIMING_SIGMAS * math.sqrt(2.0) * stamp_sd + (self.frequency_stability + ROUNDING_REL) * periods_s
 
 
 def _read_station(path: Path) -> tuple[StationInfo, str, dict, dict, list[dict]]:
@@ -171,22 +234,63 @@ def _read_station(path: Path) -> tuple[StationInfo, str, dict, dict, list[dict]]
             name, "'measurements' must be a list of record type declarations", column="measurements"
         )
     meta = {k: v for k, v in data.items() if k not in OWN_KEYS}
-    results = data.get("results", [])
-    if not isinstance(results, list) or not all(
-        isinstance(r, dict) and isinstance(r.get("method"), str) and isinstance(r.get("created_utc"), str)
-        and isinstance(r.get("result"), dict) for r in results
-    ):  # fmt: skip
-        raise SessionFormatError(name, "'results' must be a list of {method, created_utc, result} objects",
-                                 column="results")  # fmt: skip
-    meta["results"] = results
+    meta["results"] = _check_results(data.get("results", []), provenance.get("created_utc"), name)
     meta["declares_measurements"] = "measurements" in data
     return StationInfo(**values), notes if isinstance(notes, str) else json.dumps(notes), meta, provenance, tables
 
 
-def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
+RESULT_KEYS = ("method", "created_utc", "result")
+CLOCK_SKEW = timedelta(days=1)  # another station's clock may be ahead of ours
+
+
+def _utc(text: Any, file: str, column: str) -> datetime:
+    """An ISO 8601 time with its UTC offset, as the station writes them."""
+    try:
+        t = datetime.fromisoformat(text) if isinstance(text, str) else None
+    except ValueError:
+        t = None
+    if t is None or t.tzinfo is None:
+        raise SessionFormatError(file, "must be an ISO 8601 time with its UTC offset (2026-12-01T19:54:18.120+00:00)",
+                                 column=column, value=text)  # fmt: skip
+    return t
+
+
+def _check_results(results: Any, recorded_utc: Any, file: str) -> list[dict]:
+    """The analyses' results as the store keeps its own (Store.add_result): a method name, the time it was computed
+    and a JSON object of finite numbers (the import's JSON reader refuses NaN and Infinity); computed after the
+    session was recorded (provenance.created_utc, when stated) and not in the future."""
+    if not isinstance(results, list):
+        raise SessionFormatError(file, "'results' must be a list of {method, created_utc, result} objects",
+                                 column="results")  # fmt: skip
+    recorded = _utc(recorded_utc, file, "provenance.created_utc") if results and recorded_utc is not None else None
+    latest = datetime.now(UTC) + CLOCK_SKEW
+    for i, r in enumerate(results):
+        where = f"results[{i}]"
+        if not isinstance(r, dict) or sorted(r) != sorted(RESULT_KEYS):
+            raise SessionFormatError(file, "must be an object with exactly the keys method, created_utc, result",
+                                     column=where, value=r if not isinstance(r, dict) else sorted(r))  # fmt: skip
+        if not isinstance(r["method"], str) or not _SAFE_NAME.fullmatch(r["method"]):
+            raise SessionFormatError(file, f"a method name: {SAFE_NAME_ALLOWED}", column=f"{where}.method",
+                                     value=r["method"])  # fmt: skip
+        when = _utc(r["created_utc"], file, f"{where}.created_utc")
+        if when > latest or (recorded is not None and when < recorded):
+            raise SessionFormatError(
+                file,
+                f"a result is computed after the session was recorded ({recorded_utc}) and not in the future",
+                column=f"{where}.created_utc",
+                value=r["created_utc"],
+            )
+        if not isinstance(r["result"], dict):
+            raise SessionFormatError(
+                file, "must be a JSON object", column=f"{where}.result", value=type(r["result"]).__name__
+            )
+    return results
+
+
+def _parse_row(row: dict[str, str], file: str, n: int, timing: Timing) -> PointRecord:
     point_id = row["point_id"].strip()
-    if not point_id:
-        raise SessionFormatError(file, "point_id must not be empty", n, "point_id", row["point_id"])
+    if not _SAFE_NAME.fullmatch(point_id):
+        raise SessionFormatError(file, f"point_id must be {SAFE_NAME_ALLOWED}", n, "point_id", row["point_id"])
     kind = row["kind"].strip()
     if kind not in ("static", "vibration"):
         raise SessionFormatError(file, "kind must be 'static' or 'vibration'", n, "kind", row["kind"])
@@ -206,30 +310,43 @@ def _parse_row(row: dict[str, str], file: str, n: int) -> PointRecord:
             if row[col].strip():
                 raise SessionFormatError(file, "must be empty for a static point", n, col, row[col])
         return PointRecord(point_id, sequence, start, position, 0.0, "static", pulses, tm, extra=extra)
-    if freq <= 0:
-        raise SessionFormatError(file, "a vibration point needs freq_hz > 0", n, "freq_hz", row["freq_hz"])
-    period = 1.0 / freq
+    if not freq >= MIN_VIBRATION_HZ:
+        raise SessionFormatError(file, f"a vibration point needs freq_hz in [{MIN_VIBRATION_HZ:g}, 100] Hz", n,
+                                 "freq_hz", row["freq_hz"])  # fmt: skip
     t1 = _number(row["t1_s"], file, n, "t1_s")
     t2 = _number(row["t2_s"], file, n, "t2_s")
     n_periods = int(_ranged(row["Np"], file, n, "Np"))
-    slack = period * MAX_PERIOD_MISMATCH
-    if not 0 < t1 <= period + slack:
-        raise SessionFormatError(file, f"t1_s must lie in (0, T], T = {period:.6g} s", n, "t1_s", row["t1_s"])
-    if not 0 <= t2 < period + slack:
-        raise SessionFormatError(file, f"t2_s must lie in [0, T), T = {period:.6g} s", n, "t2_s", row["t2_s"])
-    if t1 >= tm:
-        raise SessionFormatError(file, f"t1_s must be before Tm_s = {tm}", n, "t1_s", row["t1_s"])
-    spanned = tm - t1 + t2
-    if abs(spanned - n_periods * period) > MAX_PERIOD_MISMATCH * n_periods * period:
-        raise SessionFormatError(
-            file,
-            f"inconsistent times: Tm - t1 + t2 = {spanned:.6f} s but Np T = {n_periods * period:.6f} s "
-            f"(allowed relative mismatch {MAX_PERIOD_MISMATCH:g})",
-            n,
-            "Np",
-            row["Np"],
-        )
+    _check_periods(tm, t1, t2, n_periods, freq, timing, lambda column, message: SessionFormatError(
+        file, message, n, column, row[column]))  # fmt: skip
     return PointRecord(point_id, sequence, start, position, freq, "vibration", pulses, tm, t1, t2, n_periods, extra)
+
+
+def _check_periods(
+    tm: float, t1: float, t2: float, n_periods: int, freq: float, timing: Timing,
+    error: Callable[[str, str], SessionFormatError],
+) -> None:  # fmt: skip
+    """physics.md: t1 in (0, T], t2 in [0, T) of the period the table turned at (Tm - t1 + t2) / Np, and
+    t1 + Np T - Tm - t2 = 0 with T = 1 / freq_hz within the stated timing noise and frequency error."""
+    period = 1.0 / freq
+    longest = period * (1.0 + timing.frequency_stability)  # the period of a table turning slow by the most allowed
+    if not 0 < t1 <= longest:
+        raise error("t1_s", f"t1_s must lie in (0, T], T = {period:.9g} s")
+    if not 0 <= t2 < longest:
+        raise error("t2_s", f"t2_s must lie in [0, T), T = {period:.9g} s")
+    if not t1 < tm:
+        raise error("t1_s", f"t1_s must be before Tm_s = {tm!r}")
+    spanned = tm - t1 + t2
+    residual = n_periods * period - spanned
+    allowed = timing.tolerance_s(n_periods * period)
+    if not abs(residual) <= allowed:
+        raise error("Np", f"t1 + Np T - Tm - t2 = {residual:.6g} s with T = 1/freq_hz = {period:.9g} s; allowed "
+                    f"+-{allowed:.3g} s (timing noise and a frequency error up to {timing.frequency_stability:g}, "
+                    "session.json 'timing'): Np is not the whole periods from t1 to the closing crossing")  # fmt: skip
+    turned = spanned / n_periods  # the period the table turned at
+    if not t1 <= turned:
+        raise error("t1_s", f"t1_s must lie in (0, T], T = (Tm - t1 + t2) / Np = {turned:.9g} s")
+    if not t2 < turned * (1.0 - ROUNDING_REL):
+        raise error("t2_s", f"t2_s must lie in [0, T), T = (Tm - t1 + t2) / Np = {turned:.9g} s")
 
 
 def _csv_rows(path: Path, name: str, required: tuple[str, ...]) -> Iterator[tuple[int, dict[str, str]]]:
@@ -263,7 +380,7 @@ def _csv_rows(path: Path, name: str, required: tuple[str, ...]) -> Iterator[tupl
         raise SessionFormatError(name, f"malformed CSV ({exc})") from None
 
 
-def _read_points(path: Path) -> list[PointRecord]:
+def _read_points(path: Path, timing: Timing) -> list[PointRecord]:
     name = "points.csv"
     if not path.is_file():
         raise SessionFormatError(name, f"missing: a {FORMAT} directory needs {path}")
@@ -271,7 +388,7 @@ def _read_points(path: Path) -> list[PointRecord]:
     ids: dict[str, int] = {}
     sequences: dict[int, int] = {}
     for n, row in _csv_rows(path, name, COLUMNS):
-        p = _parse_row(row, name, n)
+        p = _parse_row(row, name, n, timing)
         if p.point_id in ids:
             raise SessionFormatError(name, f"duplicate point_id (first on row {ids[p.point_id]})", n, "point_id",
                                      p.point_id)  # fmt: skip
@@ -283,19 +400,25 @@ def _read_points(path: Path) -> list[PointRecord]:
     return points
 
 
-def _check_raw(arrays: Mapping[str, np.ndarray], name: str) -> None:
-    """physics.md's raw record: grating_t, grating_z, pulse_t (optional pulse_dir, reference_t); 1-D, numeric,
-    finite, grating_t and grating_z of one length, times non-decreasing."""
+def _check_raw(arrays: Mapping[str, np.ndarray], name: str, kind: str) -> None:
+    """physics.md's raw record: grating_t, grating_z, pulse_t (optional pulse_dir, reference_t); 1-D, real
+    numeric, finite, grating_t and grating_z of one length, pulse_dir one +1 or -1 per pulse edge, times
+    non-decreasing; pulse_t not empty (the point counted pulses), the grating not empty for a vibration point
+    (a station records none at rest)."""
     for key in RAW_ARRAYS:
         if key not in arrays:
             raise SessionFormatError(name, f"missing array (needs {', '.join(RAW_ARRAYS)})", column=key)
     for key, a in arrays.items():
         if key not in RAW_FIELDS:
             raise SessionFormatError(name, f"unknown array (allowed: {', '.join(RAW_FIELDS)})", column=key)
-        if a.ndim != 1 or not np.issubdtype(a.dtype, np.number):
+        if a.ndim != 1 or a.dtype.kind not in NUMERIC_KINDS:
             raise SessionFormatError(
-                name, f"expected a 1-D numeric array, got shape {a.shape} dtype {a.dtype}", column=key
+                name, f"expected a 1-D array of {DTYPES_ALLOWED}, got shape {a.shape} dtype {a.dtype}", column=key
             )
+        if a.size == 0 and (key == "pulse_t" or (kind == "vibration" and key in ("grating_t", "grating_z"))):
+            raise SessionFormatError(name, f"empty: a {kind} point's record holds its pulse edges"
+                                     + (" and the table's motion" if kind == "vibration" else ""),
+                                     column=key, value=f"shape {a.shape}")  # fmt: skip
         if not np.all(np.isfinite(a)):
             raise SessionFormatError(name, "contains NaN or inf", column=key, value=int(np.sum(~np.isfinite(a))))
     if arrays["grating_t"].size != arrays["grating_z"].size:
@@ -304,12 +427,19 @@ def _check_raw(arrays: Mapping[str, np.ndarray], name: str) -> None:
             f"grating_t has {arrays['grating_t'].size} samples but grating_z {arrays['grating_z'].size}",
             column="grating_z",
         )
-    for key in ("grating_t", "pulse_t"):
-        if np.any(np.diff(arrays[key]) < 0):
+    direction = arrays.get("pulse_dir")
+    if direction is not None:
+        if direction.size != arrays["pulse_t"].size:
+            raise SessionFormatError(name, f"one direction per pulse edge: pulse_t has {arrays['pulse_t'].size}",
+                                     column="pulse_dir", value=f"{direction.size} values")  # fmt: skip
+        if not np.all(np.abs(direction) == 1):
+            raise SessionFormatError(name, "each value must be +1 or -1", column="pulse_dir")
+    for key in ("grating_t", "pulse_t", "reference_t"):
+        if key in arrays and np.any(np.diff(arrays[key]) < 0):
             raise SessionFormatError(name, "times must not decrease", column=key)
 
 
-def _read_raw(d: Path, ids: set[str], budget: Budget) -> Mapping[str, RawStreams]:
+def _read_raw(d: Path, kinds: dict[str, str], budget: Budget) -> Mapping[str, RawStreams]:
     """raw/<point_id>.npz (physics.md), read whole; or raw.h5 (one group per point), checked point by point and
     then read lazily (a session's raw streams may not fit in memory)."""
     raw_dir, h5 = d / "raw", d / RAW_FILE
@@ -321,12 +451,12 @@ def _read_raw(d: Path, ids: set[str], budget: Budget) -> Mapping[str, RawStreams
         with open_h5(h5, RAW_FILE) as f:
             for pid, group in members(f, RAW_FILE):
                 name = f"{RAW_FILE}:/{pid}"
-                if pid not in ids:
+                if pid not in kinds:
                     raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
                 if not isinstance(group, h5py.Group):
                     raise SessionFormatError(name, "expected a group of datasets (one per array)")
                 arrays = read_group(group, RAW_FILE, RAW_SPECS, budget)
-                _check_raw(arrays, name)
+                _check_raw(arrays, name, kinds[pid])
                 digests[pid] = raw_digest(RawStreams.from_arrays(arrays))
                 del arrays  # one point's arrays in memory at a time
         lazy = LazyRaw.of_file(h5, list(digests), budget.limits)
@@ -336,10 +466,10 @@ def _read_raw(d: Path, ids: set[str], budget: Budget) -> Mapping[str, RawStreams
     for path in npz:
         name = f"raw/{path.name}"
         pid = path.stem
-        if pid not in ids:
+        if pid not in kinds:
             raise SessionFormatError(name, "no point with this point_id in points.csv", value=pid)
         arrays = load_npz(path, name, RAW_SPECS, budget)
-        _check_raw(arrays, name)
+        _check_raw(arrays, name, kinds[pid])
         raws[pid] = RawStreams(
             arrays["grating_t"].astype(float),
             arrays["grating_z"].astype(float),
@@ -388,7 +518,7 @@ def _read_measurements(d: Path, tables: list[Any], budget: Budget) -> tuple[list
             raise SessionFormatError(
                 name, f"bad record type declaration ({exc})", column=f"measurements[{i}]"
             ) from None
-        if not _SAFE_NAME.match(rt.kind) or rt.kind in {t.kind for t in types}:
+        if not _SAFE_NAME.fullmatch(rt.kind) or rt.kind in {t.kind for t in types}:
             raise SessionFormatError(name, "kind must be a unique name of letters, digits, . _ + -",
                                      column=f"measurements[{i}].kind", value=rt.kind)  # fmt: skip
         clash = [f.name for f in rt.fields if f.name in _RESERVED]
@@ -447,8 +577,8 @@ def read_session(directory: str | os.PathLike, limits: RawLimits = DEFAULT_LIMIT
     try:
         check_tree(d)
         station, notes, meta, provenance, tables = _read_station(d / "session.json")
-        points = _read_points(d / "points.csv")
-        raw = _read_raw(d, {p.point_id for p in points}, budget)
+        points = _read_points(d / "points.csv", Timing.from_meta(meta, "session.json"))
+        raw = _read_raw(d, {p.point_id: p.kind for p in points}, budget)
         measurements, types = _read_measurements(d, tables, budget)
     except RawInputError as exc:
         raise SessionFormatError(exc.file, exc.reason, dataset=exc.dataset) from None

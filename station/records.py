@@ -24,6 +24,15 @@ from station.errors import InputError
 DType = Literal["float64", "int64", "bool", "str"]
 DTYPES: tuple[str, ...] = ("float64", "int64", "bool", "str")
 INT64_MAX = 2**63 - 1
+MAX_NDIM = 8  # list depth of a declared value, dimensions of a declared array
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_real(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
 
 
 class RecordError(InputError):
@@ -49,10 +58,28 @@ class Field:
     doc: str = ""
 
     def __post_init__(self) -> None:
+        """Every key of the declaration in its type (a declaration may come from a file: session.json)."""
+        where = f"field {self.name!r}"
+        if not isinstance(self.name, str) or not self.name:
+            raise RecordError("field", "name", self.name, "non-empty text")
         if self.dtype not in DTYPES:
-            raise RecordError(f"field {self.name!r}", "dtype", self.dtype, " | ".join(DTYPES))
-        if self.ndim < 0:
-            raise RecordError(f"field {self.name!r}", "ndim", self.ndim, ">= 0")
+            raise RecordError(where, "dtype", self.dtype, " | ".join(DTYPES))
+        if not _is_int(self.ndim) or not 0 <= self.ndim <= MAX_NDIM:
+            raise RecordError(where, "ndim", self.ndim, f"a whole number in [0, {MAX_NDIM}]")
+        for key in ("unit", "doc"):
+            if not isinstance(getattr(self, key), str):
+                raise RecordError(where, key, getattr(self, key), "text")
+        for key in ("lo_open", "nullable"):
+            if not isinstance(getattr(self, key), bool):
+                raise RecordError(where, key, getattr(self, key), "true or false")
+        for key in ("lo", "hi"):
+            bound = getattr(self, key)
+            if bound is not None and not (_is_real(bound) and math.isfinite(bound)):
+                raise RecordError(where, key, bound, "a finite number or null")
+        if self.lo is not None and self.hi is not None and not self.lo <= self.hi:
+            raise RecordError(where, "hi", self.hi, f"a number >= lo = {self.lo:g}")
+        if (self.lo is not None or self.hi is not None) and self.dtype in ("bool", "str"):
+            raise RecordError(where, "lo/hi", (self.lo, self.hi), f"null for dtype {self.dtype} (a range is numeric)")
 
     def allowed(self) -> str:
         what = {"float64": "a finite number", "int64": "a whole number", "bool": "true or false", "str": "text"}
@@ -195,13 +222,15 @@ class RecordType:
         if not isinstance(doc, Mapping) or not isinstance(doc.get("kind"), str):
             raise RecordError(where, "record type", doc, "an object with 'kind', 'fields' and optional 'arrays'")
         kind = doc["kind"]
+        if not isinstance(doc.get("doc", ""), str):
+            raise RecordError(f"{where} {kind}", "doc", doc["doc"], "text")
         groups = []
         for key in ("fields", "arrays"):
             items = doc.get(key, [])
             if not isinstance(items, list):
                 raise RecordError(f"{where} {kind}", key, items, "a list of field declarations")
             groups.append(tuple(Field.from_json(f, f"{where} {kind}.{key}") for f in items))
-        return cls(kind, groups[0], groups[1], str(doc.get("doc", "")))
+        return cls(kind, groups[0], groups[1], doc.get("doc", ""))
 
 
 def check_array(f: Field, a: np.ndarray, where: str) -> np.ndarray:
@@ -210,7 +239,7 @@ def check_array(f: Field, a: np.ndarray, where: str) -> np.ndarray:
     if a.ndim != ndim:
         raise RecordError(where, f.name, f"shape {a.shape}", f"a {ndim}-D array")
     if f.dtype in ("float64", "int64"):
-        if not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
+        if a.dtype.kind not in "biuf":  # no complex (astype would drop the imaginary part), object or text
             raise RecordError(where, f.name, f"dtype {a.dtype}", f.allowed())
         if f.dtype == "int64" and a.size and not np.issubdtype(a.dtype, np.integer):
             raise RecordError(where, f.name, f"dtype {a.dtype}", f.allowed())

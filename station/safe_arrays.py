@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 import os
+import struct
+import tokenize
 import zipfile
 import zlib
 from collections.abc import Iterator
@@ -35,7 +37,11 @@ FILTERS = {
     h5py.h5z.FILTER_FLETCHER32: "fletcher32",
 }
 H5_ERRORS = (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, OverflowError)
-NPZ_ERRORS = (OSError, ValueError, EOFError, zlib.error, zipfile.BadZipFile, zipfile.LargeZipFile, KeyError)
+# What numpy and zipfile raise on a damaged archive or .npy header (a header is a Python literal: tokenize and
+# ast errors too; an encrypted or unknown-method member: RuntimeError, NotImplementedError).
+NPZ_ERRORS = (OSError, ValueError, EOFError, zlib.error, zipfile.BadZipFile, zipfile.LargeZipFile, KeyError,
+              TypeError, SyntaxError, tokenize.TokenError, struct.error, RuntimeError, NotImplementedError,
+              OverflowError, IndexError, RecursionError)  # fmt: skip
 
 
 def _check_form(

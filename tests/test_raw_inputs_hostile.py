@@ -19,6 +19,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from session_files import refused
 
 import station.safe_arrays
 from app.cli import main
@@ -63,21 +64,6 @@ def no_reads(monkeypatch):
     monkeypatch.setattr(station.safe_arrays.np.lib.format, "read_array", forbidden)
 
 
-def _refused(directory: Path, tmp_path: Path, *patterns: str) -> str:
-    """The directory is refused naming each pattern, and `station import` of it stores nothing."""
-    with pytest.raises(SessionFormatError) as info:
-        read_session(directory)
-    message = str(info.value)
-    for p in patterns:
-        assert p in message, message
-    db = tmp_path / "store.sqlite"
-    assert main(["import", str(directory), "--db", str(db)]) == 2
-    with SessionStore(db) as store:
-        assert store.sessions() == []
-    assert not [p for p in (tmp_path / "store.sqlite.raw").glob("*") if not p.name.startswith(".")]
-    return message
-
-
 def _swap(good: Path, pid: str, name: str, make) -> None:
     """raw.h5's dataset /pid/name replaced by what make(group, name) puts there."""
     with h5py.File(good / "raw.h5", "r+") as f:
@@ -93,7 +79,7 @@ def test_an_external_link_to_a_file_outside_is_refused(good, pid, tmp_path, no_r
     with h5py.File(outside, "w") as f:
         f["secret"] = np.arange(10.0)
     _swap(good, pid, "grating_t", lambda g, n: g.__setitem__(n, h5py.ExternalLink(str(outside), "/secret")))
-    msg = _refused(good, tmp_path, "raw.h5", f"/{pid}/grating_t", "an external link", "only objects stored in the file")
+    msg = refused(good, tmp_path, "raw.h5", f"/{pid}/grating_t", "an external link", "only objects stored in the file")
     assert str(outside) in msg
 
 
@@ -102,14 +88,14 @@ def test_external_storage_pointing_at_etc_passwd_is_refused(good, pid, tmp_path,
     _swap(
         good, pid, "pulse_t", lambda g, n: g.create_dataset(n, (size,), "<f8", external=[("/etc/passwd", 0, size * 8)])
     )
-    _refused(good, tmp_path, f"/{pid}/pulse_t", "external storage (in /etc/passwd)", "only data stored in the file")
+    refused(good, tmp_path, f"/{pid}/pulse_t", "external storage (in /etc/passwd)", "only data stored in the file")
 
 
 @pytest.mark.parametrize("target", ["grating_t", "/nowhere"], ids=["soft", "dangling"])
 def test_soft_links_are_refused_dangling_or_not(good, pid, tmp_path, target, no_reads):
     path = f"/{pid}/{target}" if not target.startswith("/") else target
     _swap(good, pid, "grating_z", lambda g, n: g.__setitem__(n, h5py.SoftLink(path)))
-    _refused(good, tmp_path, f"/{pid}/grating_z", f"a soft link (to {path})")
+    refused(good, tmp_path, f"/{pid}/grating_z", f"a soft link (to {path})")
 
 
 def test_a_virtual_dataset_is_refused(good, pid, tmp_path, no_reads):
@@ -119,14 +105,14 @@ def test_a_virtual_dataset_is_refused(good, pid, tmp_path, no_reads):
     layout = h5py.VirtualLayout((100,), "<f8")
     layout[:] = h5py.VirtualSource(str(outside), "x", (100,))
     _swap(good, pid, "pulse_t", lambda g, n: g.create_virtual_dataset(n, layout))
-    _refused(good, tmp_path, f"/{pid}/pulse_t", "a virtual dataset")
+    refused(good, tmp_path, f"/{pid}/pulse_t", "a virtual dataset")
 
 
 def test_a_symlinked_npz_to_dev_zero_is_refused(good, pid, tmp_path):
     (good / "raw.h5").unlink()
     (good / "raw").mkdir()
     (good / "raw" / f"{pid}.npz").symlink_to("/dev/zero")
-    _refused(good, tmp_path, f"raw/{pid}.npz", "a symbolic link", "no link is followed")
+    refused(good, tmp_path, f"raw/{pid}.npz", "a symbolic link", "no link is followed")
     with pytest.raises(RawInputError, match="a character device; only folders and regular files"):
         open_regular(Path("/dev/zero"), "zero")  # and opened directly, it is not opened at all
 
@@ -134,20 +120,20 @@ def test_a_symlinked_npz_to_dev_zero_is_refused(good, pid, tmp_path):
 def test_a_symlinked_raw_h5_and_a_symlink_anywhere_are_refused(good, tmp_path):
     shutil.move(good / "raw.h5", tmp_path / "elsewhere.h5")
     (good / "raw.h5").symlink_to(tmp_path / "elsewhere.h5")
-    _refused(good, tmp_path, "raw.h5: a symbolic link")
+    refused(good, tmp_path, "raw.h5: a symbolic link")
     (good / "raw.h5").unlink()
     (good / "deep" / "er").mkdir(parents=True)
     (good / "deep" / "er" / "passwd").symlink_to("/etc/passwd")
-    _refused(good, tmp_path, "deep/er/passwd: a symbolic link")
+    refused(good, tmp_path, "deep/er/passwd: a symbolic link")
 
 
 def test_a_fifo_in_the_session_directory_is_refused_without_opening_it(good, tmp_path):
     os.mkfifo(good / "notes.txt")
-    _refused(good, tmp_path, "notes.txt: a FIFO")
+    refused(good, tmp_path, "notes.txt: a FIFO")
     os.unlink(good / "notes.txt")
     os.unlink(good / "raw.h5")
     os.mkfifo(good / "raw.h5")  # opened, a FIFO with no writer would block the reader for ever
-    _refused(good, tmp_path, "raw.h5: a FIFO")
+    refused(good, tmp_path, "raw.h5: a FIFO")
 
 
 # --- sizes declared by the file ------------------------------------------------------------------------------
@@ -178,7 +164,7 @@ def test_an_npy_header_claiming_1e12_elements_is_refused_before_reading(good, se
     np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10**12,)})
     members["pulse_t"] = header.getvalue() + b"\0" * 64
     _npz(good / "raw" / f"{pid}.npz", members)
-    _refused(good, tmp_path, f"raw/{pid}.npz", "dataset 'pulse_t'", "declares 8000000000000 bytes",
+    refused(good, tmp_path, f"raw/{pid}.npz", "dataset 'pulse_t'", "declares 8000000000000 bytes",
              f"at most {DEFAULT_LIMITS.max_array_bytes} bytes (512 MiB) per array")  # fmt: skip
 
 
@@ -188,7 +174,7 @@ def test_an_npy_header_larger_than_its_member_is_refused(good, session, pid, tmp
     np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (10**6,)})
     members["pulse_t"] = header.getvalue() + b"\0" * 64  # 8 MB claimed, 64 bytes held
     _npz(good / "raw" / f"{pid}.npz", members)
-    _refused(good, tmp_path, "dataset 'pulse_t'", "more than the", "bytes the member holds")
+    refused(good, tmp_path, "dataset 'pulse_t'", "more than the", "bytes the member holds")
 
 
 def test_a_corrupt_zlib_stream_in_an_npz_is_a_clean_refusal(good, session, pid, tmp_path):
@@ -201,7 +187,7 @@ def test_a_corrupt_zlib_stream_in_an_npz_is_a_clean_refusal(good, session, pid, 
     start = info.header_offset + 30 + len(info.filename) + len(info.extra)
     data[start + 200 : start + 232] = b"\xff" * 32  # inside the deflate stream, after the header
     path.write_bytes(bytes(data))
-    _refused(good, tmp_path, f"raw/{pid}.npz", "dataset 'grating_z'", "damaged")
+    refused(good, tmp_path, f"raw/{pid}.npz", "dataset 'grating_z'", "damaged")
 
 
 def test_a_declared_huge_compressed_dataset_is_refused_by_its_shape(good, pid, tmp_path, no_reads):
@@ -210,7 +196,7 @@ def test_a_declared_huge_compressed_dataset_is_refused_by_its_shape(good, pid, t
         good, pid, "pulse_t", lambda g, name: g.create_dataset(name, (n,), "<f8", chunks=(1 << 16,), compression="gzip")
     )
     assert (good / "raw.h5").stat().st_size < 10 * MiB
-    _refused(good, tmp_path, f"/{pid}/pulse_t", f"declares {n * 8} bytes", "per array")
+    refused(good, tmp_path, f"/{pid}/pulse_t", f"declares {n * 8} bytes", "per array")
 
 
 def test_the_session_limit_holds_the_arrays_together(good, pid, tmp_path, session):
@@ -242,7 +228,7 @@ def test_a_chunk_that_inflates_past_its_declared_size_is_refused(good, pid, tmp_
         tracemalloc.stop()
     assert f"/{pid}/pulse_t" in str(info.value) and "inflates to more than its declared 800000 bytes" in str(info.value)
     assert peak < TRACED_PEAK, peak
-    _refused(good, tmp_path, "inflates to more than")
+    refused(good, tmp_path, "inflates to more than")
 
 
 def test_a_stored_chunk_larger_than_its_declared_size_allows_is_refused_unread(good, pid, tmp_path):
@@ -251,7 +237,7 @@ def test_a_stored_chunk_larger_than_its_declared_size_allows_is_refused_unread(g
         ds.id.write_direct_chunk((0,), os.urandom(64 << 10))  # 64 kB stored for an 8 kB chunk
 
     _swap(good, pid, "pulse_t", make)
-    _refused(good, tmp_path, f"/{pid}/pulse_t", "a stored chunk of 65536 bytes; at most 9055 for chunks of 8000 bytes")
+    refused(good, tmp_path, f"/{pid}/pulse_t", "a stored chunk of 65536 bytes; at most 9055 for chunks of 8000 bytes")
 
 
 @pytest.mark.parametrize(
@@ -268,13 +254,13 @@ def test_a_stored_chunk_larger_than_its_declared_size_allows_is_refused_unread(g
 )
 def test_only_real_numeric_datasets_of_the_expected_form_are_read(good, pid, tmp_path, make, expected, no_reads):
     _swap(good, pid, "pulse_t", make)
-    _refused(good, tmp_path, "raw.h5", f"/{pid}/pulse_t", expected)
+    refused(good, tmp_path, "raw.h5", f"/{pid}/pulse_t", expected)
 
 
 def test_an_unexpected_dataset_name_is_refused(good, pid, tmp_path, no_reads):
     with h5py.File(good / "raw.h5", "r+") as f:
         f[pid]["surprise"] = np.zeros(3)
-    _refused(good, tmp_path, f"/{pid}/surprise", "not an expected dataset (allowed: grating_t, grating_z, pulse_t")
+    refused(good, tmp_path, f"/{pid}/surprise", "not an expected dataset (allowed: grating_t, grating_z, pulse_t")
 
 
 def test_damaged_hdf5_files_are_clean_refusals(good, tmp_path):
