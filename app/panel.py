@@ -19,15 +19,20 @@ def _config(args: argparse.Namespace):
 
 
 def panel_server(config, host: str, port: int, log_level: str = "warning"):
-    """The panel under uvicorn, as `station panel` serves it (uvicorn.Server; .run() blocks)."""
+    """The panel under uvicorn, as `station panel` serves it (uvicorn.Server; .run() blocks).
+
+    X-Forwarded-For is read only from the configuration's trusted_proxies (uvicorn's own default, and its
+    FORWARDED_ALLOW_IPS variable, would trust loopback)."""
     import uvicorn
 
     from web.app import create_app
 
     deflate = config.websocket_compression
+    proxies = list(config.trusted_proxies)
     app = create_app(config)
     return uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level=log_level, ws="websockets-sansio",
-                                         ws_per_message_deflate=deflate))  # fmt: skip
+                                         ws_per_message_deflate=deflate, proxy_headers=bool(proxies),
+                                         forwarded_allow_ips=proxies))  # fmt: skip
 
 
 def cmd_panel(args: argparse.Namespace) -> int:

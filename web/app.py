@@ -1,9 +1,12 @@
 """The panel's FastAPI application: `create_app(config)`; `station panel` serves it with uvicorn.
 
-Around everything the application does (its error pages and 500s included), two
-plain ASGI layers: SecurityHeaders puts SECURITY_HEADERS on every HTTP response,
+Around everything the application does (its error pages and 500s included), three
+plain ASGI layers: ConnectionGivenUp drops quietly a response that the server can no
+longer send (no traceback in the panel's log for any request), SecurityHeaders puts
+SECURITY_HEADERS on every HTTP response,
 and BodyLimit answers 413 to a request body over MAX_BODY_BYTES (by
-Content-Length, or by counting a chunked body) before any route reads it. The
+Content-Length, or by counting a chunked body) before any route reads it, and
+in place of whatever a route would answer to a body cut at the limit. The
 OpenAPI schema is served at /openapi.json to logged-in users only.
 """
 
@@ -13,6 +16,8 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
 
+import anyio
+import h11
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -40,6 +45,8 @@ SECURITY_HEADERS = {
 
 
 MAX_BODY_BYTES = MAX_UPLOAD_BYTES + (1 << 20)  # an upload and its multipart envelope
+LINGER_S = 2.0  # after a 413, what the client still sends is read (and dropped) this long at most
+GIVEN_UP_WAIT_S = 1.0  # for the server to close a connection it answered itself (ConnectionGivenUp)
 
 
 class SecurityHeaders:
@@ -75,11 +82,18 @@ class BodyLimit:
         self.app = app
         self.max_bytes = max_bytes
 
-    async def _refuse(self, send: Send) -> None:
-        body = f'{{"detail": "request body over {self.max_bytes >> 20} MiB: refused"}}'.encode()
+    async def _refuse(self, receive: Receive, send: Send) -> None:
+        """The 413, then what the client still sends read and dropped for at most LINGER_S before the response
+        ends (and the server may close the connection: closing with the client's bytes unread would reset the
+        connection, and a client still sending would lose the 413)."""
+        body = f'{{"detail": "request body over {self.max_bytes} bytes ({self.max_bytes >> 20} MiB): refused"}}'
         headers = [(b"content-type", b"application/json"), (b"content-length", str(len(body)).encode())]
         await send({"type": "http.response.start", "status": 413, "headers": headers})
-        await send({"type": "http.response.body", "body": body})
+        await send({"type": "http.response.body", "body": body.encode(), "more_body": True})
+        with anyio.move_on_after(LINGER_S):
+            while (message := await receive())["type"] == "http.request" and message.get("more_body"):
+                pass
+        await send({"type": "http.response.body", "body": b""})
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -87,22 +101,30 @@ class BodyLimit:
             return
         declared = dict(scope.get("headers", [])).get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
-            await self._refuse(send)
+            await self._refuse(receive, send)
             return
         seen = 0
-        started = False
+        over = started = False
 
         async def counted() -> Message:
-            nonlocal seen
+            nonlocal seen, over
+            if over:
+                raise BodyTooLarge
             message = await receive()
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > self.max_bytes:
+                    over = True
                     raise BodyTooLarge
             return message
 
         async def tracked(message: Message) -> None:
             nonlocal started
+            if over:  # whatever the application made of the cut body (FastAPI: 400, cannot parse), it is a 413
+                if not started:
+                    started = True
+                    await self._refuse(receive, send)
+                return
             started = started or message["type"] == "http.response.start"
             await send(message)
 
@@ -110,14 +132,49 @@ class BodyLimit:
             await self.app(scope, counted, tracked)
         except BodyTooLarge:
             if not started:
-                await self._refuse(send)
+                started = True
+                await self._refuse(receive, send)
+
+
+class ConnectionGivenUp:
+    """A response the server can no longer send is dropped quietly, not raised as a traceback.
+
+    uvicorn (h11) answers a connection itself when the client breaks HTTP while a request is being handled
+    (bytes after a `Connection: close` request, a broken chunk): it sends a 400 and closes, and the route's own
+    answer then fails in h11 with LocalProtocolError. That answer cannot reach anyone: it is dropped, and this
+    layer waits (at most GIVEN_UP_WAIT_S) for the server to see the connection closed, so that it does not
+    report an unfinished response either."""
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        given_up = False
+
+        async def send_unless_given_up(message: Message) -> None:
+            nonlocal given_up
+            if given_up:
+                return
+            try:
+                await send(message)
+            except h11.LocalProtocolError:
+                given_up = True
+
+        await self.app(scope, receive, send_unless_given_up)
+        if given_up:
+            with anyio.move_on_after(GIVEN_UP_WAIT_S):
+                while (await receive())["type"] != "http.disconnect":
+                    pass
 
 
 class PanelApp(FastAPI):
     """FastAPI with the panel's outermost layers (outside even Starlette's 500 handler)."""
 
     def build_middleware_stack(self) -> ASGIApp:
-        return SecurityHeaders(BodyLimit(super().build_middleware_stack()))
+        return ConnectionGivenUp(SecurityHeaders(BodyLimit(super().build_middleware_stack())))
 
 
 class PanelSetupError(StationFault):

@@ -21,6 +21,9 @@ import math
 import shutil
 import tempfile
 import zipfile
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path, PurePosixPath
 from typing import IO, BinaryIO
 
@@ -63,6 +66,24 @@ class _Budget:
             )
 
 
+# What unpacking a damaged or unusual member raises: a bad header or CRC, a broken deflate stream, a member cut
+# short, a compression method or encryption zipfile does not read, a name the file system refuses.
+DAMAGED = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError, ValueError, OSError)
+
+
+@contextmanager
+def _member(where: str) -> Iterator[None]:
+    """A damaged member as a SessionFormatError naming it (never an exception from inside zipfile)."""
+    try:
+        yield
+    except SessionFormatError:
+        raise
+    except DAMAGED as exc:
+        raise SessionFormatError(
+            "upload", f"a member that cannot be unpacked ({type(exc).__name__}: {exc})", column=where
+        ) from None
+
+
 def _npy_bytes(member: IO[bytes], where: str) -> int:
     """Bytes an .npy member decompresses to by its header (shape x itemsize); object arrays refused."""
     try:
@@ -78,18 +99,18 @@ def _check_nested(path: Path, where: str, budget: _Budget) -> None:
     """A member that is a zip: each of its members bounded by its declared size and, for arrays, by its header."""
     try:
         nested = zipfile.ZipFile(path)
-    except zipfile.BadZipFile:
+    except DAMAGED:
         raise SessionFormatError("upload", "a damaged archive inside the archive", column=where) from None
     with nested:
         for info in nested.infolist():
             inner = f"{where}/{info.filename}"
             budget.take(info.file_size, inner)
-            with nested.open(info) as member:
+            with _member(inner), nested.open(info) as member:
                 head = member.read(len(ZIP_MAGIC))
                 if head == ZIP_MAGIC:
                     raise SessionFormatError("upload", "archives nested more than one level deep", column=inner)
             if info.filename.endswith(".npy"):
-                with nested.open(info) as member:
+                with _member(inner), nested.open(info) as member:
                     declared = _npy_bytes(member, inner)
                 if declared > info.file_size:
                     raise SessionFormatError("upload", f"array header claims {declared} bytes, the member holds "
@@ -100,7 +121,7 @@ def _copy_out(archive: zipfile.ZipFile, info: zipfile.ZipInfo, dst: Path) -> Non
     """One member to dst in chunks, never beyond its declared size."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     written = 0
-    with archive.open(info) as src, dst.open("wb") as out:
+    with _member(info.filename), archive.open(info) as src, dst.open("wb") as out:
         while chunk := src.read(CHUNK_BYTES):
             written += len(chunk)
             if written > info.file_size:
@@ -126,7 +147,7 @@ def unpack(upload: BinaryIO, into: Path) -> Session:
         raise SessionFormatError("upload", f"{size >> 20} MiB uploaded; at most {MAX_UPLOAD_BYTES >> 20} MiB")
     try:
         archive = zipfile.ZipFile(upload)
-    except zipfile.BadZipFile:
+    except DAMAGED:
         raise SessionFormatError("upload", "not a zip archive of a piga-session/1 directory") from None
     budget = _Budget()
     with archive:

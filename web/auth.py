@@ -7,14 +7,22 @@ only in the panel's memory, the session token as its SHA-256: a restart logs
 everybody out, and nothing secret is ever written down.
 
 Every request checks its login against the users file as it is now
-(web.users.LiveUsers): a user removed, or whose role changed, is logged out on
-their next request, and their open WebSockets are closed within
-REVOCATION_CHECK_S (web.routes.live). Logins are throttled (LoginThrottle):
-after MAX_FAILURES wrong passwords within FAILURE_WINDOW_S for one user name or
-from one address, that name or address is refused with 429 for the rest of the
-window before any password is checked; the audit records each failure up to
-the limit and the first refusal of each window, so a password-guessing flood
-cannot fill it.
+(web.users.LiveUsers): a user removed (or removed and added again), whose role
+or password changed, is logged out on their next request, and their open
+WebSockets are closed within REVOCATION_CHECK_S (web.routes.live).
+
+Logins are throttled (LoginThrottle) by address, and by user name from one
+address: after MAX_FAILURES wrong passwords within FAILURE_WINDOW_S for one name
+from one address, or from one address whatever the names, that pair or address
+is refused with 429 for the rest of the window before any password is checked.
+Nobody can lock a user out by guessing their password from elsewhere: the
+operator's own address is never counted against them (a lock per name alone
+would let anyone do it with MAX_FAILURES requests). The price: an attacker
+with many addresses gets MAX_FAILURES guesses per address and window, each an
+Argon2id verification. The address is the TCP peer's, or the client that a
+configured trusted proxy names in X-Forwarded-For (PanelConfig.trusted_proxies;
+none by default). The audit records each failure up to the limit and the first
+refusal of each window, so a password-guessing flood cannot fill it.
 """
 
 from __future__ import annotations
@@ -37,7 +45,7 @@ SESSION_COOKIE = "panel_session"
 CSRF_HEADER = "X-CSRF-Token"
 IDLE_LIMIT_S = 12 * 3600.0  # a 7-hour session watched from one login
 REVOCATION_CHECK_S = 0.5  # how often an open WebSocket's login is checked again
-MAX_FAILURES = 5  # wrong passwords per user name, and per address, within the window (default)
+MAX_FAILURES = 5  # wrong passwords per user name from one address, and per address, within the window (default)
 FAILURE_WINDOW_S = 15 * 60.0
 THROTTLE_KEYS = 10_000  # names and addresses remembered at most (the oldest forgotten first)
 
@@ -102,7 +110,8 @@ class LoginSessions:
 
 
 class LoginThrottle:
-    """Failed logins per user name and per address in a sliding window; bounded memory (THROTTLE_KEYS)."""
+    """Failed logins per (user name, address) and per address in a sliding window; bounded memory
+    (THROTTLE_KEYS)."""
 
     def __init__(
         self, max_failures: int = MAX_FAILURES, window_s: float = FAILURE_WINDOW_S, max_keys: int = THROTTLE_KEYS
@@ -115,8 +124,10 @@ class LoginThrottle:
         self._lock = threading.Lock()
 
     @staticmethod
-    def keys(user: str, address: str | None) -> tuple[str, ...]:
-        return (f"user:{user}",) + ((f"addr:{address}",) if address else ())
+    def keys(user: str, address: str | None) -> tuple[str, str]:
+        """The counters a login attempt counts against: its name from its address, and its address."""
+        where = address or "unknown"
+        return f"user:{user}@{where}", f"addr:{where}"
 
     def _recent(self, key: str, now: float) -> list[float]:
         times = [t for t in self._failures.get(key, ()) if now - t < self.window_s]
@@ -159,11 +170,13 @@ class LoginThrottle:
                 old, _ = self._failures.popitem(last=False)
                 self._refusals.pop(old, None)
 
-    def succeeded(self, user: str) -> None:
-        """A right password clears the name's failures (not the address's: one address may try many names)."""
+    def succeeded(self, user: str, address: str | None) -> None:
+        """A right password clears the name's failures from that address (not the address's: one address may try
+        many names)."""
+        key = self.keys(user, address)[0]
         with self._lock:
-            self._failures.pop(f"user:{user}", None)
-            self._refusals.pop(f"user:{user}", None)
+            self._failures.pop(key, None)
+            self._refusals.pop(key, None)
 
 
 _cookie = APIKeyCookie(name=SESSION_COOKIE, auto_error=False, description="login session (POST /api/login)")

@@ -8,6 +8,7 @@ variables named here.
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from pathlib import Path
 
@@ -83,8 +84,16 @@ class PanelConfig(BaseModel):
     stations: tuple[StationEntry, ...] = Field(min_length=1)
     central: CentralEntry | None = Field(None, description="read the history from the central database (issue 16)")
     login_failures_max: int = Field(
-        MAX_FAILURES, ge=1, le=1000, description="wrong passwords per name and per address in 15 min before 429"
-    )
+        MAX_FAILURES, ge=1, le=1000,
+        description="wrong passwords per name from one address, and per address, in 15 min before 429",
+    )  # fmt: skip
+    # No proxy is trusted unless named: X-Forwarded-For from anyone else is ignored (not only from afar: with the
+    # panel on 127.0.0.1, trusting loopback would let every local process and SSH tunnel claim any address, to
+    # escape the login throttle and to write false addresses into the audit log).
+    trusted_proxies: tuple[str, ...] = Field(
+        (), description="addresses or networks (CIDR) of the reverse proxies whose X-Forwarded-For names the "
+        "client (the login throttle's and the audit log's address); default none: the TCP peer's address"
+    )  # fmt: skip
 
     @field_validator("stations")
     @classmethod
@@ -93,6 +102,17 @@ class PanelConfig(BaseModel):
         if len(set(names)) != len(names):
             raise ValueError(f"station names must be unique, got {names}")
         return stations
+
+    @field_validator("trusted_proxies")
+    @classmethod
+    def _ip_networks(cls, proxies: tuple[str, ...]) -> tuple[str, ...]:
+        for value in proxies:
+            try:
+                ipaddress.ip_network(value, strict=False)
+            except ValueError:
+                raise ValueError(f"{value!r} is not allowed: an IP address (127.0.0.1, ::1) or network in CIDR "
+                                 "form (10.0.0.0/8) of a proxy in front of the panel") from None  # fmt: skip
+        return proxies
 
     @model_validator(mode="after")
     def _twin_exists(self) -> PanelConfig:

@@ -6,11 +6,12 @@ only reads it. No plain password is ever stored or logged.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -34,8 +35,18 @@ class UserError(InputError):
 
 @dataclass(frozen=True)
 class User:
+    """A user as the users file has them; `credential` changes whenever their password hash does (a new
+    password, or the user removed and added again: Argon2 salts every hash afresh), so that a login made
+    with the old entry is no longer the same user."""
+
     name: str
     role: Role
+    credential: str = field(default="", repr=False)
+
+
+def credential(password_hash: str) -> str:
+    """A fingerprint of a password hash, kept with a login instead of the hash itself."""
+    return hashlib.sha256(password_hash.encode()).hexdigest()[:32]
 
 
 class UserBook:
@@ -70,7 +81,11 @@ class UserBook:
         return len(self._users)
 
     def list(self) -> list[User]:
-        return [User(name, u["role"]) for name, u in sorted(self._users.items())]
+        return [self._user(name) for name in sorted(self._users)]
+
+    def _user(self, name: str) -> User:
+        entry = self._users[name]
+        return User(name, entry["role"], credential(entry["hash"]))
 
     def add(self, name: str, role: str, password: str) -> User:
         """Add a user or replace one's role and password."""
@@ -82,7 +97,7 @@ class UserBook:
             raise UserError(f"password too short: at least {MIN_PASSWORD} characters")
         self._users[name] = {"role": role, "hash": _HASHER.hash(password)}
         self._write()
-        return User(name, role)  # type: ignore[arg-type]
+        return self._user(name)
 
     def remove(self, name: str) -> None:
         if self._users.pop(name, None) is None:
@@ -96,18 +111,19 @@ class UserBook:
             _HASHER.verify(entry["hash"] if entry else _DUMMY_HASH, password)
         except (VerificationError, InvalidHashError):
             return None
-        return User(name, entry["role"]) if entry else None
+        return self._user(name) if entry else None
 
 
 class LiveUsers:
     """The users file as it is now, for the panel's every request: re-read whenever it changes on disk (inode,
-    size or mtime), so that a removed user or a changed role takes effect on the next request."""
+    size or mtime), so that a removed user, a changed role or a changed password takes effect on the next
+    request."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self._lock = threading.Lock()
         self._stamp: tuple[int, int, int] | None = None
-        self._roles: dict[str, str] = {}
+        self._users: dict[str, User] = {}
 
     def current(self, name: str) -> User | None:
         """The user as the file has them now; None once removed (or if the file is gone or unreadable)."""
@@ -119,9 +135,8 @@ class LiveUsers:
         with self._lock:
             if stamp != self._stamp:
                 try:
-                    self._roles = {n: u["role"] for n, u in UserBook(self.path)._users.items()}
+                    self._users = {u.name: u for u in UserBook(self.path).list()}
                 except UserError:
-                    self._roles = {}
+                    self._users = {}
                 self._stamp = stamp
-            role = self._roles.get(name)
-        return User(name, role) if role is not None else None  # type: ignore[arg-type]
+            return self._users.get(name)

@@ -25,18 +25,19 @@ def login(body: Login, request: Request, response: Response) -> Me:
     if wait_s > 0:  # refused before the password is checked: guessing costs the panel nothing
         if p.throttle.refused(body.username, client):
             p.audit.record(body.username, "login_throttled", ok=False, client=client, retry_after_s=round(wait_s))
-        raise HTTPException(429, f"too many failed logins for this user or address: try again in {wait_s:.0f} s",
+        raise HTTPException(429, f"too many failed logins from this address (for this user, or for all): try again "
+                            f"in {wait_s:.0f} s",
                             headers={"Retry-After": str(max(1, round(wait_s)))})  # fmt: skip
     user = UserBook(p.config.users).verify(body.username, body.password)
     if user is None:
         p.throttle.failed(body.username, client)
         p.audit.record(body.username, "login", ok=False, client=client)
         raise HTTPException(401, "wrong user name or password")
-    p.throttle.succeeded(user.name)
+    p.throttle.succeeded(user.name, client)
     token, session = p.logins.open(user)
     response.set_cookie(SESSION_COOKIE, token, max_age=int(IDLE_LIMIT_S), httponly=True, samesite="strict",
                         secure=p.config.secure_cookies, path="/")  # fmt: skip
-    p.audit.record(user.name, "login", ok=True, role=user.role, client=request.client.host if request.client else None)
+    p.audit.record(user.name, "login", ok=True, role=user.role, client=client)
     return _me(session)
 
 
