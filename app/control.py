@@ -31,7 +31,9 @@ unauthenticated one refused, a few microseconds each; zmq fair-queues the peers
 and holds at most RCV_HWM messages of each), a worker thread answers the
 authenticated requests in order, and an emergency stop is done in the I/O thread
 the moment it is screened, ahead of whatever the worker is doing (a start or
-resume received before it and not yet begun is then refused, not run).
+resume received before it and not yet begun is then refused, not run; one
+already under way ends before its first step, its outcome recorded: the run is
+handed the engine's stop count as of its request, engine.runner.StopCount).
 A REP socket, as before, lost track of its envelope on raw TCP garbage and sent
 the next replies nowhere.
 
@@ -63,6 +65,7 @@ from devices.errors import DriverError
 from engine.context import ValidationError
 from engine.params import ParameterError
 from engine.registry import ProcedureError
+from engine.runner import StopCount
 from station.clock import host_clock, utc_s
 from station.control_channel import (
     CONTROL_ACTIONS,
@@ -97,13 +100,15 @@ def _error(kind: str, message: str) -> dict:
 
 
 class Request(NamedTuple):
-    """An authenticated, fresh, parsed request, with the stop count when it was received; `done_in` the session
+    """An authenticated, fresh, parsed request, with the stop counts when it was received (this channel's emergency
+    stops, and the engine's aborts and stops by any path, which a run it starts ends on); `done_in` the session
     it was done in already (an emergency stop, "" if none), which the worker only records."""
 
     route: list[bytes]
     identity: str
     body: dict
     estops: int
+    stops: StopCount | None = None
     done_in: str | None = None
 
 
@@ -211,12 +216,12 @@ class ControlServer:
         self._worked = host_clock().event()
         self._thread = threading.Thread(target=self._serve, name="control", daemon=True)
         self._worker = threading.Thread(target=self._work, name="control-worker", daemon=True)
-        self._handlers: dict[str, Callable[[dict], Any]] = {
+        self._handlers: dict[str, Callable[..., Any]] = {
             "status": lambda a: controller.status(),
             "library": lambda a: controller.library(),
             "plan": lambda a: controller.plan(a["procedure"], a.get("params", {}))[1].to_json(),
             "start": self._start,
-            "resume_session": lambda a: {"session_uid": controller.resume_session(a["uid"])[0]},
+            "resume_session": self._resume_session,
             "pause": lambda a: controller.pause(),
             "resume": lambda a: controller.resume(),
             "abort": lambda a: controller.abort(),
@@ -242,11 +247,15 @@ class ControlServer:
         if self._own_ctx and (self._worked.is_set() or not self._worker.is_alive()):  # else a socket is still open
             self._ctx.term()
 
-    def _start(self, a: dict) -> dict:
+    def _start(self, a: dict, stops: StopCount | None = None) -> dict:
         uid, plan = self.controller.start(
-            a["procedure"], a.get("params", {}), instrument_serial=str(a.get("instrument_serial", ""))
-        )
+            a["procedure"], a.get("params", {}), instrument_serial=str(a.get("instrument_serial", "")),
+            stops_seen=stops,
+        )  # fmt: skip
         return {"session_uid": uid, "plan": plan.to_json()}
+
+    def _resume_session(self, a: dict, stops: StopCount | None = None) -> dict:
+        return {"session_uid": self.controller.resume_session(a["uid"], stops_seen=stops)[0]}
 
     def authenticate(self, frames: list[bytes]) -> tuple[bytes, Stamp, bytes] | dict:
         """(identity, stamp, body) of an authentic, fresh and new request; otherwise the refusal. Nothing is parsed."""
@@ -283,9 +292,10 @@ class ControlServer:
             return _error("BadRequest", "expected a JSON object")
         return identity.decode(), request
 
-    def handle(self, request: dict, identity: str, *, record: bool = True) -> dict:
+    def handle(self, request: dict, identity: str, *, record: bool = True, stops: StopCount | None = None) -> dict:
         """One parsed request of an authenticated identity to its reply (public for tests and in-process use);
-        a control action done goes to the session's event log unless record is False (`record` does it later)."""
+        a control action done goes to the session's event log unless record is False (`record` does it later).
+        `stops`: the engine's stop count when the request was received (a run it starts ends on any stop after)."""
         cmd = request.get("cmd")
         handler = self._handlers.get(cmd) if isinstance(cmd, str) else None
         if handler is None:
@@ -297,7 +307,7 @@ class ControlServer:
         if cmd == "start":  # the session's provenance names who started it: the panel's user, else the OS user
             self.controller.engine.operator = str(request.get("user") or "")[:64] or None
         try:
-            result = handler(args)
+            result = handler(args, stops) if cmd in ("start", "resume_session") else handler(args)
         except REQUEST_ERRORS as exc:
             return {"ok": False, "error": {"type": type(exc).__name__, "message": str(exc)}}
         except Exception as exc:  # the channel outlives any request: an unexpected error is a reply, not a dead thread
@@ -333,15 +343,16 @@ class ControlServer:
             self._reply(route, screened)
             return
         identity, request = screened
+        stops = self.controller.engine.stop_count()  # before any stop this message may be
         if request.get("cmd") == "estop":  # ahead of everything the worker has queued or is doing
             self._estops += 1
             reply = self.handle(request, identity, record=False)
             self._reply(route, reply)
             if reply["ok"]:  # recorded by the worker: a busy store cannot delay this thread
                 uid = self.controller.engine.progress.session_uid or ""
-                self._jobs.put(Request(route, identity, request, self._estops, done_in=uid))
+                self._jobs.put(Request(route, identity, request, self._estops, stops, done_in=uid))
             return
-        self._jobs.put(Request(route, identity, request, self._estops))
+        self._jobs.put(Request(route, identity, request, self._estops, stops))
 
     def _reply(self, route: list[bytes], reply: dict) -> None:
         self._sock.send_multipart([*route, json.dumps(json_safe(reply)).encode()])
@@ -385,7 +396,7 @@ class ControlServer:
                     reply = _error("ControlError", f"cmd = {job.body.get('cmd')!r} refused: an emergency stop "
                                    "came after it was received (reset, then ask again)")  # fmt: skip
                 else:
-                    reply = self.handle(job.body, job.identity)
+                    reply = self.handle(job.body, job.identity, stops=job.stops)
                 push.send_multipart([*job.route, json.dumps(json_safe(reply)).encode()])
         finally:
             push.close()

@@ -32,7 +32,7 @@ from engine.context import StationModel
 from engine.planning import Plan, plan_procedure
 from engine.protocols import StationHardware
 from engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
-from engine.runner import Engine, State
+from engine.runner import Engine, State, StopCount
 from engine.supervisor import QUICK_STOP_BOUND_S, MotionSupervisor, SafeState
 from station.clock import ClockEvent, host_clock, spawn_party
 from station.control_channel import ControlError
@@ -114,9 +114,20 @@ class StationController:
         return self._worker is not None and self._worker.is_alive() and not self._worker_ended.is_set()
 
     def start(
-        self, procedure: str, params: dict[str, Any], *, instrument_serial: str = "", resume_uid: str | None = None
+        self,
+        procedure: str,
+        params: dict[str, Any],
+        *,
+        instrument_serial: str = "",
+        resume_uid: str | None = None,
+        stops_seen: StopCount | None = None,
     ) -> tuple[str, Plan]:
-        """Plan, then start the run in a worker thread; (session uid, plan) once the session exists."""
+        """Plan, then start the run in a worker thread; (session uid, plan) once the session exists.
+
+        An abort or emergency stop requested after `stops_seen` (the engine's stop_count() when the request was
+        received; default: when this call began) is the run's own: it ends the run before its first step, with
+        the outcome recorded, however early it came (while planning, while the session was being created)."""
+        seen = self.engine.stop_count() if stops_seen is None else stops_seen
         spec, plan = self.plan(procedure, params)
         if resume_uid is None:
             self.engine.provenance(instrument_serial)  # a real station refuses to start without a serial number
@@ -128,15 +139,17 @@ class StationController:
             self._started.clear()
             self._worker_ended.clear()
             self._worker = spawn_party(  # the engine acts in station time: the clock waits for it
-                self.hw.clock, "engine", lambda: self._run(spec, plan, instrument_serial, resume_uid)
+                self.hw.clock, "engine", lambda: self._run(spec, plan, instrument_serial, resume_uid, seen)
             )
         self._started.wait()
         if self._start_error is not None:  # the session could not be opened (locked, unknown): nothing moved
             raise self._start_error
         return self.engine.progress.session_uid, plan
 
-    def resume_session(self, uid: str) -> tuple[str, Plan]:
-        """Continue a crashed or aborted session with the procedure and parameters it was started with."""
+    def resume_session(self, uid: str, *, stops_seen: StopCount | None = None) -> tuple[str, Plan]:
+        """Continue a crashed or aborted session with the procedure and parameters it was started with (stops_seen:
+        as in start)."""
+        seen = self.engine.stop_count() if stops_seen is None else stops_seen
         cfg = self.store.session_config(uid)
         if "procedure" not in cfg:
             raise ControlError(f"session {uid} was not started by the engine: nothing to resume")
@@ -144,7 +157,7 @@ class StationController:
         if row["status"] not in RESUMABLE:
             raise ControlError(f"session {uid} is {row['status']}: only {', '.join(RESUMABLE[:3])} ones resume")
         serial = row["instrument_serial"]
-        return self.start(cfg["procedure"], cfg["params"], instrument_serial=serial, resume_uid=uid)
+        return self.start(cfg["procedure"], cfg["params"], instrument_serial=serial, resume_uid=uid, stops_seen=seen)
 
     def wait(self, timeout_s: float | None = None) -> RunOutcome | None:
         """The outcome once the run has ended (None while it runs); never None once its worker is gone."""
@@ -224,13 +237,15 @@ class StationController:
         if self._outcome is None:
             self._outcome = RunOutcome(uid, State.FAILED, None, None, list(self.engine.progress.faults))
 
-    def _run(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
+    def _run(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None, seen: StopCount) -> None:
         try:
-            self._measure_and_analyse(spec, plan, serial, resume_uid)
+            self._measure_and_analyse(spec, plan, serial, resume_uid, seen)
         finally:
             self._worker_ended.set()  # wakes wait() at once
 
-    def _measure_and_analyse(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None) -> None:
+    def _measure_and_analyse(
+        self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None, seen: StopCount
+    ) -> None:
         engine = self.engine
         me = threading.current_thread()
         opened = False
@@ -245,7 +260,9 @@ class StationController:
             self._started.set()
 
         try:
-            uid, _ = engine.run(spec, plan, instrument_serial=serial, resume_uid=resume_uid, on_open=on_open)
+            uid, _ = engine.run(
+                spec, plan, instrument_serial=serial, resume_uid=resume_uid, on_open=on_open, stops_seen=seen
+            )
         except BaseException as exc:
             if not opened:  # refused before anything moved: start() raises it
                 self._start_error = exc

@@ -39,7 +39,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from enum import StrEnum
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -73,6 +73,17 @@ class State(StrEnum):
 
 FINAL_STATES = (State.FINISHED, State.ABORTED, State.ESTOPPED, State.FAILED)
 STORE_STATUS = {State.FINISHED: "finished", State.ABORTED: "aborted", State.ESTOPPED: "aborted", State.FAILED: "failed"}
+
+
+class StopCount(NamedTuple):
+    """How many aborts and emergency stops an engine has been asked for so far (never reset).
+
+    A run is handed the count as of its request (`Engine.run(stops_seen=...)`): every stop requested after that
+    moment is the run's own and ends it, however early it came (while the session was being created, before its
+    first step); stops requested before belong to what ran before."""
+
+    aborts: int
+    estops: int
 
 
 class Aborted(Exception):  # noqa: N818 - a control-flow signal, not an error
@@ -141,6 +152,8 @@ class Engine:
         self._pause_requested = False
         self._abort_requested = False
         self._estop = False
+        self._aborts = 0  # every abort ever requested (StopCount): a run knows which stops came after its request
+        self._estops = 0
         self.position_deg: float | None = None
         self.freq_hz = 0.0
         self.t0_s = 0.0
@@ -167,6 +180,7 @@ class Engine:
 
     def abort(self) -> None:
         with self._lock:
+            self._aborts += 1
             self._abort_requested = True
             if self.progress.state in (State.RUNNING, State.PAUSING, State.PAUSED, State.WAITING_OPERATOR):
                 self._set_state(State.ABORTING)
@@ -182,11 +196,17 @@ class Engine:
         The flags go up first, so that any device error the stop causes in the engine's own thread
         is read as the stop's consequence, not as a fault of the run."""
         with self._lock:
+            self._estops += 1
             self._estop = True
             self._abort_requested = True
             self._resume.set()
         self.hw.emergency_stop()
         self.publish("fault", {"kind": "estop", "message": "emergency stop"})
+
+    def stop_count(self) -> StopCount:
+        """The stops requested so far; read without the lock (a control thread must never wait on a run's store
+        writes): a stop being counted at this moment is seen or not, and either is a valid order of the two."""
+        return StopCount(self._aborts, self._estops)
 
     # ---- RunContext: what steps use --------------------------------------------------------
 
@@ -333,6 +353,7 @@ class Engine:
         raise TypeError(f"a measuring step returned {type(out).__name__}, not Recorded or Measurement")
 
     def _execute(self, step: Step, done: dict[str, Any]) -> Any:
+        self.check_abort()  # before every step, moving ones too: a stop requested before the first one ends the run
         key = step.key
         if key is None:
             return step.run(self)
@@ -401,11 +422,15 @@ class Engine:
         resume_uid: str | None = None,
         config: dict | None = None,
         on_open: Callable[[str], None] | None = None,
+        stops_seen: StopCount | None = None,
     ) -> tuple[str, Any]:
         """Run a validated plan's procedure; (session uid, the procedure's return value).
 
-        `on_open(uid)` is called once the session exists in the store, before anything moves.
+        `on_open(uid)` is called once the session exists in the store, before anything moves. `stops_seen`: the
+        stop_count() when the run was requested (default: now); an abort or emergency stop requested since then
+        ends the run before its next step, the first one included, and its outcome is recorded like any other.
         """
+        self._arm(self.stop_count() if stops_seen is None else stops_seen)
         self.progress = Progress(procedure=spec.name)
         self._session_uid = ""
         try:
@@ -417,6 +442,15 @@ class Engine:
             return self._run_open(spec, plan, done, on_open)
         finally:
             self._release_lock()
+
+    def _arm(self, seen: StopCount) -> None:
+        """A new run: the stop flags say whether a stop was requested after `seen`, never simply cleared (a stop
+        that came between the run's request and this moment would be lost; one before it is the last run's)."""
+        with self._lock:
+            self._estop = self._estops != seen.estops
+            self._abort_requested = self._estop or self._aborts != seen.aborts
+            self._pause_requested = False
+            self._resume.set()
 
     def _release_lock(self) -> None:
         if self._session_lock is not None:
@@ -435,9 +469,6 @@ class Engine:
         p.session_uid, p.total, p.done = self._session_uid, len(self._estimates), len(done)
         p.estimate_total_s = plan.total_s
         p.estimate_remaining_s = plan.total_s - sum(self._estimates.get(k, 0.0) for k in done)
-        with self._lock:
-            self._abort_requested = self._estop = self._pause_requested = False
-            self._resume.set()
         self._set_state(State.RUNNING)
         gen = spec.func(plan.params)
         value: Any = None

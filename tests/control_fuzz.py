@@ -12,6 +12,7 @@ import zmq
 from hypothesis import strategies as st
 
 from app.control import ControlServer
+from engine.runner import StopCount
 from station.clock import utc_s
 from station.control_channel import MAX_REQUEST_BYTES, ControlError, Stamp, request_frames
 
@@ -53,6 +54,9 @@ class RecordingController:
 
             def acknowledge(self) -> None:
                 me.calls.append("acknowledge")
+
+            def stop_count(self) -> StopCount:
+                return StopCount(0, me.calls.count("emergency_stop"))
 
         self.engine = Engine()
 

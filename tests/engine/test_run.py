@@ -180,3 +180,51 @@ def test_a_drive_whose_bus_was_lost_is_reconnected_by_a_reset(make_rig) -> None:
     rig.sim.emulators["servo"].start()
     rig.controller.reset()
     assert rig.controller.status()["drive_fault"] is None and servo.state == "SWITCH ON DISABLED"
+
+
+@pytest.mark.parametrize("stop", ["abort", "emergency_stop"])
+@pytest.mark.parametrize("when", ["planning", "creating the session", "session open, start() returned"])
+def test_a_stop_between_the_start_request_and_the_first_step_ends_the_run_before_anything_moves(
+    make_rig, stop: str, when: str
+) -> None:
+    """A stop requested while a start is under way is the new run's (engine.runner.StopCount): it used to be lost
+    when the run began and cleared the flags, and the run then moved the head and the table."""
+    rig = make_rig()
+    controller, moves = rig.controller, []
+    devices = rig.sim.devices
+    for name in ("move_index", "set_vibration"):
+        original = getattr(devices, name)
+        setattr(devices, name, lambda *a, _f=original, _n=name: (moves.append((_n, *a)), _f(*a))[1])
+
+    def stopping(original):
+        def hook(*args, **kwargs):
+            result = original(*args, **kwargs)
+            getattr(controller, stop)()  # from the thread under way, as a control thread's request lands then
+            return result
+
+        return hook
+
+    owner, name = {
+        "planning": (controller, "plan"),
+        "creating the session": (rig.store, "create_session"),
+        "session open, start() returned": (controller.supervisor, "watch"),  # on_open: the steps not begun
+    }[when]
+    setattr(owner, name, stopping(getattr(owner, name)))
+    uid, _ = controller.start(PROCEDURE, QUICK)
+    out = controller.wait(30)
+    expected = State.ESTOPPED if stop == "emergency_stop" else State.ABORTED
+    assert out is not None and (out.state, out.session_uid) == (expected, uid), out
+    assert moves in ([], [("set_vibration", 0.0)])  # the head not moved, the table only ramped to rest (abort)
+    assert crank_hz(rig) == 0.0 and rig.store.load_session(uid).points == []
+    assert rig.store.sessions()[0]["status"] == "aborted"
+    level = "critical" if stop == "emergency_stop" else "warning"
+    assert [e["level"] for e in rig.store.events(uid) if e["kind"] == "abort"] == [level]
+    # The stop was that run's only: the next start moves (after the reset an emergency stop asks for).
+    delattr(owner, name)  # the hook (an instance attribute)
+    if stop == "emergency_stop":
+        controller.reset()
+    moves.clear()
+    controller.start(PROCEDURE, QUICK)
+    wait_until(lambda: any(m[0] == "move_index" for m in moves), 30)
+    controller.abort()
+    assert controller.wait(30).state == State.ABORTED
