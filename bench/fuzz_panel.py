@@ -487,7 +487,7 @@ def check(panel: PanelProcess, case: Case, tally: Tally, digest: str) -> Outcome
         tally.server_errors.append(label)
     if outcome.status is None and case.abort_after is None:
         tally.unanswered.append(label)
-    if case.oversized and outcome.status != 413:
+    if case.oversized and outcome.status != (413 if case.who is not None else 401):  # anonymous: 401, body unread
         tally.oversized_not_413.append(label)
     if (outcome.status or 0) >= 400 and panel.store_digest() != digest:
         tally.store_changed += 1

@@ -32,10 +32,12 @@ import hmac
 import secrets
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, Security
+from fastapi.dependencies.models import Dependant
 from fastapi.security import APIKeyCookie, APIKeyHeader
 
 from station.clock import host_clock
@@ -221,3 +223,24 @@ def operator(session: Viewer, csrf: CsrfToken) -> LoginSession:
 
 ViewerAction = Annotated[LoginSession, Depends(viewer_action)]
 Operator = Annotated[LoginSession, Depends(operator)]
+GATES = (operator, viewer_action, viewer)  # strictest first
+
+
+def gate_of(dependant: Dependant) -> Callable[..., object] | None:
+    """The strictest of GATES among a route's dependencies (its own and theirs), None for an open route: what the
+    panel checks before it reads a request body (web.app.AuthBeforeBody), from the route's own declaration."""
+    calls: set[object] = set()
+    todo = [dependant]
+    while todo:
+        d = todo.pop()
+        calls.add(d.call)
+        todo.extend(d.dependencies)
+    return next((g for g in GATES if g in calls), None)
+
+
+def admit(request: Request, gate: Callable[..., object]) -> None:
+    """The route's gate applied to a request's cookie and CSRF header alone (HTTPException 401 or 403), with the
+    very checks and messages its dependencies apply."""
+    session = viewer(request, request.cookies.get(SESSION_COOKIE))
+    if gate is not viewer:
+        gate(session, request.headers.get(CSRF_HEADER))
