@@ -318,7 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "periodic vibration model of seed 000 eq. 35 (no kz)")  # fmt: skip
     p.set_defaults(func=cmd_identify)
 
-    p = sub.add_parser("simulate", help="write a simulated seed-000 session as piga-session/1")
+    p = sub.add_parser(
+        "simulate", help="write a seed-000 session by the session_sim shortcut (not the engine) as piga-session/1"
+    )
     p.add_argument("out_dir", help="the piga-session/1 directory to write")
     p.add_argument("--twin", help="twin configuration TOML (default: embedded, models/data/default_twin.toml)")
     p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same session (default 0)")

@@ -11,6 +11,8 @@ Measures
   receiving Notifier's listener has it) and per SDO round trip (expedited upload from a canopen RemoteNode to a
   LocalNode, nothing else on the bus).
 Prints markdown tables. Usage: .venv/bin/python bench/bench_can.py [--n-sdo 2000] [--n-tpdo 500] [--n-frames 20000]
+
+Simulation path: the servo driver against its emulator on the CAN interfaces, without the engine (no session).
 """
 
 from __future__ import annotations

@@ -9,6 +9,8 @@
     them; one with the raw streams of 2 real windows): wall time per session, first sync and re-sync.
 
     .venv/bin/python bench/bench_central.py [N] [--url postgresql://...]
+
+Simulation path: (b)'s sessions are the session_sim shortcut (not the engine): models.session_sim, data to sync.
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@
 (b) EventClock: two parties handing a token back and forth through a condition, one station
     millisecond apart: CPU and wall per hand-off (a thread switch each).
 (c) WallClock: the same hand-off through the wall clock's condition (no station time), for scale.
+
+Simulation path: none (the clocks alone, no station, no session).
 """
 
 from __future__ import annotations

@@ -9,6 +9,9 @@ static point: 10 points) through the controller, engine, real drivers and emulat
 and prints a markdown table with the session's content hash (station.interchange.content_hash): the
 deterministic rows must all carry one hash. `--tpdo-ms` overrides the station file's TPDO event timer (what
 step 3 has to choose: the frames it costs).
+
+Simulation path: through the engine on the deterministic station (and, for comparison, through the engine on the
+wall-paced station).
 """
 
 from __future__ import annotations

@@ -8,6 +8,8 @@ their emulators) as fast as the CPU allows and, for each of `--speeds`, paced at
 seconds per wall second, as `--speed` for watching live), and prints a markdown table: wall time, CPU,
 station time, station seconds per wall second, peak RSS of the process, and the identified kzz and k3
 against the twin's truth in units of their sigma (the same seed gives the same values at any pace).
+
+Simulation path: through the engine on the deterministic station.
 """
 
 from __future__ import annotations

@@ -10,6 +10,9 @@ procedures end to end on a simulated station whose twin carries the seed's error
 Each run: the procedure file's parameters, 1000x virtual time, wall time measured.
 
     .venv/bin/python bench/bench_error_sources.py
+
+Simulation path: through the engine on the deterministic station (controller, engine, drivers, emulators, in this
+process).
 """
 
 from __future__ import annotations

@@ -6,6 +6,9 @@ NULLS null sessions (each: a 40-point session simulated and diagnosed blind). Cl
 apart from the cases. Machine: 2 cores shared with other work, so the load average is printed too.
 
     .venv/bin/python bench/bench_fanout.py [--reps R] [--scheduler ADDRESS]
+
+Simulation path: the session_sim shortcut (not the engine): gap.validate's cases simulate their sessions with
+models.session_sim.
 """
 
 from __future__ import annotations

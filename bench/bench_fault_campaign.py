@@ -5,6 +5,9 @@ emulators, engine, supervisor and store; time to the typed error, time to a safe
 
 Runs the cases of tests/test_fault_campaign.py (the same code: `run_case`) and prints a markdown table for
 BENCHMARKS.md. Times from the injection, in wall seconds and station seconds (what the test bounds).
+
+Simulation path: through the engine on the deterministic station (the fault campaign's cases, emulator faults
+injected).
 """
 
 from __future__ import annotations

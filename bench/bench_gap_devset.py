@@ -17,6 +17,8 @@ then the scores:
     .venv/bin/python bench/bench_gap_devset.py --workers 2 --out /tmp/devset.jsonl
 
 BLAS threads are pinned to one per worker.
+
+Simulation path: neither the engine nor session_sim: ../shared/gap-devset's sessions, read from disk.
 """
 
 from __future__ import annotations

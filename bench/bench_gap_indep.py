@@ -21,6 +21,8 @@ the scores against the targets:
     .venv/bin/python bench/bench_gap_indep.py --reps 1 --nulls 4 --workers 2 --out /tmp/indep.jsonl
 
 BLAS threads are pinned to one per worker.
+
+Simulation path: neither the engine nor session_sim: tests/indep's independent generator.
 """
 
 from __future__ import annotations

@@ -17,6 +17,8 @@ channels among them). Scores:
     .venv/bin/python bench/bench_gap_nulls.py --summarise /tmp/nulls.jsonl   # the scores of a run again
 
 BLAS threads are limited to one per worker (threadpoolctl).
+
+Simulation path: neither the engine nor session_sim: tests/indep's generator and ../shared/gap-devset.
 """
 
 from __future__ import annotations

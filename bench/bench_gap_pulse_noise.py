@@ -7,6 +7,8 @@ squared deviation over the variance the pulse test assumes (1 when the model is 
 the same without the walk's term, and the median density the records imply.
 
     .venv/bin/python bench/bench_gap_pulse_noise.py [--reps 150]
+
+Simulation path: neither the engine nor session_sim: synthetic pulse records made in the test.
 """
 
 from __future__ import annotations

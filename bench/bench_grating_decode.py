@@ -3,6 +3,8 @@ against in bulk (FrameParser.peek_run, sample_fields, decode_biss_np), for frame
 and the emulator's vectorised encoding.
 
     .venv/bin/python bench/bench_grating_decode.py [--frames 20000]
+
+Simulation path: none (the grating's frame decoding and the emulator's encoding, no session).
 """
 
 from __future__ import annotations

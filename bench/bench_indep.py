@@ -9,6 +9,8 @@ simulated 2-4 times by the SNR scaling, then once with noise).
 
     .venv/bin/python bench/bench_indep.py [N]        (cases per family and kind)
     .venv/bin/python bench/bench_indep.py --large    (null sessions of 40, 160, 640 points)
+
+Simulation path: neither the engine nor session_sim: tests/indep's independent generator.
 """
 
 from __future__ import annotations

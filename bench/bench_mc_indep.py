@@ -8,6 +8,8 @@ and budgeted (methods.seed000.budget, the default references). Per coefficient: 
 (k_hat - k) / u_c and the coverage of U (target 0.93-0.97).
 
     .venv/bin/python bench/bench_mc_indep.py [N]
+
+Simulation path: neither the engine nor session_sim: tests/indep's independent generator.
 """
 
 from __future__ import annotations

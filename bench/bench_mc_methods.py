@@ -29,6 +29,10 @@ headline coefficient the mean and spread of (k_hat - k) / u_c and the fraction o
   the removed mass.
 
     .venv/bin/python bench/bench_mc_methods.py --method 001|002|003|003-indep|004|all [--n 200] [--seed 1]
+
+Simulation paths: shortcuts (not the engine), for the budgets' honesty: 001 methods.seed001.tumble_session, 002
+methods.seed002.vibration_run, 003 the fixture's static rates (and tests/indep's world for 003-indep), 004 the
+session_sim shortcut (not the engine): models.session_sim.
 """
 
 from __future__ import annotations

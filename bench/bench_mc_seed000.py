@@ -13,6 +13,10 @@ method at 0, 45, 180 deg, dof 5), `unequal` (10 positions, each window 140, 280,
 white rate noise: compares equal weights with the weighted fit).
 
     .venv/bin/python bench/bench_mc_seed000.py [--design integral|multi|unequal] [--n 300] [--b-scale 1]
+
+Simulation path: the session_sim shortcut (not the engine): models.session_sim with the drawn twin, for the budget's
+honesty (an uncertainty study of the identification; tests/test_simulation_paths.py holds the shortcut statistically
+equal to the engine on the default twin).
 """
 
 from __future__ import annotations

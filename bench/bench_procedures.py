@@ -8,6 +8,9 @@ tests/procedure_runs.py names for it. Station time is the plan's (the dry run's)
 system time (the analysis child included). Then the main job against the shortcut (issue 27 d5):
 `station calibrate` beside `station simulate` + `station identify` of the same design, in the same run.
 Prints the Markdown tables of BENCHMARKS.md.
+
+Simulation path: through the engine on the deterministic station for every procedure file and the main job; `station
+simulate` in the comparison is the session_sim shortcut (not the engine): models.session_sim, timed only.
 """
 
 from __future__ import annotations

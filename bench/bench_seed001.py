@@ -11,6 +11,9 @@
 
     .venv/bin/python bench/bench_seed001.py [N] [SPEED] [--executor local|dask] [--scheduler ADDRESS] [--workers W]
         [--results CASES.jsonl] [--no-session]
+
+Simulation paths: (a) through the engine on the deterministic station; (b) a shortcut (not the engine):
+methods.seed001.tumble_session, the readings straight from the accelerometer model, for the estimators' honesty.
 """
 
 from __future__ import annotations

@@ -14,6 +14,9 @@ table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 
 
     .venv/bin/python bench/bench_seed002.py [session|table2|all] [--seed N] [--executor local|dask]
         [--scheduler ADDRESS] [--workers W] [--results CASES.jsonl]
+
+Simulation paths: session through the engine on the deterministic station; table2 a shortcut (not the engine):
+methods.seed002.vibration_run, the IMU's increments straight from the twin, for the compensation's figures.
 """
 
 from __future__ import annotations

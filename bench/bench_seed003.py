@@ -12,6 +12,9 @@ the error of a 10 pi window at its position; only the station time shrinks.
 
     .venv/bin/python bench/bench_seed003.py [--rev 0.125] [--speed 1000] [--seed 3] [--max-window-s 0] [--draws 1000]
         [--executor local|dask] [--scheduler ADDRESS] [--workers W] [--results CASES.jsonl]
+
+Simulation paths: the two sessions through the engine on the deterministic station; the Monte Carlo a shortcut (not
+the engine): the fixture's static rates straight from devices.second_instrument.emulator.static_rates_radps.
 """
 
 from __future__ import annotations

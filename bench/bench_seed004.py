@@ -10,6 +10,9 @@ loaded machine, sessions side by side make each one's virtual clock late more of
 
     .venv/bin/python bench/bench_seed004.py [N] [SPEED] [--executor local|dask] [--scheduler ADDRESS]
         [--workers W] [--results CASES.jsonl]
+
+Simulation path: through the engine on the deterministic station (`station run` of the procedure file in a child
+process).
 """
 
 from __future__ import annotations

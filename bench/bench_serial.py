@@ -16,6 +16,8 @@
    (line time nearly free, as on a discrete-event clock).
 
 Prints a markdown table.
+
+Simulation path: the serial drivers against their emulators, without the engine (no session).
 """
 
 from __future__ import annotations

@@ -6,6 +6,9 @@ counter window, the crank at 8 Hz; what the main job's 6.2 h are made of.
 The calling thread is the clock's only party; CPU by time.process_time (the emulators and drivers all run in
 it: timers fire in the waiting thread, CAN frames and sim:// bytes are delivered in the sender's). The least
 of the repeats is printed (others' work on the host can only add to it).
+
+Simulation path: the deterministic station's drivers and emulators without the engine (no session): the station's
+cost per station second.
 """
 
 from __future__ import annotations

@@ -3,6 +3,9 @@ discrete-event clock (station.event_clock) and the `station_sim` CAN interface, 
 running; CPU per station second and per TPDO frame, and where it goes (cProfile, by own time).
 
     .venv/bin/python bench/bench_tpdo.py [--station-s 60] [--top 15]
+
+Simulation path: the servo driver and its emulator on the deterministic station's clock and CAN interface, without
+the engine (no session).
 """
 
 from __future__ import annotations

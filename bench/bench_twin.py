@@ -7,6 +7,9 @@ and the peak memory of a process that simulates it (goal < 500 MB), measured in
 a fresh child process each (ru_maxrss).
 
     .venv/bin/python bench/bench_twin.py
+
+Simulation path: the session_sim shortcut (not the engine): this is the shortcut's own speed (models.session_sim,
+models.measurement).
 """
 
 from __future__ import annotations

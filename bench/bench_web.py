@@ -15,6 +15,8 @@ published); samples are the displacement-trace samples (z_m) a browser gets.
     never reads; the panel's RSS is sampled every 2 s.
 
     .venv/bin/python bench/bench_web.py [--clients 10] [--stress-rates 50 100 200 300 400] [--memory-speed 50]
+
+Simulation path: through the engine on the deterministic station (a `station serve` child process).
 """
 
 from __future__ import annotations

@@ -15,6 +15,8 @@ garbage from other processes (tests/control_garbage.py), as another program on t
     a process sends faster.
 
     .venv/bin/python bench/fuzz_control.py [--examples 20000] [--burst-s 30] [--flood-s 60] [--seed 30]
+
+Simulation path: none (the control channel over a recording controller, no station, no session).
 """
 
 from __future__ import annotations

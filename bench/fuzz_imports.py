@@ -7,6 +7,9 @@ Runs the cases of tests/test_fuzz_imports.py (the same mutations, oracles and ru
 in total: cases, clean refusals, accepted, tracebacks, accepted invalid inputs, store changes on refusal, and the
 process's peak memory (ru_maxrss). The first few tracebacks and accepted invalid inputs are listed to reproduce
 (mutation and case seed).
+
+Simulation path: the lawful session every import case mutates is the session_sim shortcut (not the engine):
+models.session_sim, data to mutate.
 """
 
 from __future__ import annotations

@@ -14,6 +14,8 @@ that is not refused with 413, a refusal that changed the store or left temporary
 The suite's tests/web/test_fuzz_panel.py runs the same cases briefly with a fixed seed; this is the long run:
 
     PYTHONPATH=. .venv/bin/python bench/fuzz_panel.py [--examples 3000] [--seed 30] [--oversized 20]
+
+Simulation path: the stored session is the session_sim shortcut (not the engine): models.session_sim, data to serve.
 """
 
 from __future__ import annotations
