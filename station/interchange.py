@@ -715,6 +715,7 @@ class SessionWriter:
             if session.provenance:
                 doc["provenance"] = session.provenance
             doc.update({k: v for k, v in session.meta.items() if k not in OWN_KEYS})
+            doc["timing"] = _stated_timing(doc.get("timing"), points)
             doc.setdefault("raw_time_origin", "the window's opening edge (t = 0)")
             doc["measurements"] = _write_measurements(session, self._tmp)
             if session.results:
@@ -734,6 +735,38 @@ class SessionWriter:
             self._raw.close()
             self._raw = None
         shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+def frequency_error(points: list[PointRecord]) -> float:
+    """The largest |eps_f| the vibration points show (0 without any): the frequency error of each one's period
+    identity, |t1 + Np T - Tm - t2| / (Np T), and how far t1 or t2 reach past T = 1 / freq_hz (_check_periods
+    allows both up to T (1 + frequency_stability))."""
+    worst = 0.0
+    for p in points:
+        if p.kind != "vibration" or not p.Np or not p.freq_hz or p.t1_s is None or p.t2_s is None:
+            continue
+        period = 1.0 / p.freq_hz
+        spanned = p.Tm_s - p.t1_s + p.t2_s
+        worst = max(worst, abs(p.Np * period - spanned) / (p.Np * period), p.t1_s / period - 1.0, p.t2_s / period - 1.0)
+    return worst
+
+
+def _stated_timing(stated: Any, points: list[PointRecord]) -> dict:
+    """session.json's 'timing' on export: what the session states, its frequency_stability at least the largest
+    |eps_f| its points show (frequency_error, rounded up to two digits) and at least the default: whatever the
+    station stored (its engine allows |eps_f| up to engine.timing.FREQ_TOLERANCE_REL, 5e-4, where an import
+    assumes 1e-4 unless told) imports again. Above FREQ_STABILITY_MAX it is stated as that most, and the import
+    refuses the point that needs more, naming it."""
+    timing = dict(stated) if isinstance(stated, dict) else {}
+    shown = frequency_error(points)
+    if shown > 0:
+        digits = 10.0 ** (math.floor(math.log10(shown)) - 1)
+        shown = math.ceil(shown * (1 + 1e-9) / digits) * digits  # up, never down, to two significant digits
+    current = timing.get("frequency_stability")
+    base = current if isinstance(current, int | float) and not isinstance(current, bool) else 0.0
+    stability = max(base, shown, TIMING_DEFAULTS["frequency_stability"])
+    timing["frequency_stability"] = min(stability, TIMING_MAX["frequency_stability"])
+    return timing
 
 
 def _write_points(points: list[PointRecord], path: Path) -> None:

@@ -11,7 +11,7 @@ from devices.station import simulated_station
 from engine.planning import plan_procedure
 from engine.registry import ProcedureSpec, load_procedure_file
 from engine.runner import Engine, State
-from models.config import default_twin
+from models.config import TwinConfig, default_twin
 from station.store import SessionStore
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -58,9 +58,9 @@ def procedure_spec(name: str) -> ProcedureSpec:
     return spec
 
 
-def record(name: str, db: Path) -> str:
-    """The shortened session of procedure file `name` (seed 11) stored in `db`; its uid. On the simulated station
-    (discrete-event clock) as fast as the CPU allows, the calling thread its party."""
+def record(name: str, db: Path, twin: TwinConfig | None = None) -> str:
+    """The shortened session of procedure file `name` (seed 11, default_twin unless told) stored in `db`; its uid.
+    On the simulated station (discrete-event clock) as fast as the CPU allows, the calling thread its party."""
     station, shorter = RUNS[name]
     cfg = load_station_config(CONFIG / f"{station}.toml")
     path = CONFIG / "procedures" / f"{name}.toml"
@@ -68,7 +68,7 @@ def record(name: str, db: Path) -> str:
     params = spec.validate(tomllib.loads(path.read_text()).get("params", {}) | shorter)
     plan = plan_procedure(spec, params, cfg.station_model())
     with (
-        simulated_station(cfg, default_twin(), seed=11) as sim,
+        simulated_station(cfg, twin or default_twin(), seed=11) as sim,
         SessionStore(db) as store,
         sim.devices.clock.party("engine"),
     ):

@@ -4,13 +4,22 @@ typed measurements and their arrays, record types, provenance, results, procedur
 
 Short parameters keep each session to a few seconds of wall time (all of them about a minute on 2 cores)."""
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from procedure_runs import CONFIG, RUNS, record
 
-from station.interchange import content_hash, read_session, write_session
+from models.config import default_twin
+from station.interchange import (
+    TIMING_DEFAULTS,
+    SessionFormatError,
+    content_hash,
+    frequency_error,
+    read_session,
+    write_session,
+)
 from station.provenance import PROVENANCE_KEYS
 from station.store import SessionStore
 
@@ -75,3 +84,42 @@ def test_export_then_import_gives_the_same_store_content(tmp_path, name):
             v = m.values.get(f.name)
             if v is not None and f.ndim == 0:
                 assert type(v) is {"float64": float, "int64": int, "str": str, "bool": bool}[f.dtype], (m.key, f.name)
+
+
+def test_a_session_whose_table_ran_3e_4_off_frequency_exports_and_imports_again(tmp_path):
+    """The engine accepts a frequency error up to 5e-4 (engine.timing.FREQ_TOLERANCE_REL, Table 4) where an import
+    assumes 1e-4 unless session.json states more: the export states what the points show (rounded up to two
+    digits), so the import's Np check passes them, and still refuses an Np one period off."""
+    eps_f = 3e-4
+    twin = default_twin().with_effect("frequency_error", eps_f=eps_f)
+    uid = record("seed000_integral", tmp_path / "station.sqlite", twin=twin)
+    with SessionStore(tmp_path / "station.sqlite") as store:
+        before = store.load_session(uid)
+    shown = frequency_error(before.points)
+    assert 0.9 * eps_f < shown < 1.1 * eps_f  # the points show the table's error (to 10 %, the stamps' noise)
+    assert shown > TIMING_DEFAULTS["frequency_stability"]  # what an import would refuse without the statement
+    exported = write_session(before, tmp_path / "export")
+    with SessionStore(tmp_path / "other.sqlite") as other:
+        new_uid, created = other.import_session(read_session(exported), content_hash(read_session(exported)))
+        assert created and other.load_session(new_uid).points == before.points
+    stated = json.loads((exported / "session.json").read_text())["timing"]["frequency_stability"]
+    assert shown <= stated <= 1.1 * shown
+    # the statement loosens the check to what the points need, no more: Np one period off is still refused
+    csv = exported / "points.csv"
+    rows = csv.read_text().splitlines()
+    header = rows[0].split(",")
+    i = next(n for n, r in enumerate(rows[1:], 1) if r.split(",")[header.index("kind")] == "vibration")
+    cells = rows[i].split(",")
+    cells[header.index("Np")] = str(int(cells[header.index("Np")]) + 1)
+    csv.write_text("\n".join([*rows[:i], ",".join(cells), *rows[i + 1 :]]) + "\n")
+    with pytest.raises(SessionFormatError, match="Np"):
+        read_session(exported)
+
+
+def test_an_export_states_the_default_stability_when_the_points_need_less(tmp_path):
+    uid = record("seed000_baseline", tmp_path / "station.sqlite")
+    with SessionStore(tmp_path / "station.sqlite") as store:
+        session = store.load_session(uid)
+    assert frequency_error(session.points) < TIMING_DEFAULTS["frequency_stability"]
+    doc = json.loads((write_session(session, tmp_path / "export") / "session.json").read_text())
+    assert doc["timing"] == {"frequency_stability": TIMING_DEFAULTS["frequency_stability"]}
