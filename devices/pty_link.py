@@ -42,6 +42,9 @@ from devices import sim_serial
 from station.clock import Clock
 
 SIM_POLL_S = 0.002  # station seconds between polls of an emulator on a sim:// line (the pty worker's poll)
+# On a sim:// line a stream is made in batches of this much station time, as a USB-serial bridge hands its
+# buffer on (a reader of blocks wakes 20 times a second instead of once per 2 ms poll). Far below silence_s.
+SIM_STREAM_BATCH_S = 0.05
 _sim_ids = itertools.count(1)
 
 
@@ -356,3 +359,8 @@ class PtyEmulator:
         """When a sim:// line should next call on_poll, if nothing else wakes it: by default a poll every
         SIM_POLL_S; an emulator that knows when its output is due can say so."""
         return now_s + SIM_POLL_S
+
+    @staticmethod
+    def stream_due_s(next_sample_s: float, now_s: float) -> float:
+        """next_due_s of a stream whose next sample falls due at next_sample_s: its batch (SIM_STREAM_BATCH_S)."""
+        return max(next_sample_s + SIM_STREAM_BATCH_S, now_s + SIM_POLL_S)

@@ -104,15 +104,16 @@ class SerialLink:
         except (serial.SerialException, OSError, TypeError) as exc:
             raise self._gone(exc) from exc
 
-    def read_some(self, wait_s: float) -> bytes:
-        """Whatever has arrived, waiting at most `wait_s` for the first byte; b'' if none."""
+    def read_some(self, wait_s: float, want_bytes: int = 1) -> bytes:
+        """Whatever has arrived, waiting at most `wait_s` until `want_bytes` have (a reader of a stream that
+        knows how much it needs wakes once, not once per USB frame); b'' if none."""
         try:
             n = self._ser.in_waiting
-            if n:
+            if n >= want_bytes:
                 return self._ser.read(n)
             # Setting the timeout reconfigures the port (flock, tcgetattr): only when we must wait.
             self._ser.timeout = max(wait_s, 0.0)
-            data = self._ser.read(1)
+            data = self._ser.read(want_bytes)
             if not data:
                 return b""
             n = self._ser.in_waiting
@@ -486,9 +487,9 @@ class FramedPort:
     def consume_run(self, n_frames: int, payload_size: int) -> None:
         self.parser.consume_run(n_frames, payload_size)
 
-    def fill(self, wait_s: float) -> None:
-        """Receive what arrives within wait_s (at least waits for one byte)."""
-        self.parser.feed(self.link.read_some(wait_s))
+    def fill(self, wait_s: float, want_bytes: int = 1) -> None:
+        """Receive what arrives within wait_s (waits for want_bytes, at least one)."""
+        self.parser.feed(self.link.read_some(wait_s, want_bytes))
 
     def request(
         self,

@@ -36,7 +36,11 @@ SNAP_S = 25e-9  # half a 50 ns tick: edges this close to the window's boundary e
 CLOSING_LIMIT_S = 12.0  # give up waiting for a closing crossing (slowest table: 10 s period)
 # On a sim:// line the board reports a window in batches this far apart (crossings, edges, heartbeats carry
 # their own stamps), and at once when the window opens and closes; idle, it speaks only when spoken to.
-REPORT_BATCH_S = 0.25
+# Each batch costs the host a wake-up (a fifth of a window's CPU at 0.25 s): crossings and the 1 s heartbeat
+# go once a second; streamed pulse edges (they fill the 64 kB FIFO) and the wait for the closing
+# crossing four times a second.
+REPORT_BATCH_S = 1.0
+EDGE_BATCH_S = 0.25
 REF_FRAME_BYTES = 7 + c.REF_PAYLOAD.size
 EVENT_RESERVE_BYTES = 256  # room kept for OPEN/CLOSE/DONE/HEARTBEAT/ACK frames
 MAX_STAMP_GAP_S = 100.0  # consecutive stamps well within a wrap of the 32-bit tick counter (214.7 s)
@@ -141,7 +145,7 @@ class CounterEmulator(PtyEmulator):
         """When the board next has something to say on a sim:// line (devices.sim_serial)."""
         if self.state not in (ARMED, COUNTING, CLOSING):
             return math.inf
-        due_s = now_s + REPORT_BATCH_S
+        due_s = now_s + (EDGE_BATCH_S if self.stream_edges or self.state == CLOSING else REPORT_BATCH_S)
         for t_s in (self.window.open_s, self.window.close_s + 2 * SNAP_S):
             if t_s > now_s:
                 due_s = min(due_s, t_s)

@@ -57,6 +57,7 @@ from devices.grating.protocol import (
     DEVICE,
     NM_PER_COUNT,
     SAMPLE,
+    SAMPLE_FRAME_LEN,
     SAMPLE_PAYLOAD,
     START,
     START_PAYLOAD,
@@ -234,8 +235,11 @@ class GratingReadHead(FramedDevice):
             value=0,
         )
 
-    def read_block(self, max_samples: int = 5000, timeout_s: float | None = None) -> SampleBlock:
-        """The samples that have arrived (at least one), waiting at most timeout_s.
+    def read_block(
+        self, max_samples: int = 5000, timeout_s: float | None = None, *, gather: bool = False
+    ) -> SampleBlock:
+        """The samples that have arrived (at least one), waiting at most timeout_s; with `gather`, waiting
+        (at most timeout_s) until max_samples have.
 
         Errors are raised after the good samples that preceded them have been
         returned (on the next call); the stream stays usable afterwards.
@@ -316,7 +320,7 @@ class GratingReadHead(FramedDevice):
                         if self._in_signal_loss:
                             raise self._signal_fault()
                         raise DeviceTimeout(DEVICE, f"no sample within {timeout_s:g} s")
-                    fp.fill(left_s)
+                    fp.fill(left_s, (max_samples - len(seqs)) * SAMPLE_FRAME_LEN if gather else 1)
                     host_s = self._unwrap.clock.now_s()
                     continue
                 if isinstance(item, FrameError):
@@ -369,7 +373,7 @@ class GratingReadHead(FramedDevice):
         parts: list[SampleBlock] = []
         got = 0
         while got < n_samples:
-            b = self.read_block(max_samples=n_samples - got, timeout_s=timeout_s)
+            b = self.read_block(max_samples=n_samples - got, timeout_s=timeout_s, gather=True)
             parts.append(b)
             got += len(b)
         return SampleBlock(

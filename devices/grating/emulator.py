@@ -104,6 +104,12 @@ class GratingEmulator(PtyEmulator):
         if n_due > 0:
             self.send(self._encode(n_due))
 
+    def next_due_s(self, now_s: float) -> float:
+        """When the stream next has a batch for a sim:// line (devices.sim_serial); idle, nothing is due."""
+        if not self.streaming:
+            return math.inf
+        return self.stream_due_s(self._next_k * self._period_s, now_s)
+
     def _skip(self, n: int, *, count_as_dropped: bool) -> None:
         self._next_k += n
         self._seq = (self._seq + n) & 0xFFFF

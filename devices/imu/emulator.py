@@ -29,7 +29,7 @@ import numpy as np
 
 from devices.errors import DriverError
 from devices.imu import protocol as imu
-from devices.pty_link import SIM_POLL_S, Fault, PtyEmulator, garble, truncate
+from devices.pty_link import Fault, PtyEmulator, garble, truncate
 from devices.serial_port import TICK_S, FrameParser, encode_frame
 from models.fixture_poses import POSES, ROCKING_AXIS_N, SLIP_AXIS_N, mounted
 from models.shaker_motion import ShakerMotion
@@ -41,9 +41,6 @@ ACCEL_LSB_MPS = 1e-7
 # here is the simulation's host (a loaded machine starves reader and emulator alike while the
 # virtual clock runs on), not the IMU.
 FIFO_BYTES = 1 << 22
-# On a sim:// line the stream is made in batches of this much station time, as a USB-serial bridge hands its
-# buffer on (the driver reads blocks; 20 wakes a second instead of one per 2 ms poll). Far below silence_s.
-STREAM_BATCH_S = 0.05
 SERIAL = b"SINS-RLG-0002"
 
 
@@ -219,7 +216,7 @@ class ImuEmulator(PtyEmulator):
         """When the stream next has a batch for a sim:// line (devices.sim_serial); idle, nothing is due."""
         if not self.streaming:
             return math.inf
-        return max(self._next_k / self.rate_hz + STREAM_BATCH_S, now_s + SIM_POLL_S)
+        return self.stream_due_s(self._next_k / self.rate_hz, now_s)
 
     def _increments(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """The next n samples' increments in LSB counts (twin, sensor errors, quantisation)."""

@@ -32,6 +32,9 @@ pytestmark = pytest.mark.timeout(30)
 CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
 H = bytes.fromhex
 WAIT_S = 2.0  # wall time a frame may take on the shared machine
+# The drivers here run in wall time on threads (WallClock, python-can's virtual bus): the station file's 100 ms
+# heartbeat (consumer timeout 300 ms) faults the drive when a busy host stalls them; the frames are the test.
+WIRE_HEARTBEAT_MS = 500
 
 
 @pytest.fixture
@@ -131,7 +134,9 @@ def test_driver_enable_and_set_frequency_frames(
 ) -> None:
     """enable(): controlword 0x0006, 0x0007, 0x000F by RPDO1 with mode 3; set_frequency(1 Hz, 0.5 Hz/s):
     0x6083 = 0x6084 = 500 000 (1e-6 rev/s^2), 0x60FF = 1 000 000 uHz by SDO; the reading is TPDO2's velocity."""
-    cfg = dataclasses.replace(CONFIG.servo, interface=interface, channel=channel, timeout_s=0.3)
+    cfg = dataclasses.replace(
+        CONFIG.servo, interface=interface, channel=channel, timeout_s=0.3, heartbeat_ms=WIRE_HEARTBEAT_MS
+    )
     servo = VibrationTableServo(cfg, ServoLimits.from_config(CONFIG), WallClock())
     servo.open()
     try:
