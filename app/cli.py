@@ -153,7 +153,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     telemetry = args.telemetry or DEFAULT_TELEMETRY
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    token_file = out / TOKEN_FILE
+    keys = ensure_telemetry_keys(out / "telemetry-keys")  # CURVE for telemetry and control; before the token, which
+    token_file = out / TOKEN_FILE  # tells a waiting panel that the station is there
     if token is None:  # authenticated by default: a token made on first start, readable by this user only
         token = ensure_token(token_file)
     stop = threading.Event()
@@ -162,13 +163,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     with (
         SessionStore(args.db or out / "station.sqlite") as store,
         open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
-        controller_for(
-            config, hw, store, out, telemetry, args.name, ensure_telemetry_keys(out / "telemetry-keys")
-        ) as controller,
+        controller_for(config, hw, store, out, telemetry, args.name, keys) as controller,
     ):
         if args.sync_to:  # each session to the central history once it has ended and its analysis is stored
             controller.after_run.append(SyncAfterRun(store, args.sync_to, args.sync_arrays, args.name))
-        server = ControlServer(controller, args.control, token=token).start()
+        server = ControlServer(controller, args.control, token=token, keys_dir=keys).start()
         auth = f"token from ${args.token_env}" if args.token_env else f"token in {token_file}"
         print(f"station {args.name} ({config.path}): control {server.endpoint} ({auth}), telemetry {telemetry}, "
               f"store {store.path}", flush=True)  # fmt: skip

@@ -31,6 +31,7 @@ import zmq
 
 from station.clock import utc_s
 from station.errors import StationFault
+from station.telemetry import CLIENT_CERT, curve_client
 
 
 class ControlError(StationFault):
@@ -124,9 +125,18 @@ class ControlClient:
     id per client, seq counting up from 1, the host's UTC time)."""
 
     def __init__(
-        self, endpoint: str, *, token: str | None, identity: str = DEFAULT_IDENTITY, timeout_s: float = 10.0
+        self,
+        endpoint: str,
+        *,
+        token: str | None,
+        identity: str = DEFAULT_IDENTITY,
+        timeout_s: float = 10.0,
+        keys_dir: str | Path | None = None,
     ) -> None:
         self.endpoint = endpoint
+        # The station's CURVE keys (station.telemetry): used once the panel's secret key is there (`station serve`
+        # makes them and speaks CURVE on its control channel); looked for at each new socket.
+        self._keys_dir = None if keys_dir is None else Path(keys_dir)
         self._token = token or ""
         self._identity = identity.encode()
         self._timeout_ms = round(timeout_s * 1000)
@@ -141,6 +151,8 @@ class ControlClient:
         sock.setsockopt(zmq.LINGER, 0)
         sock.setsockopt(zmq.RCVTIMEO, self._timeout_ms)
         sock.setsockopt(zmq.SNDTIMEO, self._timeout_ms)
+        if self._keys_dir is not None and (self._keys_dir / f"{CLIENT_CERT}.key_secret").is_file():
+            curve_client(sock, self._keys_dir)
         sock.connect(self.endpoint)
         return sock
 

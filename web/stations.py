@@ -37,7 +37,8 @@ class StationLink:
         self._timeout_s = timeout_s
         self.client: ControlClient | None = None
         if token is not None:
-            self.client = ControlClient(entry.control, token=token, timeout_s=timeout_s)
+            keys = entry.telemetry_keys_dir()
+            self.client = ControlClient(entry.control, token=token, timeout_s=timeout_s, keys_dir=keys)
 
     def _client(self) -> ControlClient:
         """The client, with the token of the station's token file once the station has made it."""
@@ -50,7 +51,8 @@ class StationLink:
             if token is None:
                 raise HTTPException(502, f"station {self.entry.name}: no control token at {path} (start the station "
                                     "with `station serve`, or set token_file / token_env)")  # fmt: skip
-            self.client = ControlClient(self.entry.control, token=token, timeout_s=self._timeout_s)
+            self.client = ControlClient(self.entry.control, token=token, timeout_s=self._timeout_s,
+                                        keys_dir=self.entry.telemetry_keys_dir())  # fmt: skip
         return self.client
 
     async def request(self, cmd: str, args: dict[str, Any] | None = None, user: str = "") -> Any:

@@ -61,7 +61,8 @@ class StationProcess:
 
     def wait_until_idle(self, timeout_s: float = 120.0) -> dict:
         """Poll the control channel until no run is under way; the last status."""
-        client = ControlClient(self.control, token=ensure_token(self.out / TOKEN_FILE), timeout_s=10.0)
+        client = ControlClient(self.control, token=ensure_token(self.out / TOKEN_FILE), timeout_s=10.0,
+                               keys_dir=self.entry.telemetry_keys_dir())  # fmt: skip
         try:
             deadline = time.monotonic() + timeout_s
             while time.monotonic() < deadline:

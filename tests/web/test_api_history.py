@@ -20,7 +20,8 @@ UNKNOWN = "20260101T000000-abcdef12"
 @pytest.fixture(scope="module")
 def recorded(station, quick) -> dict[str, str]:
     """A finished session (serial F-1) and an aborted one (serial A-2), recorded by the station."""
-    client = ControlClient(station.control, token=ensure_token(station.out / TOKEN_FILE), timeout_s=20.0)
+    client = ControlClient(station.control, token=ensure_token(station.out / TOKEN_FILE), timeout_s=20.0,
+                           keys_dir=station.entry.telemetry_keys_dir())  # fmt: skip
     uids = {}
     try:
         for outcome, serial in (("finished", "F-1"), ("aborted", "A-2")):
