@@ -114,6 +114,7 @@ class StationSimBus(can.BusABC):
         self._channel = _open_channel(str(channel))
         self.channel_info = f"station_sim channel {channel}"
         self._rx: deque[can.Message] = deque()
+        self._notifier: can.Notifier | None = None
         self._rx_cond = self._channel.clock.link.condition()
         # a Notifier's reader never gets a frame here (send() hands them to its listeners): it idles in wall time
         self._closed = host_clock().event()
@@ -151,26 +152,33 @@ class StationSimBus(can.BusABC):
                 ch.draining = False
             raise
 
+    def _active_notifier(self) -> can.Notifier | None:
+        """The bus's running Notifier: python-can lets a bus have one at a time, so it is kept while it runs
+        (looking it up in the registry was a tenth of a frame's cost)."""
+        notifier = self._notifier
+        if notifier is None or notifier.stopped:
+            notifier = self._notifier = next((n for n in can.Notifier.find_instances(self) if not n.stopped), None)
+        return notifier
+
     def _deliver(self, frame: can.Message) -> None:
         if self._is_shutdown or not self._matches_filters(frame):
             return
-        notifiers = [n for n in can.Notifier.find_instances(self) if not n.stopped]
-        if not notifiers:
+        notifier = self._active_notifier()
+        if notifier is None:
             with self._rx_cond:
                 self._rx.append(frame)
                 self._rx_cond.notify_all()
             return
-        for notifier in notifiers:
-            for listener in list(notifier.listeners):
-                try:
-                    listener(frame)
-                except Exception as exc:  # one receiver's failure must not reach the sender or other receivers
-                    notifier.exception = exc
-                    on_error = getattr(listener, "on_error", None)
-                    if on_error is None:
-                        log.exception("%s: listener %r failed", self.channel_info, listener)
-                    else:
-                        on_error(exc)
+        for listener in list(notifier.listeners):
+            try:
+                listener(frame)
+            except Exception as exc:  # one receiver's failure must not reach the sender or other receivers
+                notifier.exception = exc
+                on_error = getattr(listener, "on_error", None)
+                if on_error is None:
+                    log.exception("%s: listener %r failed", self.channel_info, listener)
+                else:
+                    on_error(exc)
 
     # ---- receiving
 
