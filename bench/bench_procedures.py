@@ -1,11 +1,11 @@
 """Every procedure file's full session on its simulated station, as a user runs it: station time, wall time, CPU.
 
-    .venv/bin/python bench/bench_procedures.py [--only NAME ...]
+    .venv/bin/python bench/bench_procedures.py [--only NAME ...] [--main-job]
 
 Each config/procedures file runs through `station run FILE --station S` in a child process (start-up, the
 session on the discrete-event station, the analysis child and the report included); its station is the one
 tests/procedure_runs.py names for it. Station time is the plan's (the dry run's). CPU is the children's user +
-system time (the analysis child included). Then the main job against the shortcut (issue 27 d5):
+system time (the analysis child included). Then (alone with --main-job) the main job against the shortcut (issue 27 d5):
 `station calibrate` beside `station simulate` + `station identify` of the same design, in the same run.
 Prints the Markdown tables of BENCHMARKS.md.
 
@@ -51,8 +51,9 @@ def station_h(procedure: Path, station: Path, cwd: Path) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="*", help="procedure file names (default: all)")
+    ap.add_argument("--main-job", action="store_true", help="only the main job against the shortcut")
     args = ap.parse_args()
-    names = args.only or sorted(RUNS)
+    names = [] if args.main_job else args.only or sorted(RUNS)
     print("| procedure file | station | station time (h) | exit | wall (s) | CPU (s) | station-s per wall-s |")
     print("|---|---|---:|---:|---:|---:|---:|")
     for name in names:
