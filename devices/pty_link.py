@@ -59,6 +59,7 @@ class Fault(enum.Enum):
     SIGNAL_LOSS = "signal_loss"  # read head loses its signal (grating/reference)
     OVERSPEED = "overspeed"  # reference read head overspeed alarm
     COUNTER_OVERFLOW = "counter_overflow"  # counter/timer pulse count overflows
+    LOST_REPLY = "lost_reply"  # carry out the next command but lose its reply (counter/timer)
 
 
 # What every framed serial link can suffer; a device's emulator adds its own (signal loss, overflow, ...).

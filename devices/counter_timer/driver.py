@@ -288,9 +288,9 @@ class CounterTimer(FramedDevice):
                 return w
 
     def measure(self, preset_pulses: int, *, stream_edges: bool = False, **kw: object) -> WindowResult:
-        """arm() then wait_window(); aborts the board if the wait fails."""
-        self.arm(preset_pulses, stream_edges=stream_edges)
+        """arm() then wait_window(); aborts the board if either fails (a lost ARM reply may leave it armed)."""
         try:
+            self.arm(preset_pulses, stream_edges=stream_edges)
             return self.wait_window(**kw)  # type: ignore[arg-type]
         except DriverError:
             with contextlib.suppress(DriverError):

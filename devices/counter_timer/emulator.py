@@ -16,8 +16,10 @@ stamps are already taken) and go out in order on the next polls, before the
 CLOSE.
 
 Faults: NO_ANSWER (commands ignored, `count` of them; silent while armed),
-GARBLE / TRUNCATE / CRC_ERROR (next frame), COUNTER_OVERFLOW (next window
-under way fails with FAULT code 1), DISCONNECT.
+GARBLE / TRUNCATE / CRC_ERROR (next frame), LOST_REPLY (the next `count`
+commands are carried out, their replies lost: an ARM so met leaves the board
+armed), COUNTER_OVERFLOW (next window under way fails with FAULT code 1),
+DISCONNECT.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ MAX_STAMP_GAP_S = 100.0  # consecutive stamps well within a wrap of the 32-bit t
 
 class CounterEmulator(PtyEmulator):
     name = "counter-emulator"
-    supported_faults = LINK_FAULTS | {Fault.COUNTER_OVERFLOW}
+    supported_faults = LINK_FAULTS | {Fault.COUNTER_OVERFLOW, Fault.LOST_REPLY}
 
     def __init__(self, world: Any, *, baud: int = 921_600, **kw: Any) -> None:
         super().__init__(world.clock, baud=baud, **kw)
@@ -65,6 +67,7 @@ class CounterEmulator(PtyEmulator):
         self._edge_index = 0
         self.edges_dropped = 0
         self._last_ref_s: float | None = None
+        self._reply_lost = False  # the command being carried out loses its reply (Fault.LOST_REPLY)
 
     # ---- output
 
@@ -73,6 +76,8 @@ class CounterEmulator(PtyEmulator):
 
     def _send_frame(self, frame: bytes) -> None:
         """One encoded frame out, as an armed link fault leaves it."""
+        if self._reply_lost:
+            return
         if self.faults.take(Fault.GARBLE):
             frame = garble(frame)
         elif self.faults.take(Fault.TRUNCATE):
@@ -90,7 +95,11 @@ class CounterEmulator(PtyEmulator):
                 continue
             if self.faults.take(Fault.NO_ANSWER):
                 continue
-            self._command(item.type, item.payload)
+            self._reply_lost = self.faults.take(Fault.LOST_REPLY)
+            try:
+                self._command(item.type, item.payload)
+            finally:
+                self._reply_lost = False
 
     def _ack(self, cmd: int, result: int) -> None:
         self._frame(c.ACK, c.ACK_PAYLOAD.pack(cmd, result))
