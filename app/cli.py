@@ -8,10 +8,13 @@ import json
 import math
 import os
 import re
+import shlex
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import zmq
 from tqdm import tqdm
@@ -27,6 +30,7 @@ from app.console import (
     write_outputs,
 )
 from app.control import ControlServer
+from app.controller import RESUMABLE
 from app.panel import add_commands as add_panel_commands
 from app.signals import RunSignals
 from devices.config import ConfigError
@@ -49,6 +53,8 @@ from station.session import Session
 from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
 from station.telemetry import ensure_telemetry_keys
+
+T = TypeVar("T")
 
 
 def positive_float(text: str) -> float:
@@ -119,7 +125,20 @@ def _run(
                 controller, spec.name, params, instrument_serial=args.serial or serial, resume_uid=resume_uid
             )
         write_outputs(store, outcome, out, sys.stdout)
+        if str(outcome.state) in RESUMABLE:
+            print(f"resume with: {resume_command(args, outcome.session_uid)}", flush=True)
     return exit_code(outcome)
+
+
+def resume_command(args: argparse.Namespace, uid: str) -> str:
+    """The `station resume` command that continues session `uid` with this run's station, store and twin."""
+    words = ["station", "resume", uid]
+    for option, value, default in (("--station", args.station, None), ("--out", args.out, "out"),
+                                   ("--db", args.db, None), ("--twin", args.twin, None), ("--seed", args.seed, 0),
+                                   ("--speed", args.speed, None)):  # fmt: skip
+        if value is not None and value != default:
+            words += [option, shlex.quote(str(value))]
+    return " ".join(words)
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -192,17 +211,29 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _no_overwrite(write: Callable[[], T], out_dir: str) -> T:
+    """`write()`, but an existing OUT_DIR is refused with the console's option (the API's says overwrite=True)."""
+    try:
+        return write()
+    except FileExistsError:
+        raise FileExistsError(f"{out_dir} exists; pass --overwrite to replace it") from None
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     """The twin's seed-000 session, written point by point (raw streams into raw.h5 as they come, so memory holds
     one point's arrays), with progress on stderr."""
     cfg = _load_twin(args.twin)
     plan = seed000_plan()
-    writer = SessionWriter(args.out_dir, overwrite=args.overwrite)
+    writer = _no_overwrite(lambda: SessionWriter(args.out_dir, overwrite=args.overwrite), args.out_dir)
     try:
-        with tqdm(total=len(plan), unit="point", file=sys.stderr, desc="simulate", mininterval=1.0) as bar:
-            for sp in simulate_points(plan, cfg, args.seed, raw=args.raw):
+        tty = sys.stderr.isatty()  # a log gets one line per tenth, not a carriage-return bar
+        with tqdm(total=len(plan), unit="point", file=sys.stderr, desc="simulate", mininterval=1.0,
+                  disable=not tty) as bar:  # fmt: skip
+            for i, sp in enumerate(simulate_points(plan, cfg, args.seed, raw=args.raw), 1):
                 writer.add_point(sp.record, sp.raw)
                 bar.update()
+                if not tty and (10 * i) // len(plan) > (10 * (i - 1)) // len(plan):
+                    print(f"simulate: {i}/{len(plan)} points", file=sys.stderr, flush=True)
     except BaseException:
         writer.abort()
         raise
@@ -215,7 +246,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_sessions(args: argparse.Namespace) -> int:
     with SessionStore(existing_store(args.db)) as store:
         recover_interrupted(store)  # running with no live process: interrupted (resumable, reportable)
-        for s in store.sessions():
+        sessions = store.sessions()
+        if sessions:
+            print(f"{'uid':{len(sessions[0]['uid'])}s}  {'created (UTC)':{len(sessions[0]['created_utc'])}s}  "
+                  f"{'procedure':32s} {'status':9s} {'points':>11s} {'measurements':>17s}")  # fmt: skip
+        else:
+            print(f"no sessions in {store.path}")
+        for s in sessions:
             print(f"{s['uid']}  {s['created_utc']}  {s['procedure']:32s} {s['status']:9s} {s['n_points']:4d} points"
                   f" {s['n_measurements']:4d} measurements")  # fmt: skip
     return 0
@@ -223,7 +260,8 @@ def cmd_sessions(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     with SessionStore(existing_store(args.db)) as store:
-        write_session(store.load_session(args.uid), args.out_dir, overwrite=args.overwrite)
+        session = store.load_session(args.uid)
+    _no_overwrite(lambda: write_session(session, args.out_dir, overwrite=args.overwrite), args.out_dir)
     print(f"exported {args.uid} to {args.out_dir}")
     return 0
 

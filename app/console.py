@@ -26,7 +26,7 @@ from engine.protocols import StationHardware
 from engine.registry import get_procedure
 from engine.runner import FINAL_STATES, State
 from models.config import TwinConfig
-from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, format_rows, verdict
+from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, acceptance, coefficient_rows, format_rows
 from station.defaults import config_dir
 from station.interchange import write_session
 from station.store import SessionStore
@@ -60,6 +60,12 @@ def open_station(
 
 
 def load_station(path: str | Path | None) -> StationConfig:
+    """The station configuration of --station (the simulated station's by default); a missing file is named as
+    the operator typed it."""
+    if path is not None and not Path(path).is_file():
+        why = "is a directory" if Path(path).is_dir() else "does not exist"
+        raise FileNotFoundError(f"--station {path}: {why} (a station configuration TOML, e.g. "
+                                f"{DEFAULT_SIM_STATION.name} in {CONFIG_DIR})")  # fmt: skip
     return load_station_config(path or DEFAULT_SIM_STATION)
 
 
@@ -156,7 +162,29 @@ def write_outputs(store: SessionStore, outcome: RunOutcome, out_dir: Path, out: 
     write_session(store.load_session(outcome.session_uid), export, overwrite=True)
     print(f"piga-session/1: {export}", file=out)
     results = outcome.analysis.results if outcome.analysis is not None else None
-    print(verdict(str(outcome.state), results, outcome.faults), file=out)
+    for line in conclusion(str(outcome.state), results, outcome.faults, outcome.report_path is not None):
+        print(line, file=out)
+
+
+def conclusion(
+    state: str, results: dict | None, faults: list[str] | tuple[str, ...] = (), certificate: bool = False
+) -> list[str]:
+    """The run, the fit check (mu against mu_c: an outlier among the residuals, seed 000 eq. 28) and conformity,
+    each on its own line: passing the fit check says nothing about the limits, and a method that reports no
+    outlier test passes nothing."""
+    run = f"run: {state}" + (f"; {len(faults)} fault{'s' if len(faults) != 1 else ''}: {faults[0]}" if faults
+                             else ", no fault")  # fmt: skip
+    checks = acceptance(results or {})
+    if results is None:
+        fit = "fit check: none (no analysis for this run)"
+    elif not checks:
+        fit = "fit check: none (this method reports no outlier test, mu against mu_c; no outlier was looked for)"
+    else:
+        passed = all(ok for _, ok, _ in checks)
+        fit = f"fit check: {'passed' if passed else 'FAILED'}: " + "; ".join(r for _, _, r in checks)
+    where = "the certificate beside the report" if certificate else "no certificate for this run"
+    conformity = f"conformity against the instrument's limits: not decided by the fit check; see {where}"
+    return [run, fit, conformity]
 
 
 def describe_results(results: dict, summary: str) -> str:

@@ -33,11 +33,11 @@ class RunSignals:
     """Install the handlers for the duration of a run (main thread only); restore the previous ones after."""
 
     def __init__(
-        self, controller: StationController, *, ask: Callable[[str], str] = input, out: TextIO | None = None
+        self, controller: StationController, *, ask: Callable[[str], str] | None = None, out: TextIO | None = None
     ) -> None:
         self.controller = controller
-        self.ask = ask
         self.out = out or sys.stderr
+        self.ask = ask or self._ask_on_err
         self.interrupts = 0
         self.aborted_by: str | None = None
         self._previous: dict[int, object] = {}
@@ -53,6 +53,14 @@ class RunSignals:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)  # type: ignore[arg-type]
         self._previous.clear()
+
+    def _ask_on_err(self, prompt: str) -> str:
+        """input(), but the prompt on stderr with the progress (input() writes it to stdout, into the facts)."""
+        print(prompt, end="", file=self.out, flush=True)
+        line = sys.stdin.readline()
+        if not line:
+            raise EOFError
+        return line
 
     def _say(self, text: str) -> None:
         print(f"\n{text}", file=self.out, flush=True)

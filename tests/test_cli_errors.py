@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import build_parser
+from app.console import CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[1]
 CLI_TIMEOUT_S = 90.0  # a loaded 2-core machine imports the CLI in a few seconds
@@ -63,7 +64,7 @@ CASES = [
     ("identify {d}/nope", "not a directory"),
     ("identify {d}", "session.json"),
     ("identify {d} --method nope", "invalid choice: 'nope'"),
-    ("simulate {d}/afile", "exists"),
+    ("simulate {d}/afile", "afile exists; pass --overwrite to replace it"),
     ("simulate {d}/sim --twin {d}/nope.toml", "no such file"),
     ("sessions --db {d}/nope.sqlite", "no session store there"),
     ("export NOSUCH {d}/exp --db {d}/nope.sqlite", "no session store there"),
@@ -184,3 +185,37 @@ def test_panel_user_on_a_terminal_keeps_the_password_unless_the_operator_says_ye
         assert code == (1 if kept else 0)
         assert (UserBook(users).verify("olga", "first long password") is not None) == kept
     assert "left as it was" in capsys.readouterr().err
+
+
+def test_a_missing_station_file_is_named_as_typed(bad, capsys):
+    for command in ("calibrate", "serve"):
+        code, err = run_main([command, "--station", f"{bad}/nope.toml", "--out", f"{bad}/o"], capsys)
+        assert code == 2
+        assert err.strip().splitlines()[-1] == (f"station {command}: error: --station {bad}/nope.toml: does not exist"
+                                                " (a station configuration TOML, e.g. station-sim.toml in "
+                                                f"{CONFIG_DIR})")  # fmt: skip
+        assert "not allowed" not in err and "readable file" not in err
+
+
+def test_sessions_has_a_header_and_export_names_its_option(tmp_path, capsys):
+    from models.config import TwinConfig
+    from models.plan import multiposition_plan
+    from models.session_sim import simulate_session
+    from station.interchange import write_session
+
+    plan = multiposition_plan([0.0, 180.0], [10.0], window_s=20.0)
+    write_session(simulate_session(plan, TwinConfig(), seed=1), tmp_path / "s")
+    db = str(tmp_path / "db.sqlite")
+    assert run_main(["import", str(tmp_path / "s"), "--db", db], capsys)[0] == 0
+    capsys.readouterr()
+    from app.cli import main
+
+    assert main(["sessions", "--db", db]) == 0
+    header, row = capsys.readouterr().out.splitlines()
+    assert header.split() == ["uid", "created", "(UTC)", "procedure", "status", "points", "measurements"]
+    assert len(header) == len(row) and header.index("status") == row.rindex("imported"), (header, row)
+    uid = row.split()[0]
+    (tmp_path / "exp").mkdir()
+    code, err = run_main(["export", uid, str(tmp_path / "exp"), "--db", db], capsys)
+    assert code == 2 and err.strip().endswith(f"{tmp_path / 'exp'} exists; pass --overwrite to replace it"), err
+    assert run_main(["export", uid, str(tmp_path / "exp"), "--db", db, "--overwrite"], capsys)[0] == 0
