@@ -87,6 +87,9 @@ _RESERVED = ("sequence", "key", "arrays_file")  # the columns of a measurements 
 OWN_KEYS = ("format", "station", "notes", "provenance", "measurements", "results")  # the rest of session.json: meta
 
 
+STORE_UID = re.compile(r"^[0-9A-Za-z-]{1,64}$")  # session.json store_uid: the uid an import keeps
+
+
 class SessionFormatError(InputError):
     """A session directory that does not follow piga-session/1."""
 
@@ -234,6 +237,9 @@ def _read_station(path: Path) -> tuple[StationInfo, str, dict, dict, list[dict]]
             name, "'measurements' must be a list of record type declarations", column="measurements"
         )
     meta = {k: v for k, v in data.items() if k not in OWN_KEYS}
+    if "store_uid" in meta and not (isinstance(meta["store_uid"], str) and STORE_UID.match(meta["store_uid"])):
+        raise SessionFormatError(name, "must be the session's uid in the store it came from: 1-64 letters, digits "
+                                 "and '-'", column="store_uid", value=meta["store_uid"])  # fmt: skip
     meta["results"] = _check_results(data.get("results", []), provenance.get("created_utc"), name)
     meta["declares_measurements"] = "measurements" in data
     return StationInfo(**values), notes if isinstance(notes, str) else json.dumps(notes), meta, provenance, tables

@@ -3,7 +3,7 @@
     import station
     store = station.open_store("out/station.sqlite")
     store.sessions                      # one row per session
-    s = store.session()                 # the latest (or store.session(uid), store[uid])
+    s = store.session()                 # the latest finished one, named (store.session(uid), store[uid])
     s.points, s.measurements, s.events  # DataFrames
     s.results                           # one row per coefficient: value, u, U = k u, unit
     s.result("integral")                # rich display in Jupyter: coefficients with units, mu vs mu_c, verdict
@@ -69,13 +69,23 @@ class Store:
         columns = ("uid", "created_utc", "procedure", "instrument_serial", "status", "n_points", "n_measurements")
         return pd.DataFrame(rows, columns=list(columns))
 
-    def session(self, uid: str | None = None) -> StoredSession:
-        """The session `uid`, or the latest one."""
+    def session(self, uid: str | None = None, *, status: str | None = "finished") -> StoredSession:
+        """The session `uid`, or else the latest one of `status` (default: the latest finished one; None: the
+        latest whatever its status), saying which it took (a failed run's session has no results to show)."""
         rows = self._store.sessions()
         if not rows:
             raise InputError(f"{self.path}: the store holds no session")
         if uid is None:
-            return StoredSession(self._store, rows[-1]["uid"])
+            fitting = [r for r in rows if status is None or r["status"] == status]
+            if not fitting:
+                held = ", ".join(sorted({str(r["status"]) for r in rows}))
+                raise InputError(f"{self.path}: no {status} session (the store holds {held} ones: pass "
+                                 "status=... or None for the latest of any, or a uid)")  # fmt: skip
+            r = fitting[-1]
+            which = f"the latest {status}" if status is not None else "the latest"
+            print(f"session {r['uid']}: {which} of {len(rows)} in the store ({r['procedure']}, {r['status']}, "
+                  f"{r['created_utc']}); store.session(uid) for another")  # fmt: skip
+            return StoredSession(self._store, r["uid"])
         if uid not in {r["uid"] for r in rows}:
             raise InputError(f"session {uid!r}: not in {self.path} (store.sessions lists them)")
         return StoredSession(self._store, uid)

@@ -491,12 +491,19 @@ class SessionStore:
 
     def import_session(self, session: Session, content_hash: str) -> tuple[str, bool]:
         """Store a whole validated session in one transaction: (uid, True), or (uid of the session already
-        imported with the same content hash, False). Nothing is written when any record is refused."""
+        imported with the same content hash, False). The uid is the export's (session.json store_uid), else a
+        new one; the export's uid held by other content is refused. Nothing is written when any record is
+        refused."""
         with self._lock:
             row = self._db.execute("SELECT uid FROM sessions WHERE content_hash = ?", (content_hash,)).fetchone()
         if row is not None:
             return str(row[0]), False
-        uid = _new_uid()
+        uid = session.meta.get("store_uid")  # an export's uid is kept: its certificate names it
+        if not (isinstance(uid, str) and _UID.match(uid)):
+            uid = _new_uid()
+        elif self._query("SELECT 1 FROM sessions WHERE uid = ?", (uid,)):
+            raise StoreError(f"import refused, nothing stored: session {uid} is already in {self.path} with other "
+                             "content (its session.json store_uid names it)")  # fmt: skip
         self.raw_dir.mkdir(parents=True, exist_ok=True)
         with writing(self.raw_dir / f"{IMPORT_MARK}{uid}{SUFFIX}") as marker:  # a killed import's files: leftovers
             try:

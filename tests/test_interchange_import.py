@@ -171,3 +171,24 @@ def test_measurement_cells_name_file_row_column_value_allowed(tmp_path, session)
     with pytest.raises(SessionFormatError, match=r"measurements/probe\.csv row 3, column 'level_v', value '12\.5'"
                                                  r": must be a finite number in \[0, 10\] \(V\)"):  # fmt: skip
         read_session(d)
+
+
+def test_an_import_keeps_the_uid_of_the_export(tmp_path, session, capsys):
+    with SessionStore(tmp_path / "a.sqlite") as a:
+        uid, _ = a.import_session(session, content_hash(session))
+        exported = write_session(a.load_session(uid), tmp_path / "export")
+    assert json.loads((exported / "session.json").read_text())["store_uid"] == uid
+    db = tmp_path / "b.sqlite"
+    assert _import(exported, db) == 0
+    assert capsys.readouterr().out.rstrip().endswith(f"as session {uid}")  # its certificate's uid is found here
+    assert _import(exported, db) == 0  # the same uid and content again: nothing stored
+    assert f"already imported: the same content is session {uid}" in capsys.readouterr().out
+    assert [s["uid"] for s in _sessions(db)] == [uid]
+    doc = json.loads((exported / "session.json").read_text())
+    _set_station(exported, latitude_deg=doc["station"]["latitude_deg"] + 0.01)  # other content, the same uid
+    assert _import(exported, db) == 2  # other content under a uid the store holds: refused, nothing stored
+    assert f"session {uid} is already in" in capsys.readouterr().err
+    assert [s["uid"] for s in _sessions(db)] == [uid]
+    (exported / "session.json").write_text(json.dumps({**doc, "store_uid": "../../etc"}))
+    with pytest.raises(SessionFormatError, match="store_uid"):
+        read_session(exported)

@@ -125,3 +125,24 @@ def test_the_example_notebook_runs_on_a_simulated_session(run_dir):
     assert f"kz = {kz['value']:.6e} rad/s/g" in text
     assert "U = k u" in html and "verdict: " in html
     assert "Verdict:" in html  # the gap report's rich display
+
+
+def test_session_takes_the_latest_finished_one_and_says_which(tmp_path, capsys):
+    import station
+    from models.config import TwinConfig
+    from models.plan import multiposition_plan
+    from models.session_sim import simulate_session
+
+    info = simulate_session(multiposition_plan([0.0], [10.0], window_s=20.0), TwinConfig(), seed=1).station
+    db = tmp_path / "db.sqlite"
+    with SessionStore(db) as raw:
+        done = raw.create_session(info, "seed000.integral_precession", status="finished")
+        raw.create_session(info, "seed000.integral_precession", status="failed")  # the latest: a failed run
+    with station.open_store(db) as store:
+        assert store.session().uid == done
+        said = capsys.readouterr().out
+        assert said.startswith(f"session {done}: the latest finished of 2 in the store (") and "finished" in said
+        (failed,) = [u for u in store.sessions["uid"] if u != done]
+        assert store.session(status=None).uid == failed and store.session(failed).uid == failed
+        with pytest.raises(InputError, match="no aborted session"):
+            store.session(status="aborted")
