@@ -154,7 +154,15 @@ class TwinConfig:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> TwinConfig:
-        return cls.from_dict(read_toml(path, "twin config", TwinConfigError), source=str(path))
+        """A twin file over the embedded default twin: a section or key the file leaves out keeps the default's
+        value (a file with one [effects.X] section keeps the default noise; it is not a noise-free twin)."""
+        data = read_toml(path, "twin config", TwinConfigError)
+        base = default_twin().to_dict()
+        merged = {"earth_rate_on": base["earth_rate_on"], **data}
+        for section in ("station", "instrument", "noise"):
+            given = data.get(section, {})
+            merged[section] = {**base[section], **given} if isinstance(given, Mapping) else given
+        return cls.from_dict(merged, source=str(path))
 
     def to_toml(self) -> str:
         lines = [f"earth_rate_on = {'true' if self.earth_rate_on else 'false'}", ""]

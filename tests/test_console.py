@@ -181,3 +181,19 @@ def test_simulate_writes_no_carriage_return_into_a_log(tmp_path):
                        cwd=REPO, timeout=240)  # fmt: skip  # bytes: text mode would turn "\r" into "\n"
     assert r.returncode == 0, r.stderr
     assert b"\r" not in r.stderr and b"simulate: 40/40 points" in r.stderr, r.stderr
+
+
+def test_a_partial_twin_file_keeps_the_default_noise(tmp_path):
+    from app.cli import _load_twin
+    from models.config import default_twin
+
+    path = tmp_path / "twin.toml"
+    path.write_text("[effects.waveform_fundamental]\nz0 = -1.299e-4\nz1 = 3.2e-6\n")
+    twin, default = _load_twin(str(path)), default_twin()
+    assert twin.noise == default.noise and twin.noise.rate_noise_radps > 0  # not a noise-free session
+    assert (twin.station, twin.instrument, twin.earth_rate_on) == (default.station, default.instrument, True)
+    assert dict(twin.effects["waveform_fundamental"])["z1"] == 3.2e-6
+    path.write_text("[noise]\ntiming_jitter_s = 2e-7\n[instrument]\nkz = 0.5\n")  # a key keeps its section's rest
+    twin = _load_twin(str(path))
+    assert twin.noise.timing_jitter_s == 2e-7 and twin.noise.rate_noise_radps == default.noise.rate_noise_radps
+    assert twin.instrument.kz == 0.5 and twin.instrument.kzz == default.instrument.kzz
