@@ -14,6 +14,10 @@
 
 Simulation paths: (a) through the engine on the deterministic station; (b) a shortcut (not the engine):
 methods.seed001.tumble_session, the readings straight from the accelerometer model, for the estimators' honesty.
+The two do not agree reading by reading (other draws, other timelines); tests/test_simulation_paths_seed001.py
+checks that the shortcut's sessions are statistically the engine's on a common design (the plan of readings equal,
+the readings' scatter, eq. 6 and eq. 4 against the twin's truth and each other), and pins the engine's first
+reading, which the voltmeter's emulator reads on no hysteresis branch (an expected failure there).
 """
 
 from __future__ import annotations

@@ -17,6 +17,10 @@ table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 
 
 Simulation paths: session through the engine on the deterministic station; table2 a shortcut (not the engine):
 methods.seed002.vibration_run, the IMU's increments straight from the twin, for the compensation's figures.
+The two do not agree run by run (other mount errors and sensor draws; the engine's windows a batch longer);
+tests/test_simulation_paths_seed002.py checks that the shortcut's calibration runs are statistically the engine's
+on a common design (the nine poses, 20-s alignments and vibrations: the runs' design equal, A within the mount
+error, B - A tau and the twelve coefficients against the twin's truth and each other).
 """
 
 from __future__ import annotations
