@@ -107,6 +107,7 @@ class SimStation:
         self._anchor: _Anchor | None = None
         self._shared: dict[str, Any] = {}
         self._operator_handlers: dict[str, Callable[[Any, float], None]] = {}
+        self._head_observers: list[Callable[[float], object]] = []
         self._edge_phase_rad = float(self.rng.uniform(0.0, self.twin.station.pulse_angle_rad))
 
     # --- state changes -------------------------------------------------------------------
@@ -182,8 +183,16 @@ class SimStation:
         return self.crank.speed_radps(t_s) != 0.0
 
     # --- indexing head -----------------------------------------------------------------------
+    def on_head_move(self, observer: Callable[[float], object]) -> None:
+        """Call observer(t_s) whenever the head is commanded, before the new move: between two calls it turns
+        one way only, so an observer that reads the head at each call sees the path it turned, read or not."""
+        with self._lock:
+            self._head_observers.append(observer)
+
     def index_command_move(self, target_deg: float, t_s: float) -> None:
         with self._lock:
+            for observer in self._head_observers:
+                observer(t_s)
             here = self._head.position_deg(t_s)
             self._head = _HeadMove(t_s, here, float(target_deg), self.index_speed_deg_s)
         self._changed()

@@ -8,14 +8,15 @@ shortcut's timeline is a fixed hour of soak and 20 s a reading where the station
 settling and the head's moves, so the drift k0D t differs too. Measured on DESIGN, seed 1: the same plan of
 readings (names, blocks, positions, strokes, where the head came from, to the bit), the readings (engine -
 shortcut) / (K1 sigma_g) 2.8 rms: the two draws' sqrt(2), the launch offsets' difference (here 4.8 ug in k0
-at T1, 0.6 sigma_g) and one reading 36 sigma apart: the first. The voltmeter emulator's accelerometer follows the
-head only when its line is used (on the discrete-event station an idle sim:// line is not polled), so it never
-sees the move to -45 deg before the first reading and reads it on no hysteresis branch, h = 300 ug = 37 sigma_g
-off what the procedure means it to be (test_the_engine_reads_the_first_tumble_reading_on_the_rising_branch, an
-expected failure until devices/voltmeter is fixed). So the agreement test leaves the first reading out of both
-paths' sessions, and checks what the shortcut is kept for, the estimators' Monte Carlo: that its sessions are
-statistically the engine's. On SEEDS: reading z sd 1.03 (engine) and 0.97 (shortcut) over 645 readings, the
-stroke fits' residual chi-square / dof 1.01 and 0.95 (513 dof), eq. 6's K0 .. Mip (estimate - truth) / sigma at most 3.2
+at T1, 0.6 sigma_g) and, before 2026-12-06's fix, one reading 36 sigma apart: the first. The voltmeter emulator's
+accelerometer followed the head only when its line was used (on the discrete-event station an idle sim:// line is
+not polled), so it never saw the move to -45 deg before the first reading and read it on no hysteresis branch,
+h = 300 ug = 37 sigma_g off what the procedure means it to be; it now follows every head command
+(test_the_engine_reads_the_first_tumble_reading_on_the_rising_branch). The agreement test checks what the
+shortcut is kept for, the estimators' Monte Carlo: that its sessions are statistically the engine's. Measured
+before the fix, without the first reading, on SEEDS: reading z sd 1.03 (engine) and 0.97 (shortcut) over 645
+readings, the stroke fits' residual chi-square / dof 1.01 and 0.95 (513 dof), eq. 6's K0 .. Mip (estimate - truth) /
+sigma at most 3.2
 and 2.9 (rms 1.03, 1.00), eq. 4's at most 2.5 and 2.3, the paths' errors at most 2.9 sigma apart (rms 0.91).
 It fails with the shortcut's reading noise 1.3x, its hysteresis 1.2x, or its k3 off by 10 ug/g^3.
 
@@ -46,7 +47,6 @@ mean product temperature of the block's readings, its own launch offset and drif
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -83,12 +83,6 @@ LAWS = {  # eq. 4's laws: (TemperatureModel attribute, side) -> the model's fiel
     ("misalignment_rad", "below"): "gamma_below_rad_per_c",
     ("bias_g", "drift_per_s"): "drift_g_per_s",
 }
-
-
-def _without_first_reading(s: Session) -> Session:
-    """The session less its first tumble reading (the engine reads it on no hysteresis branch: see the module)."""
-    first = next(m for m in s.measurements if m.kind == "tumble")
-    return dataclasses.replace(s, measurements=[m for m in s.measurements if m is not first])
 
 
 def _design(s: Session) -> list[tuple]:
@@ -131,7 +125,6 @@ def test_the_tumble_shortcut_is_statistically_the_engine_on_a_common_design() ->
     res = {path: [0.0, 0] for path in paths}  # sum dof sigma^2 / (K1 sigma_g)^2, sum dof
     for seed in SEEDS:
         runs = {"engine": engine_tumble_session(DESIGN, seed), "shortcut": shortcut_tumble_session(DESIGN, seed)}
-        runs = {path: (_without_first_reading(s), truths) for path, (s, truths) in runs.items()}
         for block, (ke, ks) in enumerate(zip(runs["engine"][1], runs["shortcut"][1], strict=True)):
             for n in CF_NAMES[1:]:
                 assert abs(ke[n] / ks[n] - 1) <= TRUTH_REL, f"seed {seed} T{block + 1}: true {n} {ke[n]} vs {ks[n]}"
@@ -177,12 +170,6 @@ def test_the_tumble_shortcut_is_statistically_the_engine_on_a_common_design() ->
     assert f_ok(ratio, res["engine"][1], res["shortcut"][1], 1e-3), f"residual variance ratio {ratio:.3f}"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="devices/voltmeter/emulator.py: the accelerometer follows the head only when the voltmeter's sim:// "
-    "line is used, so it misses the move to -45 deg before the first reading and reads it on no branch",
-)
 def test_the_engine_reads_the_first_tumble_reading_on_the_rising_branch() -> None:
     """The procedure starts the head from -45 deg so that the first reading, at 0 deg, is on the rising branch
     (methods.seed001.procedure); the analysis and the shortcut take it so. One temperature, one cycle, no soak."""

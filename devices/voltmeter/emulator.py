@@ -5,7 +5,8 @@ world (`world.shared("pendulous_accelerometer", ...)`, a `TumbledAccelerometer`)
 models.pendulous_accelerometer (seed 001 eqs. 1 and 4) at the head's angle
 (`world.index_position_deg`) and the chamber's product temperature
 (`world.shared("temperature_chamber", ...)`, ambient when the station has no chamber). The
-head is sampled on every poll so that the hysteresis branch follows the path it turned.
+accelerometer follows every head command (`world.on_head_move`), so that its hysteresis branch follows the
+path the head turned whether or not the voltmeter's line was in use (an idle sim:// line is never polled).
 
 READ? integrates in station time: the reply goes out once `devices.voltmeter.protocol.reading_s` has
 passed; commands that arrive meanwhile wait, as on the instrument. Each reading adds the
@@ -50,6 +51,7 @@ class TumbledAccelerometer:
         self._lock = threading.Lock()
         self._theta_rad = math.radians(world.index_position_deg(world.clock.now_s()))
         self.branch = 0.0
+        world.on_head_move(self.follow)
 
     def set_model(self, model: AccelerometerModel) -> None:
         """Another instrument from now on (tests), keeping the launch offset drawn at power-up."""
