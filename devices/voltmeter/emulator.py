@@ -121,7 +121,6 @@ class VoltmeterEmulator(PtyEmulator):
         self._run_queue()
 
     def on_poll(self, now_s: float) -> None:
-        self.accelerometer.follow(now_s)
         if self._busy_until_s is not None and now_s >= self._busy_until_s:
             self._busy_until_s = None
             self._reply(self._readings(now_s))
