@@ -10,11 +10,11 @@ on one core, a local pool or a dask cluster (station/fanout.py); with
 
 Which simulation path (`--path`):
 - `engine` (the default): each session is seed000_integral.toml's full session through the engine on the
-  deterministic station (config/station-sim.toml: drivers against their emulators, in each worker process;
+  deterministic station (config/stations/vibration-sim.toml: drivers against their emulators, in each worker process;
   tests/engine_sessions.py), about 16 s of CPU a session, so N defaults to 40. This is the procedure's
   behaviour: the window phases are the ones the station's timeline gives (on the deterministic station nearly
   the same for every seed), which the baseline method's error depends on.
-- `shortcut`: the session_sim shortcut (not the engine): models.session_sim, each window's crank phase drawn
+- `shortcut`: the session_sim shortcut (not the engine): station.twin.session_sim, each window's crank phase drawn
   uniformly, 60 s between windows; 0.1 s of CPU a session, N defaults to 1000. An identification study of the
   estimators over random phases; tests/test_simulation_paths.py holds it statistically equal to the engine
   (per-point residuals, coefficients, residual sigma).
@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from methods.seed000.identify import design, identify
-from models.config import default_twin
-from models.plan import seed000_plan
-from models.session_sim import simulate_session
+from procedures.integral_precession.identify import design, identify
 from station.fanout import add_executor_options, run_cases, spec_from_args
+from station.twin.config import default_twin
+from station.twin.plan import seed000_plan
+from station.twin.session_sim import simulate_session
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from engine_sessions import engine_session  # the engine path, shared with the test of both paths

@@ -30,12 +30,12 @@ import can
 import canopen
 import numpy as np
 
-from devices.config import load_station_config
-from devices.servo.driver import ServoLimits, VibrationTableServo
-from devices.servo.emulator import ServoEmulator
+from drivers.config import load_station_config
+from drivers.servo.driver import ServoLimits, VibrationTableServo
+from drivers.servo.emulator import ServoEmulator
 from station.clock import WallClock
 
-CONFIG = Path(__file__).parents[1] / "config" / "station-sim.toml"
+CONFIG = Path(__file__).parents[1] / "config" / "stations/vibration-sim.toml"
 EDS = Path(__file__).parents[1] / "config" / "eds" / "vibration_table_servo.eds"
 TRANSPORTS = ("virtual", "station_sim")
 

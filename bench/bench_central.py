@@ -10,7 +10,7 @@
 
     .venv/bin/python bench/bench_central.py [N] [--url postgresql://...]
 
-Simulation path: (b)'s sessions are the session_sim shortcut (not the engine): models.session_sim, data to sync.
+Simulation path: (b)'s sessions are the session_sim shortcut (not the engine): station.twin.session_sim, data to sync.
 """
 
 from __future__ import annotations
@@ -27,14 +27,14 @@ from pathlib import Path
 
 import sqlalchemy as sa
 
-from models.config import default_twin
-from models.plan import seed000_plan
-from models.session_sim import simulate_session
 from station.central.migrations import migrate
 from station.central.reader import CentralStore, HistoryQuery
 from station.central.server import ThrowawayServer
 from station.central.sync import open_central, sync_store
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.plan import seed000_plan
+from station.twin.session_sim import simulate_session
 
 REPEATS = 20
 PROCEDURES = ("seed000.integral_precession", "seed000.integer_periodic_vibration", "seed000.multi_frequency",

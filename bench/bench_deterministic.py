@@ -23,12 +23,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from station.cli.controller import StationController
 from station.interchange import content_hash
 from station.store import SessionStore
+from station.twin.config import default_twin
 
 ROOT = Path(__file__).resolve().parents[1]
 PROCEDURE = "seed000.integral_precession"
@@ -36,7 +36,7 @@ PARAMS = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [10], "window_s":
 
 
 def run_once(deterministic: bool, raw: bool, tpdo_ms: int | None, seed: int = 1) -> dict:
-    cfg = load_station_config(ROOT / "config" / "station-sim.toml")
+    cfg = load_station_config(ROOT / "config" / "stations/vibration-sim.toml")
     if tpdo_ms is not None:
         cfg = dataclasses.replace(cfg, servo=dataclasses.replace(cfg.servo, tpdo_event_timer_ms=tpdo_ms))
     with tempfile.TemporaryDirectory() as tmp:

@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_engine.py [--speeds 500 1000] [--repeats 1]
 
 Runs config/procedures/seed000_integral.toml (10 positions, 8/9/10 Hz and static, 40 points) on the
-deterministic simulated station of config/station-sim.toml (discrete-event clock, the real drivers against
+deterministic simulated station of config/stations/vibration-sim.toml (discrete-event clock, the real drivers against
 their emulators) as fast as the CPU allows and, for each of `--speeds`, paced at that ceiling (station
 seconds per wall second, as `--speed` for watching live), and prints a markdown table: wall time, CPU,
 station time, station seconds per wall second, peak RSS of the process, and the identified kzz and k3
@@ -21,18 +21,18 @@ import tempfile
 import time
 from pathlib import Path
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from engine.registry import load_procedure_file
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from station.cli.controller import StationController
+from station.engine.registry import load_procedure_file
 from station.store import SessionStore
+from station.twin.config import default_twin
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def run_once(speed: float | None, seed: int) -> dict:
-    cfg = load_station_config(ROOT / "config" / "station-sim.toml")
+    cfg = load_station_config(ROOT / "config" / "stations/vibration-sim.toml")
     spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed000_integral.toml")
     twin = default_twin()
     with tempfile.TemporaryDirectory() as tmp:

@@ -25,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from methods.seed000.parasitic_rotation import (
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from procedures.integral_precession.parasitic_rotation import (
     AXES,
     SEED_HARMONICS_ARCSEC,
     TABLE7_ANGLE_DEG,
@@ -36,13 +35,20 @@ from methods.seed000.parasitic_rotation import (
     fit_at_phases,
     table7_psi_rad,
 )
-from methods.seed000.table_motion import SEED_TABLE5_M, SEED_Z0_M, SEED_Z1_M_S_PER_RAD, fit_zs1, sampling_delay_error_m
-from models.config import default_twin
-from models.table_tilt import ARCSEC_RAD
+from procedures.integral_precession.table_motion import (
+    SEED_TABLE5_M,
+    SEED_Z0_M,
+    SEED_Z1_M_S_PER_RAD,
+    fit_zs1,
+    sampling_delay_error_m,
+)
+from station.cli.controller import StationController
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.table_tilt import ARCSEC_RAD
 
 ROOT = Path(__file__).resolve().parents[1]
-STATION = load_station_config(ROOT / "config" / "station-gradiometer-sim.toml")
+STATION = load_station_config(ROOT / "config" / "stations/gradiometer-sim.toml")
 EPS_F = 1e-6
 
 

@@ -8,7 +8,7 @@ apart from the cases. Machine: 2 cores shared with other work, so the load avera
     .venv/bin/python bench/bench_fanout.py [--reps R] [--scheduler ADDRESS]
 
 Simulation path: the session_sim shortcut (not the engine): gap.validate's cases simulate their sessions with
-models.session_sim.
+station.twin.session_sim.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ import argparse
 import os
 import time
 
-from gap.validate import cases, run_case
 from station.fanout import ExecutorSpec, open_executor, run_cases
+from station.gap.validate import cases, run_case
 
 EFFECTS = ("cross_coupling", "odd_quadratic", "bias_drift", "frequency_error")
 NULLS = 4

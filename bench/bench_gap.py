@@ -21,7 +21,8 @@ the code of another checkout (the figure before a change).
     .venv/bin/python bench/bench_gap.py [--sizes-only]
     .venv/bin/python bench/bench_gap.py --cli [--code /path/to/other/checkout]
 
-Simulation path: the session_sim shortcut (not the engine): models.session_sim (gap.validate's generator), sessions
+Simulation path: the session_sim shortcut (not the engine): station.twin.session_sim (gap.validate's generator),
+sessions
 to diagnose; `--cli` reads tests/indep's sessions (the independent generator, neither path).
 """
 
@@ -50,7 +51,7 @@ CASES = (("null", None), ("effect", "cross_coupling"), ("out_of_library", "bias_
 
 
 def _time(session, twin, suggest: bool) -> tuple[float, float, str]:
-    from gap.api import diagnose
+    from station.gap.api import diagnose
 
     walls, cpus = [], []
     for _ in range(REPEATS):
@@ -66,8 +67,8 @@ SIZE_FREQS_HZ = (2.0, 3.5, 5.0, 6.0, 7.0, 8.0, 8.5, 9.0, 10.0)
 
 def size_sessions(twin):
     """(label, session) of 40, 160 and 640 points (module docstring)."""
-    from models.plan import equal_angle_positions_deg, multiposition_plan, seed000_plan
-    from models.session_sim import simulate_session
+    from station.twin.plan import equal_angle_positions_deg, multiposition_plan, seed000_plan
+    from station.twin.session_sim import simulate_session
 
     plan160 = multiposition_plan(equal_angle_positions_deg(16), SIZE_FREQS_HZ, window_s=60.0)
     plan640 = multiposition_plan(equal_angle_positions_deg(64), SIZE_FREQS_HZ, window_s=60.0)
@@ -108,7 +109,7 @@ def cli_runs(code: Path, repeats: int = 3) -> None:
             session = Path(tmp) / f"s{seed}"
             _write_640(seed, session)
             out = Path(tmp) / f"r{seed}.json"
-            cmd = [sys.executable, "-m", "app.cli", "gap", str(session), "--json", str(out)]
+            cmd = [sys.executable, "-m", "station.cli.cli", "gap", str(session), "--json", str(out)]
             runs = [_child_cpu_s(cmd, env, code) for _ in range(repeats)]  # python -m: the cwd comes first
             verdict = json.loads(out.read_text())["verdict"]
             row = {"seed": seed, "points": 640, "code": str(code), "verdict": verdict}
@@ -125,9 +126,9 @@ def main() -> None:
         return
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    from gap.api import diagnose
-    from gap.validate import Case, make_session
-    from models.config import default_twin
+    from station.gap.api import diagnose
+    from station.gap.validate import Case, make_session
+    from station.twin.config import default_twin
 
     twin = default_twin()
     rows = []

@@ -48,9 +48,9 @@ def case_ids(devset: Path = DEVSET) -> list[str]:
 
 def run_case(case_id: str, devset: Path = DEVSET) -> dict:
     """Diagnose one case blind and return one JSON-able line with its truth and the verdict."""
-    from gap.api import diagnose
-    from models.config import default_twin
+    from station.gap.api import diagnose
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     truth = json.loads((devset / "truth" / f"{case_id}.json").read_text())
     effect = truth["effect"]

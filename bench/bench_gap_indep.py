@@ -3,7 +3,7 @@
 Each case is a piga-session/1 directory written by `indep.cases.make_case` (an implementation
 of physics.md that shares no code with the twin: other position designs, frequency sets,
 window lengths, noise levels and instrument coefficients), diagnosed blind by
-`gap.api.diagnose` against the default twin (suggest=False, as a batch would). Cases, per
+`station.gap.api.diagnose` against the default twin (suggest=False, as a batch would). Cases, per
 design family: nulls; each library effect at SNR 5, 10 and 30 on the channel it shows in;
 pairs of library effects; every out-of-library effect. One JSON line per case (--out), then
 the scores against the targets:
@@ -93,9 +93,9 @@ def run_case(case: dict) -> dict:
     """Write the case's session, diagnose it blind, and return one JSON-able line."""
     from indep.cases import case_mimic, make_case
 
-    from gap.api import diagnose
-    from models.config import default_twin
+    from station.gap.api import diagnose
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     row = dict(case)
     with tempfile.TemporaryDirectory(prefix="gap_indep_") as tmp:
@@ -298,9 +298,9 @@ def large_nulls(seeds: list[int]) -> list[dict]:
     import numpy as np
     from indep.generator import Truth, equal_angle_design, random_coefficients, random_noise, write_session
 
-    from gap.api import diagnose
-    from models.config import default_twin
+    from station.gap.api import diagnose
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     freqs = (1.0, 2.0, 3.5, 4.0, 5.25, 6.0, 7.5, 8.0, 10.0)
     out = []

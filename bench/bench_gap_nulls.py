@@ -41,10 +41,10 @@ NOMINAL = (0.01, 0.05)
 
 
 def _diagnosed(session_dir: Path) -> dict:
-    from gap.api import diagnose
-    from gap.verdict import family_level
-    from models.config import default_twin
+    from station.gap.api import diagnose
+    from station.gap.verdict import family_level
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     rep = diagnose(read_session(session_dir), default_twin(), suggest=False)
     tests = rep.where["structure_tests_before"]

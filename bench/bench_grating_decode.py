@@ -16,8 +16,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from devices.grating import protocol as g
-from devices.serial_port import FrameParser
+from drivers.grating import protocol as g
+from drivers.serial_port import FrameParser
 
 
 def one_by_one(parser: FrameParser) -> None:

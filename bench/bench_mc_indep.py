@@ -4,7 +4,7 @@ Sessions from the independent generator (tests/indep: physics.md implemented aga
 random designs of four families, random instruments far from seed 000's, and random noise that is either a
 stated per-window repeatability or white noise over windows of different length) are written as
 piga-session/1 directories, read back by station.interchange, identified (weighted joint least squares)
-and budgeted (methods.seed000.budget, the default references). Per coefficient: mean and spread of
+and budgeted (procedures.integral_precession.budget, the default references). Per coefficient: mean and spread of
 (k_hat - k) / u_c and the coverage of U (target 0.93-0.97).
 
     .venv/bin/python bench/bench_mc_indep.py [N]
@@ -26,9 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from indep.generator import FAMILIES, Truth, random_coefficients, random_design, random_noise, write_session
 
-from methods.common.least_squares import FitError
-from methods.seed000.budget import seed000_budget
-from methods.seed000.identify import identify
+from procedures.common.least_squares import FitError
+from procedures.integral_precession.budget import seed000_budget
+from procedures.integral_precession.identify import identify
 from station.interchange import read_session
 
 NAMES = ("kz", "kzz", "ky", "k3")

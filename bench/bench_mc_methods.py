@@ -6,12 +6,13 @@ rectangular, else normal), the session then identified and budgeted exactly as t
 headline coefficient the mean and spread of (k_hat - k) / u_c and the fraction of sessions with
 |k_hat - k| <= U = k u_c (k from Student's t at the Welch-Satterthwaite dof; target 0.93-0.97).
 
-- 001: methods.seed001.tumble_session (4 temperatures x 3 cycles, 8 ug a reading), eq. 6 at T1; drawn: the
+- 001: procedures.tumble.tumble_session (4 temperatures x 3 cycles, 8 ug a reading), eq. 6 at T1; drawn: the
   index head's angle error at each of the 8 head angles, the voltmeter's gain and offset.
-- 002: methods.seed002.vibration_run, the 9 calibration poses at 20 Hz, 1.5 g, runs of `--align-s` at rest and
+- 002: procedures.rlg_g_sensitivity.vibration_run, the 9 calibration poses at 20 Hz, 1.5 g, runs of `--align-s` at
+rest and
   `--vibrate-s` of vibration (shorter than the seed's, for time); drawn: each accelerometer's scale factor, each
   gyro's residual bias, the IMU's sampling interval, the latitude (the twin's site is off the recorded one).
-- 003: both PIGAs' static rates (devices.second_instrument.emulator.static_rates_radps: the fixture's physics)
+- 003: both PIGAs' static rates (drivers.second_instrument.emulator.static_rates_radps: the fixture's physics)
   in the four-pose design (22 equal-acceleration positions in setup 1, 22 equal-angle in setup 2) and A's
   22-position equal-angle calibration, 2e-7 rad/s per window; drawn: the head's six angle-error harmonics, the
   head zero (the self-alignment's error, 8e-6 rad), the latitude. Headline: A's coefficients without
@@ -23,16 +24,17 @@ headline coefficient the mean and spread of (k_hat - k) / u_c and the fraction o
   drawn as stated the head's harmonics k = 1..3, the head zero's error (8e-6 rad) and the latitude. Three
   tallies: the budget as it was (eq. 48's sigma as Type A, k from t alone), with the Type A at the rate noise
   alone but k from t, and as it is (Type A at the noise, k for the stated shapes).
-- 004: models.session_sim of the calibration at the best offset and the one after the removal (0, 180, 60 deg
+- 004: station.twin.session_sim of the calibration at the best offset and the one after the removal (0, 180, 60 deg
   at 8, 9, 10 Hz, 5 dof each, noise pooled over the two: 10 dof); drawn: seed 000's inputs
   (bench_mc_seed000.drawn_twin) and H, b, theta of eqs. 21-22. Headline: K2 at the best offset and after, and
   the removed mass.
 
     .venv/bin/python bench/bench_mc_methods.py --method 001|002|003|003-indep|004|all [--n 200] [--seed 1]
 
-Simulation paths: shortcuts (not the engine), for the budgets' honesty: 001 methods.seed001.tumble_session, 002
-methods.seed002.vibration_run, 003 the fixture's static rates (and tests/indep's world for 003-indep), 004 the
-session_sim shortcut (not the engine): models.session_sim.
+Simulation paths: shortcuts (not the engine), for the budgets' honesty: 001 procedures.tumble.tumble_session, 002
+procedures.rlg_g_sensitivity.vibration_run, 003 the fixture's static rates (and tests/indep's world for 003-indep),
+004 the
+session_sim shortcut (not the engine): station.twin.session_sim.
 """
 
 from __future__ import annotations
@@ -47,8 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
-from methods.common.references import Reference, load_references
-from methods.common.uncertainty import Budget
+from procedures.common.references import Reference, load_references
+from procedures.common.uncertainty import Budget
 
 
 def draw(rng: np.random.Generator, ref: Reference, size: int | None = None) -> np.ndarray | float:
@@ -95,9 +97,9 @@ class Tally:
 
 
 def seed001(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
-    from methods.seed001.analysis import analyse_tumble
-    from methods.seed001.tumble_session import tumble_session
-    from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
+    from procedures.tumble.analysis import analyse_tumble
+    from procedures.tumble.tumble_session import tumble_session
+    from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel
 
     m, rng = AccelerometerModel(), np.random.default_rng(seed)
     tally = Tally(CF_NAMES, [], [], [])
@@ -113,13 +115,13 @@ def seed001(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
 
 
 def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.0, vibrate_s: float = 60.0) -> Tally:
-    from methods.seed002.analysis import RunRecord, observation_values, observe_run
-    from methods.seed002.budget import flexure_budget
-    from methods.seed002.vibration_run import simulate_run
-    from models.fixture_poses import CALIBRATION_POSES, POSES
-    from models.shaker_motion import sine_drive
-    from models.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
+    from procedures.rlg_g_sensitivity.analysis import RunRecord, observation_values, observe_run
+    from procedures.rlg_g_sensitivity.budget import flexure_budget
+    from procedures.rlg_g_sensitivity.vibration_run import simulate_run
     from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+    from station.twin.fixture_poses import CALIBRATION_POSES, POSES
+    from station.twin.shaker_motion import sine_drive
+    from station.twin.strapdown_imu import ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
 
     recorded = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
     twin, rng = StrapdownImuTwin(), np.random.default_rng(seed)
@@ -144,10 +146,10 @@ def seed002(n: int, seed: int, refs: dict[str, Reference], align_s: float = 120.
 def four_pose_windows(twin, rng: np.random.Generator | None, noise_radps: float) -> list:
     """Both PIGAs' windows of seed 003's four-pose design (22 equal-acceleration positions of A in setup 1, 22
     equal-angle in setup 2), from the fixture's physics, with white rate noise (none without `rng`)."""
-    from devices.second_instrument.emulator import static_rates_radps
-    from methods.seed003.four_pose import PoseWindow
-    from methods.seed003.sequences import sequence_deg
-    from models.fixture import POSES_DEG, SETUPS
+    from drivers.second_instrument.emulator import static_rates_radps
+    from procedures.multiposition.four_pose import PoseWindow
+    from procedures.multiposition.sequences import sequence_deg
+    from station.twin.fixture import POSES_DEG, SETUPS
 
     windows = []
     for setup in (1, 2):
@@ -163,16 +165,16 @@ ZERO_SIGMA_RAD = 8e-6  # the self-alignment's sigma at seed 003's figures (eq. 5
 
 
 def seed003(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally, Tally]:
-    from devices.second_instrument.emulator import static_rates_radps
-    from methods.seed003 import budget as gum
-    from methods.seed003.four_pose import fit_four_pose, harmonic_names
-    from methods.seed003.sequences import sequence_deg
-    from methods.seed003.static_model import MODELS, fit_static, true_static_terms, with_angle_uncertainty
-    from models.config import TwinConfig
-    from models.fixture import pose_rad
+    from drivers.second_instrument.emulator import static_rates_radps
+    from procedures.multiposition import budget as gum
+    from procedures.multiposition.four_pose import fit_four_pose, harmonic_names
+    from procedures.multiposition.sequences import sequence_deg
+    from procedures.multiposition.static_model import MODELS, fit_static, true_static_terms, with_angle_uncertainty
     from station.session import StationInfo
+    from station.twin.config import TwinConfig
+    from station.twin.fixture import pose_rad
 
-    base = TwinConfig.from_toml(Path(__file__).parents[1] / "config" / "twin-seed003.toml")
+    base = TwinConfig.from_toml(Path(__file__).parents[1] / "config" / "twins" / "multiposition.toml")
     station, terms, rng = StationInfo(), MODELS["seed003"], np.random.default_rng(seed)
     noise = 2e-7
     cal_rad = np.radians(sequence_deg("equal_angle", 22))
@@ -212,11 +214,11 @@ def seed003_indep(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally,
     from indep.generator import random_coefficients
     from indep.world import Perturbation, StationConsts, Window
 
-    from methods.common.uncertainty import with_fit
-    from methods.seed003 import budget as gum
-    from methods.seed003.four_pose import harmonic_names
-    from methods.seed003.sequences import SCHEMES, sequence_deg
-    from methods.seed003.static_model import MODELS, fit_static
+    from procedures.common.uncertainty import with_fit
+    from procedures.multiposition import budget as gum
+    from procedures.multiposition.four_pose import harmonic_names
+    from procedures.multiposition.sequences import SCHEMES, sequence_deg
+    from procedures.multiposition.static_model import MODELS, fit_static
     from station.session import StationInfo
 
     station, terms, rng = StationInfo(), MODELS["physics"], np.random.default_rng(seed)
@@ -246,11 +248,11 @@ def seed003_indep(n: int, seed: int, refs: dict[str, Reference]) -> tuple[Tally,
 def seed004(n: int, seed: int, refs: dict[str, Reference]) -> Tally:
     from bench_mc_seed000 import drawn_twin
 
-    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, calibrate, correction, pooled
-    from methods.seed004.budget import suppression_budget
-    from models import nonlinear_error as ne
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
+    from procedures.nonlinear_suppression.analysis import AFTER_REMOVAL, AT_BEST, calibrate, correction, pooled
+    from procedures.nonlinear_suppression.budget import suppression_budget
+    from station.twin import nonlinear_error as ne
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     plan = multiposition_plan([0.0, 180.0, 60.0], [8.0, 9.0, 10.0], 560.0)
     rng = np.random.default_rng(seed)

@@ -1,11 +1,11 @@
 """Monte Carlo of the seed-000 uncertainty budget: is U (95 %) a 95 % interval? (issue 15, deliverables 4, 5, 7)
 
-Each session is simulated by the twin's fast path (models.session_sim) with every Type B input of the
+Each session is simulated by the twin's fast path (station.twin.session_sim) with every Type B input of the
 budget drawn from its stated distribution (normal, standard deviation u from config/instruments/
 references.toml, times `--b-scale`): crank radius A0 and g differ from the station's recorded values,
 the table has a parasitic translation z0, a parasitic rotation axs1, second harmonics Zs2 and Zc2, a
 frequency error eps_f and a read-head latency. The session is then identified (weighted joint least
-squares) and budgeted (methods.seed000.budget); per coefficient we report the mean and spread of
+squares) and budgeted (procedures.integral_precession.budget); per coefficient we report the mean and spread of
 (k_hat - k) / u_c and the fraction of sessions with |k_hat - k| <= U (target 0.93-0.97).
 
 Designs: `integral` (seed 000: 10 positions x 8, 9, 10 Hz + static, dof 26), `multi` (the multi-frequency
@@ -14,7 +14,8 @@ white rate noise: compares equal weights with the weighted fit).
 
     .venv/bin/python bench/bench_mc_seed000.py [--design integral|multi|unequal] [--n 300] [--b-scale 1]
 
-Simulation path: the session_sim shortcut (not the engine): models.session_sim with the drawn twin, for the budget's
+Simulation path: the session_sim shortcut (not the engine): station.twin.session_sim with the drawn twin, for the
+budget's
 honesty (an uncertainty study of the identification; tests/test_simulation_paths.py holds the shortcut statistically
 equal to the engine on the default twin).
 """
@@ -28,13 +29,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from methods.common.references import load_references
-from methods.seed000.budget import seed000_budget
-from methods.seed000.identify import identify
-from models.config import default_twin
-from models.plan import PointSpec, equal_angle_positions_deg, multiposition_plan, preset_pulses, seed000_plan
-from models.session_sim import simulate_session
+from procedures.common.references import load_references
+from procedures.integral_precession.budget import seed000_budget
+from procedures.integral_precession.identify import identify
 from station.session import StationInfo
+from station.twin.config import default_twin
+from station.twin.plan import PointSpec, equal_angle_positions_deg, multiposition_plan, preset_pulses, seed000_plan
+from station.twin.session_sim import simulate_session
 
 NAMES = ("kz", "kzz", "ky", "k3")
 

@@ -10,7 +10,7 @@ system time (the analysis child included). Then (alone with --main-job) the main
 Prints the Markdown tables of BENCHMARKS.md.
 
 Simulation path: through the engine on the deterministic station for every procedure file and the main job; `station
-simulate` in the comparison is the session_sim shortcut (not the engine): models.session_sim, timed only.
+simulate` in the comparison is the session_sim shortcut (not the engine): station.twin.session_sim, timed only.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from procedure_runs import RUNS  # noqa: E402  (the station of every procedure file: one declaration)
 
-STATION = [sys.executable, "-m", "app.cli"]
+STATION = [sys.executable, "-m", "station.cli.cli"]
 
 
 def timed(args: list[str], cwd: Path) -> tuple[int, float, float, str]:

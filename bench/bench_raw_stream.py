@@ -6,7 +6,7 @@ and the 5 kHz grating of every window) through `station simulate --raw`, `statio
 Each command runs under /usr/bin/time -v (peak resident set size of the process) in a fresh process. Figures:
 BENCHMARKS.md, section "Raw streams in HDF5 (issue 14)".
 
-Simulation path: the session_sim shortcut (not the engine): `station simulate --raw` (models.session_sim).
+Simulation path: the session_sim shortcut (not the engine): `station simulate --raw` (station.twin.session_sim).
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """Seed 001 on the simulated tumble station: the seed's AL-15 figures reproduced, the estimators' honesty, speed.
 
 (a) The seed's session (config/procedures/seed001_tumble.toml: 20, 80, -40 and back to 20 C, three cycles of
-    forward and back strokes) through engine, drivers and emulators on config/station-tumble-sim.toml at SPEED
+    forward and back strokes) through engine, drivers and emulators on config/stations/tumble-sim.toml at SPEED
     times real time (500: a loaded machine's pauses make the indexing head miss its 120 s settling at 1000x);
     the twin carries the seed's AL-15 estimates. Each figure the seed quotes, the estimate with its
     sigma, and z = (estimate - twin) / sigma (the twin's k0 also holds the launch offset k0L it drew).
-(b) N sessions straight from the model (methods.seed001.tumble_session): mean and spread of z per coefficient.
+(b) N sessions straight from the model (procedures.tumble.tumble_session): mean and spread of z per coefficient.
     Draw k has its own generator (seed [2, k]), so the figures are the same on every executor
     (station/fanout.py: --executor local|dask, --scheduler, --workers, --results CASES.jsonl to resume).
 
@@ -13,7 +13,7 @@
         [--results CASES.jsonl] [--no-session]
 
 Simulation paths: (a) through the engine on the deterministic station; (b) a shortcut (not the engine):
-methods.seed001.tumble_session, the readings straight from the accelerometer model, for the estimators' honesty.
+procedures.tumble.tumble_session, the readings straight from the accelerometer model, for the estimators' honesty.
 The two do not agree reading by reading (other draws, other timelines); tests/test_simulation_paths_seed001.py
 checks that the shortcut's sessions are statistically the engine's on a common design (the plan of readings equal,
 the readings' scatter, eq. 6 and eq. 4 against the twin's truth and each other), and pins the engine's first
@@ -29,24 +29,24 @@ from pathlib import Path
 
 import numpy as np
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from devices.voltmeter.emulator import accelerometer
-from engine.registry import load_procedure_file
-from methods.seed001.analysis import analyse_tumble
-from methods.seed001.tumble_session import tumble_session
-from models.config import default_twin
-from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from drivers.voltmeter.emulator import accelerometer
+from procedures.tumble.analysis import analyse_tumble
+from procedures.tumble.tumble_session import tumble_session
+from station.cli.controller import StationController
+from station.engine.registry import load_procedure_file
 from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel
 
 ROOT = Path(__file__).resolve().parents[1]
 HALF_DAY_S = 43200.0
 
 
 def station_session(seed: int, speed: float) -> None:
-    config = load_station_config(ROOT / "config" / "station-tumble-sim.toml")
+    config = load_station_config(ROOT / "config" / "stations/tumble-sim.toml")
     spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed001_tumble.toml")
     with tempfile.TemporaryDirectory() as tmp, SessionStore(Path(tmp) / "s.sqlite") as store:
         sim = simulated_station(config, default_twin(), seed=seed, speed=speed)

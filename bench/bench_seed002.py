@@ -7,7 +7,7 @@ session: `seed002.g_sensitive_misalignment` with config/procedures/seed002_g_sen
     simulated IMU's true coefficients (seed 002 Table 1), wall and station time.
 table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 0.5 g 20 Hz x6, 1 g 20 Hz
     x6, 2 g 20 Hz x3, random 0.7 g RMS 10-60 Hz x3, along the SINS's diagonal, 15-minute alignment,
-    10-minute vibration) made off line from the twin (methods.seed002.vibration_run), compensated with the
+    10-minute vibration) made off line from the twin (procedures.rlg_g_sensitivity.vibration_run), compensated with the
     estimate of an off-line calibration of the same lengths: the percentage decrease of each. Run i has its
     own generator (seed [SEED, i]), so the 27 runs fan out with the same figures on every executor
     (station/fanout.py).
@@ -16,7 +16,7 @@ table2: the 27 verification runs of Table 2 (sine 1 g 10 Hz x3, 1.5 g 10 Hz x6, 
         [--scheduler ADDRESS] [--workers W] [--results CASES.jsonl]
 
 Simulation paths: session through the engine on the deterministic station; table2 a shortcut (not the engine):
-methods.seed002.vibration_run, the IMU's increments straight from the twin, for the compensation's figures.
+procedures.rlg_g_sensitivity.vibration_run, the IMU's increments straight from the twin, for the compensation's figures.
 The two do not agree run by run (other mount errors and sensor draws; the engine's windows a batch longer);
 tests/test_simulation_paths_seed002.py checks that the shortcut's calibration runs are statistically the engine's
 on a common design (the nine poses, 20-s alignments and vibrations: the runs' design equal, A within the mount
@@ -34,20 +34,20 @@ from pathlib import Path
 
 import numpy as np
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from engine.registry import load_procedure_file
-from methods.seed002.analysis import RunRecord, estimate_flexure, navigate, observe_run
-from methods.seed002.procedure import VELOCITY_BLOCK_S
-from methods.seed002.vibration_run import SimulatedRun, simulate_run
-from models.config import default_twin
-from models.fixture_poses import CALIBRATION_POSES, POSES
-from models.shaker_motion import random_drive, sine_drive
-from models.strapdown_imu import ARCSEC_PER_G, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from procedures.rlg_g_sensitivity.analysis import RunRecord, estimate_flexure, navigate, observe_run
+from procedures.rlg_g_sensitivity.procedure import VELOCITY_BLOCK_S
+from procedures.rlg_g_sensitivity.vibration_run import SimulatedRun, simulate_run
+from station.cli.controller import StationController
 from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+from station.engine.registry import load_procedure_file
 from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.fixture_poses import CALIBRATION_POSES, POSES
+from station.twin.shaker_motion import random_drive, sine_drive
+from station.twin.strapdown_imu import ARCSEC_PER_G, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site, StrapdownImuTwin
 
 ROOT = Path(__file__).resolve().parents[1]
 SITE = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
@@ -68,7 +68,7 @@ def table1(values: np.ndarray, sigmas: np.ndarray) -> None:
 
 
 def session(seed: int) -> None:
-    config = load_station_config(ROOT / "config" / "station-shaker-sim.toml")
+    config = load_station_config(ROOT / "config" / "stations/shaker-sim.toml")
     spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed002_g_sensitive.toml")
     with (
         tempfile.TemporaryDirectory() as tmp,

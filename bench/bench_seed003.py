@@ -1,7 +1,7 @@
 """Seed 003's figures on simulated sessions: design (Figs. 4-7), harmonics by the orthogonal 4-pose method
 (Table 6), and PIGA A's coefficients before and after compensation (Tables 3-4 vs 7).
 
-Two sessions of `seed003.gravity_field` on config/station-dual-sim.toml with config/twin-seed003.toml (the
+Two sessions of `seed003.gravity_field` on config/stations/dual-sim.toml with config/twins/multiposition.toml (the
 seed's PIGA, its head angle error and theta0): the seed's arrangement (setup 1 equal acceleration, setup 2
 equal angle) and the swapped one, each with both 22-position calibration sequences of A; and a Monte Carlo
 of noise draws on the pure functions (the fixture's physics, no station) for the honesty of the
@@ -14,7 +14,7 @@ the error of a 10 pi window at its position; only the station time shrinks.
         [--executor local|dask] [--scheduler ADDRESS] [--workers W] [--results CASES.jsonl]
 
 Simulation paths: the two sessions through the engine on the deterministic station; the Monte Carlo a shortcut (not
-the engine): the fixture's static rates straight from devices.second_instrument.emulator.static_rates_radps.
+the engine): the fixture's static rates straight from drivers.second_instrument.emulator.static_rates_radps.
 """
 
 from __future__ import annotations
@@ -29,30 +29,30 @@ from pathlib import Path
 
 import numpy as np
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.second_instrument.emulator import static_rates_radps
-from devices.station import simulated_station
-from methods.seed003 import gravity_field as gf
-from methods.seed003.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
-from methods.seed003.four_pose import PoseWindow, fit_four_pose, harmonic_names
-from methods.seed003.sequences import SCHEMES, sequence_deg
-from methods.seed003.static_model import (
+from drivers.config import load_station_config
+from drivers.second_instrument.emulator import static_rates_radps
+from drivers.station import simulated_station
+from procedures.multiposition import gravity_field as gf
+from procedures.multiposition.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
+from procedures.multiposition.four_pose import PoseWindow, fit_four_pose, harmonic_names
+from procedures.multiposition.sequences import SCHEMES, sequence_deg
+from procedures.multiposition.static_model import (
     MODELS,
     fit_static,
     relative_fitting_accuracy_g,
     true_static_terms,
     with_angle_uncertainty,
 )
-from models.config import TwinConfig
-from models.fixture import POSES_DEG, SETUPS
+from station.cli.controller import StationController
 from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.session import StationInfo
 from station.store import SessionStore
+from station.twin.config import TwinConfig
+from station.twin.fixture import POSES_DEG, SETUPS
 
 ROOT = Path(__file__).resolve().parents[1]
 TERMS = MODELS["seed003"]
-TWIN_FILE = ROOT / "config" / "twin-seed003.toml"
+TWIN_FILE = ROOT / "config" / "twins" / "multiposition.toml"
 SEED_REV = 5.0
 
 
@@ -124,7 +124,7 @@ def monte_carlo(draws: int, spec: ExecutorSpec | None = None, results: str | Non
 
 
 def run_session(twin: TwinConfig, params: dict, seed: int, speed: float):
-    config = load_station_config(ROOT / "config" / "station-dual-sim.toml")
+    config = load_station_config(ROOT / "config" / "stations/dual-sim.toml")
     with tempfile.TemporaryDirectory() as out:
         sim = simulated_station(config, twin, seed=seed, speed=speed)
         store = SessionStore(Path(out) / "station.sqlite")

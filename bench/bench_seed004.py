@@ -2,7 +2,7 @@
 
 Runs config/procedures/seed004_suppression.toml (21 offsets, -5" .. 5" by 0.5", each calibrated by integral
 precession; the best offset; eqs. 21-22; the operator's mass removal; K2 once more) on
-config/station-electronics-sim.toml for N station seeds at SPEED x real time (the CLI's 1000 by default; 500
+config/stations/electronics-sim.toml for N station seeds at SPEED x real time (the CLI's 1000 by default; 500
 keeps a loaded machine's late readers within half a time-stamp wrap), through the same CLI path an operator
 uses, and prints each session's headline, the mean and spread over the sessions, and the wall time per session.
 The sessions fan out (station/fanout.py): each in its own process with --workers 2 or on a dask cluster; on a
@@ -27,14 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app.cli import main as station
-from methods.seed004.analysis import SEED_FIGURES
+from procedures.nonlinear_suppression.analysis import SEED_FIGURES
+from station.cli.cli import main as station
 from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_from_args
 from station.store import SessionStore
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 PROCEDURE = CONFIG / "procedures" / "seed004_suppression.toml"
-STATION = CONFIG / "station-electronics-sim.toml"
+STATION = CONFIG / "stations/electronics-sim.toml"
 
 
 def run_session(seed: int, speed: float) -> tuple[dict | None, float, float]:

@@ -29,13 +29,13 @@ import time
 
 import numpy as np
 
-from devices.counter_timer.driver import CounterTimer
-from devices.counter_timer.emulator import CounterEmulator
-from devices.grating.driver import GratingReadHead
-from devices.grating.emulator import GratingEmulator
-from devices.indexing_head.driver import IndexingHead
-from devices.indexing_head.emulator import IndexingEmulator
-from devices.world import SimStation
+from drivers.counter_timer.driver import CounterTimer
+from drivers.counter_timer.emulator import CounterEmulator
+from drivers.grating.driver import GratingReadHead
+from drivers.grating.emulator import GratingEmulator
+from drivers.indexing_head.driver import IndexingHead
+from drivers.indexing_head.emulator import IndexingEmulator
+from drivers.world import SimStation
 from station.clock import VirtualClock
 
 

@@ -1,4 +1,4 @@
-"""CPU per station second of the deterministic simulated station (config/station-sim.toml): at rest and in a
+"""CPU per station second of the deterministic simulated station (config/stations/vibration-sim.toml): at rest and in a
 counter window, the crank at 8 Hz; what the main job's 6.2 h are made of.
 
     .venv/bin/python bench/bench_station_cost.py [--station-s 600] [--repeats 3]
@@ -20,12 +20,12 @@ import pstats
 import time
 from pathlib import Path
 
-from devices.config import load_station_config
-from devices.station import simulated_station
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
 from station.event_clock import EventClock
+from station.twin.config import default_twin
 
-CONFIG = Path(__file__).resolve().parents[1] / "config" / "station-sim.toml"
+CONFIG = Path(__file__).resolve().parents[1] / "config" / "stations/vibration-sim.toml"
 FREQ_HZ = 8.0
 PROBE_PULSES = 4000
 

@@ -19,13 +19,13 @@ import time
 import uuid
 from pathlib import Path
 
-from devices.config import load_station_config
-from devices.servo.driver import ServoLimits, VibrationTableServo
-from devices.servo.emulator import ServoEmulator
-from devices.sim_can import INTERFACE, bind_clock
+from drivers.config import load_station_config
+from drivers.servo.driver import ServoLimits, VibrationTableServo
+from drivers.servo.emulator import ServoEmulator
+from drivers.sim_can import INTERFACE, bind_clock
 from station.event_clock import EventClock
 
-CONFIG = load_station_config(Path(__file__).resolve().parents[1] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).resolve().parents[1] / "config" / "stations/vibration-sim.toml")
 
 
 def main() -> None:

@@ -8,8 +8,8 @@ a fresh child process each (ru_maxrss).
 
     .venv/bin/python bench/bench_twin.py
 
-Simulation path: the session_sim shortcut (not the engine): this is the shortcut's own speed (models.session_sim,
-models.measurement).
+Simulation path: the session_sim shortcut (not the engine): this is the shortcut's own speed (station.twin.session_sim,
+station.twin.measurement).
 """
 
 from __future__ import annotations
@@ -24,9 +24,9 @@ import time
 
 
 def session_speed(repeats: int = 7) -> dict:
-    from models.config import default_twin
-    from models.plan import seed000_plan
-    from models.session_sim import simulate_session
+    from station.twin.config import default_twin
+    from station.twin.plan import seed000_plan
+    from station.twin.session_sim import simulate_session
 
     cfg, plan = default_twin(), seed000_plan()
     simulate_session(plan, cfg, seed=0)  # warm-up
@@ -43,9 +43,9 @@ def session_speed(repeats: int = 7) -> dict:
 def _raw_point_child(freq_hz: float) -> None:
     import numpy as np
 
-    from models.config import default_twin
-    from models.measurement import simulate_point
-    from models.plan import PointSpec
+    from station.twin.config import default_twin
+    from station.twin.measurement import simulate_point
+    from station.twin.plan import PointSpec
 
     cfg = default_twin()
     simulate_point(PointSpec(0.0, freq_hz, 16384), cfg, np.random.default_rng(0), raw=True)  # warm-up, 11 s

@@ -58,7 +58,7 @@ def free_port() -> int:
 
 
 def station_cli(*args: str, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "app.cli", *args], **kw)
+    return subprocess.Popen([sys.executable, "-m", "station.cli.cli", *args], **kw)
 
 
 def stop(proc: subprocess.Popen) -> None:

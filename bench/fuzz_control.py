@@ -154,8 +154,8 @@ def main() -> None:
     args = ap.parse_args()
     print(f"{platform.node()}: {os.cpu_count()} cores, Python {platform.python_version()}")
     tracebacks = Tracebacks()
-    logging.getLogger("app.control").addHandler(tracebacks)
-    logging.getLogger("app.control").propagate = False  # the refusal lines would flood the terminal
+    logging.getLogger("station.cli.control").addHandler(tracebacks)
+    logging.getLogger("station.cli.control").propagate = False  # the refusal lines would flood the terminal
     rig = Rig.start()
     try:
         fuzz(rig, args.examples, args.seed)

@@ -9,7 +9,7 @@ process's peak memory (ru_maxrss). The first few tracebacks and accepted invalid
 (mutation and case seed).
 
 Simulation path: the lawful session every import case mutates is the session_sim shortcut (not the engine):
-models.session_sim, data to mutate.
+station.twin.session_sim, data to mutate.
 """
 
 from __future__ import annotations

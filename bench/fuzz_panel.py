@@ -15,7 +15,8 @@ The suite's tests/web/test_fuzz_panel.py runs the same cases briefly with a fixe
 
     PYTHONPATH=. .venv/bin/python bench/fuzz_panel.py [--examples 3000] [--seed 30] [--oversized 20]
 
-Simulation path: the stored session is the session_sim shortcut (not the engine): models.session_sim, data to serve.
+Simulation path: the stored session is the session_sim shortcut (not the engine): station.twin.session_sim, data to
+serve.
 """
 
 from __future__ import annotations
@@ -117,10 +118,10 @@ def free_port() -> int:
 
 def lawful_archive() -> bytes:
     """A small lawful piga-session/1 session, zipped as the panel's upload takes it (raw streams included)."""
-    from models.config import TwinConfig
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
     from station.interchange import write_session
+    from station.twin.config import TwinConfig
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     session = simulate_session(multiposition_plan([0.0], [10.0], window_s=2.0), TwinConfig(), seed=3, raw=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -136,10 +137,10 @@ class PanelProcess:
     """`station panel` in its own process over a fresh directory; its log, store, temporary files and RSS."""
 
     def __init__(self, root: Path, log_level: str = "warning") -> None:
-        from models.config import default_twin
-        from models.plan import seed000_plan
-        from models.session_sim import simulate_session
         from station.store import SessionStore
+        from station.twin.config import default_twin
+        from station.twin.plan import seed000_plan
+        from station.twin.session_sim import simulate_session
         from web.users import UserBook
 
         self.root = root
@@ -173,7 +174,8 @@ class PanelProcess:
         env = os.environ | {"TMPDIR": str(self.tmp), "PYTHONUNBUFFERED": "1"}
         with self.log.open("w") as log:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "app.cli", "panel", "--config", str(self.config), "--port", str(self.port),
+                [sys.executable, "-m", "station.cli.cli", "panel", "--config", str(self.config), "--port",
+                str(self.port),
                  "--log-level", self.log_level],
                 stdout=log, stderr=subprocess.STDOUT, env=env,
             )  # fmt: skip

@@ -8,7 +8,7 @@ Methods report coefficients in one of two shapes:
 `coefficient_rows` reads both (any depth), so a new method is shown with its units
 as soon as it states them. `sigma` is the standard uncertainty of the least-squares
 fit alone (Type A, k = 1): the covariance (X^T X)^-1 scaled by the residual sigma^2
-(seed 000 eqs. 21-22). Where the method has a GUM budget (methods.common.uncertainty;
+(seed 000 eqs. 21-22). Where the method has a GUM budget (procedures.common.uncertainty;
 every method of seeds 000-004 has one) a coefficient also has `standard_uncertainty`
 (Type A and B combined), `coverage_factor` k (Student's t at the Welch-Satterthwaite
 effective degrees of freedom, so k varies from coefficient to coefficient: 2.57 at 5 dof,

@@ -24,9 +24,9 @@ class StationFault(StationError, RuntimeError):  # noqa: N818 - a fault, named a
 
 
 class DeviceError(StationFault):
-    """A device failed or refused a request (devices.errors has the typed kinds: timeout, frame, fault, ...)."""
+    """A device failed or refused a request (drivers.errors has the typed kinds: timeout, frame, fault, ...)."""
 
 
 class TransientFault(DeviceError):  # noqa: N818 - a fault, named as the lab does
     """A device fault after which the measurement under way can be repeated safely: a damaged frame, a lost
-    stretch of a stream; nothing moved wrongly and nothing is left latched (engine.runner's repeat policy)."""
+    stretch of a stream; nothing moved wrongly and nothing is left latched (station.engine.runner's repeat policy)."""

@@ -50,7 +50,7 @@ OPTIONAL_COLUMNS = ("dut", "pose", "temperature_c")
 STATION_KEYS = tuple(f.name for f in STATION_FIELDS)
 RAW_ARRAYS = ("grating_t", "grating_z", "pulse_t")
 # The ranges of points.csv's numeric columns (t1_s, t2_s and Np are checked against the period T = 1/freq_hz):
-# session time up to a year, the indexing head's travel (engine.planning: +-720 deg), the table's frequency
+# session time up to a year, the indexing head's travel (station.engine.planning: +-720 deg), the table's frequency
 # (the station file allows freq_max_hz up to 100 Hz), signed counts and windows that fit the counter.
 POINT_FIELDS: dict[str, Field] = {
     f.name: f
@@ -760,7 +760,7 @@ def frequency_error(points: list[PointRecord]) -> float:
 def _stated_timing(stated: Any, points: list[PointRecord]) -> dict:
     """session.json's 'timing' on export: what the session states, its frequency_stability at least the largest
     |eps_f| its points show (frequency_error, rounded up to two digits) and at least the default: whatever the
-    station stored (its engine allows |eps_f| up to engine.timing.FREQ_TOLERANCE_REL, 5e-4, where an import
+    station stored (its engine allows |eps_f| up to station.engine.timing.FREQ_TOLERANCE_REL, 5e-4, where an import
     assumes 1e-4 unless told) imports again. Above FREQ_STABILITY_MAX it is stated as that most, and the import
     refuses the point that needs more, naming it."""
     timing = dict(stated) if isinstance(stated, dict) else {}

@@ -170,8 +170,8 @@ class StoredSession:
     def gap(self, twin: Any = None, **options: Any):
         """The sim-to-real gap diagnosis of this session against `twin` (default: the embedded twin);
         a gap.report.GapReport, which a notebook displays as the HTML report. Options go to gap.api.diagnose."""
-        from gap.api import diagnose
-        from models.config import default_twin
+        from station.gap.api import diagnose
+        from station.twin.config import default_twin
 
         return diagnose(self.session(), twin or default_twin(), **options)
 

@@ -40,7 +40,7 @@ def _declared_range(name: str) -> Check:
 @settings
 class StationInfo:
     """The station's geometry and constants: the `station` object of session.json, the station file's
-    [station] section (devices.config), the twin's station (models.config); validated on construction."""
+    [station] section (drivers.config), the twin's station (station.twin.config); validated on construction."""
 
     A0_m: float = spec(_declared_range("A0_m"), default=constants.A0_M)
     latitude_deg: float = spec(_declared_range("latitude_deg"), default=constants.LATITUDE_DEG)

@@ -11,10 +11,10 @@ from typing import Any
 import zmq
 from hypothesis import strategies as st
 
-from app.control import ControlServer
-from engine.runner import StopCount
+from station.cli.control import ControlServer
 from station.clock import utc_s
 from station.control_channel import MAX_REQUEST_BYTES, ControlError, Stamp, request_frames
+from station.engine.runner import StopCount
 
 TOKEN = "fuzz-token-" + "f" * 32
 CMDS = (

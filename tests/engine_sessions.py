@@ -1,9 +1,9 @@
 """Seed 000 integral-precession sessions by both simulation paths, on one design and one seed.
 
-- `engine_session`: through the engine on the deterministic station (config/station-sim.toml: the
+- `engine_session`: through the engine on the deterministic station (config/stations/vibration-sim.toml: the
   discrete-event clock, the real drivers against their emulators, the calling thread the clock's party), in this
   process, nothing written but a temporary store; what `station calibrate` records, without the report.
-- `shortcut_session`: the session_sim shortcut (models.session_sim, not the engine): the twin's point simulator
+- `shortcut_session`: the session_sim shortcut (station.twin.session_sim, not the engine): the twin's point simulator
   called point after point with a nominal 60 s between windows.
 
 Both take the procedure's parameters (positions_deg, freqs_hz, window_s) and give the same plan of points (ids,
@@ -14,12 +14,12 @@ tests/test_simulation_paths.py and bench/bench_calibration_mc.py (tests/ on its 
 
 Seed 001 tumble sessions the same two ways (tests/test_simulation_paths_seed001.py):
 
-- `engine_tumble_session`: seed001_tumble.toml through the engine on config/station-tumble-sim.toml (the voltmeter
+- `engine_tumble_session`: seed001_tumble.toml through the engine on config/stations/tumble-sim.toml (the voltmeter
   reading the world's TumbledAccelerometer at the head's angle and the chamber's product temperature), with the
   true eq. 1 coefficients of each temperature block: the accelerometer's model at the mean product temperature of
-  the block's readings, its launch offset and drift at their mean time (what methods.seed001.tumble_session
+  the block's readings, its launch offset and drift at their mean time (what procedures.tumble.tumble_session
   returns for its own sessions).
-- `shortcut_tumble_session`: methods.seed001.tumble_session (not the engine) at the same temperatures and cycles,
+- `shortcut_tumble_session`: procedures.tumble.tumble_session (not the engine) at the same temperatures and cycles,
   a reading's noise `tumble_reading_sigma_g` (what the emulators add for the procedure's nplc, samples and range).
 
 Same plan of readings (names, blocks, positions, strokes, the head's path); not the same draws: the shortcut takes
@@ -29,11 +29,12 @@ chamber's ramp and settling and the head's moves.
 
 Seed 002 calibration runs the same two ways (tests/test_simulation_paths_seed002.py):
 
-- `engine_vibration_runs`: seed002_g_sensitive.toml through the engine on config/station-shaker-sim.toml (the
+- `engine_vibration_runs`: seed002_g_sensitive.toml through the engine on config/stations/shaker-sim.toml (the
   simulated operator mounting each pose, the IMU's emulator streaming quantised increments over its line), the
   stored values of each calibration run (A, B of eqs. 17-22) with the IMU's twin and the site;
-- `shortcut_vibration_runs`: each pose's run made off line by methods.seed002.vibration_run (not the engine)
-  and reduced by methods.seed002.analysis.observe_run, as bench/bench_seed002.py's table2 does.
+- `shortcut_vibration_runs`: each pose's run made off line by procedures.rlg_g_sensitivity.vibration_run (not the
+engine)
+  and reduced by procedures.rlg_g_sensitivity.analysis.observe_run, as bench/bench_seed002.py's table2 does.
 
 Same poses, drives and lengths; not the same draws (mount errors and sensor noise from different generators).
 """
@@ -48,32 +49,32 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from devices.config import load_station_config
-from devices.shaker.envelope import G_STANDARD_MPS2
-from devices.station import simulated_station
-from devices.temperature_chamber.emulator import ChamberThermal
-from devices.voltmeter.emulator import METER_NOISE_OF_RANGE, accelerometer
-from engine.planning import plan_procedure
-from engine.registry import load_procedure_file
-from engine.runner import Engine, State
-from methods.seed001.tumble_session import tumble_session
-from methods.seed002.analysis import RunRecord, observation_values, observe_run
-from methods.seed002.vibration_run import simulate_run
-from models.config import TwinConfig, default_twin
-from models.fixture_poses import POSES
-from models.pendulous_accelerometer import AccelerometerModel, cf_coefficients, noise_sigma_g
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
-from models.shaker_motion import sine_drive
-from models.strapdown_imu import Site, StrapdownImuTwin
+from drivers.config import load_station_config
+from drivers.shaker.envelope import G_STANDARD_MPS2
+from drivers.station import simulated_station
+from drivers.temperature_chamber.emulator import ChamberThermal
+from drivers.voltmeter.emulator import METER_NOISE_OF_RANGE, accelerometer
+from procedures.rlg_g_sensitivity.analysis import RunRecord, observation_values, observe_run
+from procedures.rlg_g_sensitivity.vibration_run import simulate_run
+from procedures.tumble.tumble_session import tumble_session
+from station.engine.planning import plan_procedure
+from station.engine.registry import load_procedure_file
+from station.engine.runner import Engine, State
 from station.session import Session
 from station.store import SessionStore
+from station.twin.config import TwinConfig, default_twin
+from station.twin.fixture_poses import POSES
+from station.twin.pendulous_accelerometer import AccelerometerModel, cf_coefficients, noise_sigma_g
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
+from station.twin.shaker_motion import sine_drive
+from station.twin.strapdown_imu import Site, StrapdownImuTwin
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 PROCEDURE = CONFIG / "procedures" / "seed000_integral.toml"
-TUMBLE_STATION = CONFIG / "station-tumble-sim.toml"
+TUMBLE_STATION = CONFIG / "stations/tumble-sim.toml"
 TUMBLE_PROCEDURE = CONFIG / "procedures" / "seed001_tumble.toml"
-SHAKER_STATION = CONFIG / "station-shaker-sim.toml"
+SHAKER_STATION = CONFIG / "stations/shaker-sim.toml"
 SHAKER_PROCEDURE = CONFIG / "procedures" / "seed002_g_sensitive.toml"
 
 
@@ -128,7 +129,7 @@ def _engine_run(
 
 def engine_session(params: dict[str, Any], seed: int, twin: TwinConfig | None = None) -> Session:
     """seed000_integral.toml with `params` over its own, through the engine on the deterministic station."""
-    return _engine_run(CONFIG / "station-sim.toml", PROCEDURE, params, seed, twin)[0]
+    return _engine_run(CONFIG / "stations/vibration-sim.toml", PROCEDURE, params, seed, twin)[0]
 
 
 def shortcut_session(params: dict[str, Any], seed: int, twin: TwinConfig | None = None) -> Session:
@@ -181,7 +182,7 @@ def engine_tumble_session(params: dict[str, Any], seed: int) -> tuple[Session, l
 
 
 def shortcut_tumble_session(params: dict[str, Any], seed: int) -> tuple[Session, list[dict[str, float]]]:
-    """The same design by methods.seed001.tumble_session (not the engine), the station's reading noise."""
+    """The same design by procedures.tumble.tumble_session (not the engine), the station's reading noise."""
     p = tumble_params(params)
     m = AccelerometerModel()
     sigma_g = tumble_reading_sigma_g(p, m)
@@ -210,7 +211,8 @@ def engine_vibration_runs(params: dict[str, Any], seed: int) -> tuple[list[dict[
 
 
 def shortcut_vibration_runs(params: dict[str, Any], seed: int) -> list[dict[str, Any]]:
-    """The same calibration runs by methods.seed002.vibration_run (not the engine): each pose's run made off line
+    """The same calibration runs by procedures.rlg_g_sensitivity.vibration_run (not the engine): each pose's run made
+    off line
     from the IMU's twin (a new mount error, then sensor errors, from one generator), reduced by observe_run."""
     p = shaker_params(params)
     cfg = load_station_config(SHAKER_STATION)

@@ -5,8 +5,8 @@
 
 from __future__ import annotations
 
-from devices import sim_can
-from devices.pty_link import PtyEmulator
+from drivers import sim_can
+from drivers.pty_link import PtyEmulator
 
 TRANSPORTS = ("pty", "sim")
 CAN_INTERFACES = ("virtual", sim_can.INTERFACE)

@@ -6,36 +6,36 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from devices.config import load_station_config
-from devices.station import simulated_station
-from engine.planning import plan_procedure
-from engine.registry import ProcedureSpec, load_procedure_file
-from engine.runner import Engine, State
-from models.config import TwinConfig, default_twin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from station.engine.planning import plan_procedure
+from station.engine.registry import ProcedureSpec, load_procedure_file
+from station.engine.runner import Engine, State
 from station.store import SessionStore
+from station.twin.config import TwinConfig, default_twin
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 # procedure file -> (station file, parameters that shorten it)
 RUNS = {
-    "seed000_baseline": ("station-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10}),
-    "seed000_frequency_stability": ("station-sim", {"freqs_hz": [5, 10], "periods": 4, "settle_s": 1}),
-    "seed000_integral": ("station-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10, "raw": True}),
-    "seed000_multi_frequency": ("station-sim", {"positions_deg": [0, 180], "freqs_hz": [9, 10], "window_s": 10}),
+    "seed000_baseline": ("vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10}),
+    "seed000_frequency_stability": ("vibration-sim", {"freqs_hz": [5, 10], "periods": 4, "settle_s": 1}),
+    "seed000_integral": ("vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10, "raw": True}),
+    "seed000_multi_frequency": ("vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [9, 10], "window_s": 10}),
     "seed000_parasitic_rotation": (
-        "station-gradiometer-sim", {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 8, "settle_s": 1}
+        "gradiometer-sim", {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 8, "settle_s": 1}
     ),
-    "seed000_parasitic_translation": ("station-sim", {"freqs_hz": [5, 10], "periods": 2, "settle_s": 1}),
-    "seed000_planning": ("station-sim", {"positions_deg": [0, 90, 180, 270], "freqs_hz": [10], "window_s": 10}),
-    "seed000_self_alignment": ("station-sim", {"window_s": 10}),
-    "seed001_tumble": ("station-tumble-sim", {"temperatures_c": [20, 25], "cycles": 1, "ramp_c_per_min": 5,
+    "seed000_parasitic_translation": ("vibration-sim", {"freqs_hz": [5, 10], "periods": 2, "settle_s": 1}),
+    "seed000_planning": ("vibration-sim", {"positions_deg": [0, 90, 180, 270], "freqs_hz": [10], "window_s": 10}),
+    "seed000_self_alignment": ("vibration-sim", {"window_s": 10}),
+    "seed001_tumble": ("tumble-sim", {"temperatures_c": [20, 25], "cycles": 1, "ramp_c_per_min": 5,
                                               "soak_s": 60, "dwell_s": 1, "samples": 2}),
-    "seed002_g_sensitive": ("station-shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10,
+    "seed002_g_sensitive": ("shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10,
                                                    "verify_sine_poses": [5], "verify_random_poses": [10]}),
-    "seed002_quick": ("station-shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10, "remount_s": 10}),
-    "seed003_gravity_field": ("station-dual-sim", {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0,
+    "seed002_quick": ("shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10, "remount_s": 10}),
+    "seed003_gravity_field": ("dual-sim", {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0,
                                                    "setup1_n": 6, "setup2_n": 6, "calibration_schemes": "none"}),
-    "seed003_planning": ("station-dual-sim", {}),
-    "seed004_suppression": ("station-electronics-sim", {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0],
+    "seed003_planning": ("dual-sim", {}),
+    "seed004_suppression": ("electronics-sim", {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0],
                                                         "freqs_hz": [8.0, 10.0], "window_s": 10.0,
                                                         "verify_window_s": 10.0}),
 }  # fmt: skip
@@ -62,7 +62,7 @@ def record(name: str, db: Path, twin: TwinConfig | None = None) -> str:
     """The shortened session of procedure file `name` (seed 11, default_twin unless told) stored in `db`; its uid.
     On the simulated station (discrete-event clock) as fast as the CPU allows, the calling thread its party."""
     station, shorter = RUNS[name]
-    cfg = load_station_config(CONFIG / f"{station}.toml")
+    cfg = load_station_config(CONFIG / "stations" / f"{station}.toml")
     path = CONFIG / "procedures" / f"{name}.toml"
     spec = procedure_spec(name)
     params = spec.validate(tomllib.loads(path.read_text()).get("params", {}) | shorter)

@@ -16,7 +16,7 @@ RUN_TIMEOUT_S = 240.0  # a loaded 2-core machine
 def run_quick_session(out: Path) -> subprocess.CompletedProcess:
     """`station run` of the quick session with OUT as --out; its stdout and stderr apart. Fails on an error."""
     (out / "quick.toml").write_text(QUICK_TOML)
-    r = subprocess.run([sys.executable, "-m", "app.cli", "run", str(out / "quick.toml"), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "station.cli.cli", "run", str(out / "quick.toml"), "--out", str(out)],
                        capture_output=True, text=True, cwd=REPO, timeout=RUN_TIMEOUT_S)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     return r

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from station.cli.cli import main
 from station.interchange import SessionFormatError, read_session
 from station.store import SessionStore
 

@@ -2,7 +2,7 @@
 
 Each case runs `station` in this process (an exception that escapes main() fails the test; pytest's stdin
 is not a terminal, as in a script or CI) and asserts exit status 2 and the message naming the option or
-path and what is allowed; two run as `python -m app.cli` to show the shell's view. `panel-user` asks before
+path and what is allowed; two run as `python -m station.cli.cli` to show the shell's view. `panel-user` asks before
 replacing a password and requires --role.
 """
 
@@ -16,15 +16,15 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import build_parser
-from app.console import CONFIG_DIR
+from station.cli.cli import build_parser
+from station.cli.console import CONFIG_DIR
 
 REPO = Path(__file__).resolve().parents[1]
 CLI_TIMEOUT_S = 90.0  # a loaded 2-core machine imports the CLI in a few seconds
 
 
 def station(*args: str, env: dict | None = None, stdin: str | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "app.cli", *args], capture_output=True, text=True, cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "station.cli.cli", *args], capture_output=True, text=True, cwd=REPO,
                           timeout=CLI_TIMEOUT_S, input=stdin or "", env=os.environ | (env or {}))  # fmt: skip
 
 
@@ -91,7 +91,7 @@ CASES = [
 
 def run_main(argv: list[str], capsys) -> tuple[int, str]:
     """`station ARGV` in this process: (exit status, stderr). An escaping exception fails the test."""
-    from app.cli import main
+    from station.cli.cli import main
 
     try:
         code = main(argv)
@@ -111,7 +111,7 @@ def test_bad_options_give_one_clear_error_and_no_traceback(bad, argv, message, c
 
 @pytest.mark.parametrize("argv", ["calibrate --speed 0", "panel-user add bob --role viewer --users {d}/u.json"])
 def test_from_a_shell_the_error_is_one_line_and_no_traceback(bad, argv):
-    """The same through `python -m app.cli` with stdin not a terminal, as a script or CI runs it: the error
+    """The same through `python -m station.cli.cli` with stdin not a terminal, as a script or CI runs it: the error
     (after argparse's usage, if argparse refused) is the last line."""
     r = station(*argv.format(d=bad).split())
     assert r.returncode == 2 and "Traceback" not in r.stderr + r.stdout, r.stderr
@@ -125,9 +125,9 @@ def test_every_subcommand_is_covered_and_every_option_has_help():
     sub = next(a for a in parser._actions if a.dest == "command")
     covered = {c[0].split()[0] for c in CASES}
     assert set(sub.choices) <= covered, set(sub.choices) - covered
-    from gap.api import build_parser as gap_parser
+    from station.gap.api import build_parser as gap_parser
 
-    parsers = {**sub.choices, "gap": gap_parser()}  # `station gap` parses its own arguments (gap/api.py)
+    parsers = {**sub.choices, "gap": gap_parser()}  # `station gap` parses its own arguments (station/gap/api.py)
     for name, p in parsers.items():
         if name == "gap-validate":  # its parser lives inside gap.validate.main: its --help is checked below
             continue
@@ -138,7 +138,7 @@ def test_every_subcommand_is_covered_and_every_option_has_help():
 
 def test_gap_validate_explains_every_option(capsys):
     """Its parser lives in gap.validate.main: every option in its --help has text, on its line or the next."""
-    from gap.validate import main as validate_main
+    from station.gap.validate import main as validate_main
 
     with pytest.raises(SystemExit):
         validate_main(["--help"])
@@ -171,7 +171,7 @@ def test_panel_user_asks_before_replacing_a_password(tmp_path):
 
 
 def test_panel_user_on_a_terminal_keeps_the_password_unless_the_operator_says_yes(tmp_path, monkeypatch, capsys):
-    from app.cli import main
+    from station.cli.cli import main
     from web.users import UserBook
 
     users = str(tmp_path / "users.json")
@@ -192,23 +192,23 @@ def test_a_missing_station_file_is_named_as_typed(bad, capsys):
         code, err = run_main([command, "--station", f"{bad}/nope.toml", "--out", f"{bad}/o"], capsys)
         assert code == 2
         assert err.strip().splitlines()[-1] == (f"station {command}: error: --station {bad}/nope.toml: does not exist"
-                                                " (a station configuration TOML, e.g. station-sim.toml in "
-                                                f"{CONFIG_DIR})")  # fmt: skip
+                                                " (a station configuration TOML, e.g. vibration-sim.toml in "
+                                                f"{CONFIG_DIR / 'stations'})")  # fmt: skip
         assert "not allowed" not in err and "readable file" not in err
 
 
 def test_sessions_has_a_header_and_export_names_its_option(tmp_path, capsys):
-    from models.config import TwinConfig
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
     from station.interchange import write_session
+    from station.twin.config import TwinConfig
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     plan = multiposition_plan([0.0, 180.0], [10.0], window_s=20.0)
     write_session(simulate_session(plan, TwinConfig(), seed=1), tmp_path / "s")
     db = str(tmp_path / "db.sqlite")
     assert run_main(["import", str(tmp_path / "s"), "--db", db], capsys)[0] == 0
     capsys.readouterr()
-    from app.cli import main
+    from station.cli.cli import main
 
     assert main(["sessions", "--db", db]) == 0
     header, row = capsys.readouterr().out.splitlines()

@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PRODUCTION = ("station", "engine", "models", "devices", "methods", "gap", "app", "web")
+PRODUCTION = ("station", "drivers", "procedures", "web")
 TIME_CALLS = {"sleep", "monotonic", "monotonic_ns", "time", "perf_counter", "perf_counter_ns"}
 TIMED_WAITS = {"wait", "wait_for", "get", "join", "acquire", "put"}
 
@@ -34,21 +34,24 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("station/clock.py", "*"): "the clock itself: the one place that reads the wall clock and waits on threads",
     ("station/event_clock.py", "*"): "the discrete-event clock: its parties block on its own condition, and "
     "its optional ceiling paces it against the wall clock",
-    ("devices/pty_link.py", "select.select"): "the real-transport edge: an emulator serving a pseudo-terminal "
+    ("drivers/pty_link.py", "select.select"): "the real-transport edge: an emulator serving a pseudo-terminal "
     "waits on its file descriptor (the wait's length comes from the link clock)",
-    ("app/control.py", ".poll"): "the real-transport edge: the zmq control channel's poller "
+    ("station/cli/control.py", ".poll"): "the real-transport edge: the zmq control channel's poller "
     "(its timeout is the socket's, not a wait of the station)",
     ("station/telemetry.py", "time.time"): "a UTC time stamp on each telemetry message for the people watching "
     "(not a duration)",
     ("web/relay.py", "time.time"): "UTC time stamps of the messages a station relays to the panel (not durations)",
-    ("engine/runner.py", "time.perf_counter"): "the wall time a session took, recorded as its event "
+    ("station/engine/runner.py", "time.perf_counter"): "the wall time a session took, recorded as its event "
     "(a measurement of the host, not a wait)",
-    ("app/console.py", "time.perf_counter"): "the wall time the console prints for a session and its analysis "
+    ("station/cli/console.py", "time.perf_counter"): "the wall time the console prints for a session and its analysis "
     "(a measurement of the host, not a wait)",
     ("station/central/sync.py", "time.perf_counter"): "the wall time a sync took, in its report "
     "(a measurement of the host)",
-    ("gap/api.py", "time.perf_counter"): "the CPU/wall cost of a diagnosis in its result (a measurement of the host)",
-    ("gap/validate.py", "time.perf_counter"): "the wall time of a validation in its result (a measurement)",
+    (
+        "station/gap/api.py",
+        "time.perf_counter",
+    ): "the CPU/wall cost of a diagnosis in its result (a measurement of the host)",
+    ("station/gap/validate.py", "time.perf_counter"): "the wall time of a validation in its result (a measurement)",
 }
 
 

@@ -46,7 +46,7 @@ def test_stderr_shows_progress_then_the_analysis_and_report_stage(run):
     assert max(err.index(p) for p in progress) < measured < started < done
 
 
-SEED000_DOC = {  # the shape of methods.seed000.identify's to_json, with a GUM budget on kz only
+SEED000_DOC = {  # the shape of procedures.integral_precession.identify's to_json, with a GUM budget on kz only
     "method": "integral",
     "coefficients": {
         "kz": {"value": 0.56, "sigma": 2.8e-4, "unit": "rad/s/g", "standard_uncertainty": 3.0e-4,
@@ -88,10 +88,10 @@ def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():
     GUM block; the console shows each once per block, with its unit and the budget's k."""
     import numpy as np
 
-    import methods.seed001.procedure  # noqa: F401 - registers the procedure
-    from engine.registry import get_procedure
-    from methods.seed001.tumble_session import tumble_session
-    from models.pendulous_accelerometer import AccelerometerModel
+    import procedures.tumble.procedure  # noqa: F401 - registers the procedure
+    from procedures.tumble.tumble_session import tumble_session
+    from station.engine.registry import get_procedure
+    from station.twin.pendulous_accelerometer import AccelerometerModel
 
     temperatures = [20, 80, -40, 20]
     session, _ = tumble_session(AccelerometerModel(), temperatures, 3, 1e-5, np.random.default_rng(1))
@@ -106,7 +106,7 @@ def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():
 
 
 def test_the_console_separates_the_fit_check_from_conformity_and_accepts_nothing_untested():
-    from app.console import conclusion
+    from station.cli.console import conclusion
 
     lines = conclusion("finished", {"integral": SEED000_DOC}, certificate=True)
     assert lines == ["run: finished, no fault",
@@ -124,7 +124,7 @@ def test_the_console_separates_the_fit_check_from_conformity_and_accepts_nothing
 def test_the_pause_prompt_goes_to_stderr(monkeypatch, capsys):
     import io
 
-    from app.signals import RunSignals
+    from station.cli.signals import RunSignals
 
     monkeypatch.setattr("sys.stdin", io.StringIO("r\n"))
     signals = RunSignals(None)  # type: ignore[arg-type]  # the prompt needs no controller
@@ -144,7 +144,7 @@ def test_an_aborted_run_prints_its_resume_command(tmp_path):
 
     (tmp_path / "quick.toml").write_text(QUICK_TOML)
     db = tmp_path / "station.sqlite"
-    cmd = [sys.executable, "-m", "app.cli", "run", str(tmp_path / "quick.toml"), "--out", str(tmp_path),
+    cmd = [sys.executable, "-m", "station.cli.cli", "run", str(tmp_path / "quick.toml"), "--out", str(tmp_path),
            "--speed", "20"]  # fmt: skip
     child = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
     try:
@@ -177,15 +177,15 @@ def _has_points(db) -> bool:
 def test_simulate_writes_no_carriage_return_into_a_log(tmp_path):
     from quick_run import REPO
 
-    r = subprocess.run([sys.executable, "-m", "app.cli", "simulate", str(tmp_path / "s")], capture_output=True,
+    r = subprocess.run([sys.executable, "-m", "station.cli.cli", "simulate", str(tmp_path / "s")], capture_output=True,
                        cwd=REPO, timeout=240)  # fmt: skip  # bytes: text mode would turn "\r" into "\n"
     assert r.returncode == 0, r.stderr
     assert b"\r" not in r.stderr and b"simulate: 40/40 points" in r.stderr, r.stderr
 
 
 def test_a_partial_twin_file_keeps_the_default_noise(tmp_path):
-    from app.cli import _load_twin
-    from models.config import default_twin
+    from station.cli.cli import _load_twin
+    from station.twin.config import default_twin
 
     path = tmp_path / "twin.toml"
     path.write_text("[effects.waveform_fundamental]\nz0 = -1.299e-4\nz1 = 3.2e-6\n")

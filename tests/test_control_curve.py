@@ -24,7 +24,7 @@ import pytest
 import zmq
 from control_fuzz import TOKEN, RecordingController
 
-from app.control import ControlServer
+from station.cli.control import ControlServer
 from station.control_channel import ControlClient
 from station.telemetry import ensure_telemetry_keys
 

@@ -5,7 +5,7 @@ fault injected from the engine's thread meets a station whose time flows; a 4-po
 For each case: the typed error (or the point repeated) within the case's stated bound; the devices safe at the end
 (crank at rest, drive not enabled, head still); every finished point kept (stored points = announced points,
 sequences 0..n-1 without a gap or a repeat); the outcome recorded: `finished` after a transient fault (the point
-repeated, engine.runner's policy) or `failed` and resumable after any other.
+repeated, station.engine.runner's policy) or `failed` and resumable after any other.
 
 Stated bounds, in station seconds from the injection (the discrete-event station's time, which a busy host does
 not stretch; wall times are in the benchmark's table): the typed error or the repeat comes at the faulty
@@ -30,18 +30,18 @@ from pathlib import Path
 
 import pytest
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.pty_link import Fault
-from devices.station import SimulatedStation, simulated_station
-from engine.planning import plan_procedure
-from engine.registry import get_procedure
-from engine.runner import State
-from engine.supervisor import QUICK_STOP_BOUND_S
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.pty_link import Fault
+from drivers.station import SimulatedStation, simulated_station
+from station.cli.controller import StationController
+from station.engine.planning import plan_procedure
+from station.engine.registry import get_procedure
+from station.engine.runner import State
+from station.engine.supervisor import QUICK_STOP_BOUND_S
 from station.store import SessionStore
+from station.twin.config import default_twin
 
-CONFIG = load_station_config(Path(__file__).parents[1] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).parents[1] / "config" / "stations/vibration-sim.toml")
 PROCEDURE = "seed000.integral_precession"
 PARAMS = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 30, "settle_s": 2}  # 4 points, all short
 N_POINTS = 4

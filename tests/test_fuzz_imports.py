@@ -35,16 +35,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from engine.registry import load_library, load_procedure_file, procedure_file_serial
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.engine.registry import load_library, load_procedure_file, procedure_file_serial
 from station.errors import InputError
 from station.interchange import content_hash, read_session, write_session
 from station.provenance import make_provenance
 from station.records import Field, RecordType
 from station.session import Measurement, Session
 from station.store import SessionStore, StoreError
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 ROOT = Path(__file__).resolve().parents[1]
 PROCEDURE_FILES = sorted((ROOT / "config" / "procedures").glob("*.toml"))

@@ -26,7 +26,7 @@ import pytest
 from station.store import SessionStore
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("station", "engine", "models", "devices", "methods", "gap", "app", "web")
+PACKAGES = ("station", "drivers", "procedures", "web")
 
 
 def _imports(path: Path) -> set[str]:
@@ -46,7 +46,8 @@ def _requirement_names(reqs: list[str]) -> set[str]:
 
 def test_every_imported_package_is_declared():
     """Every third-party module the code imports belongs to a declared distribution: the main dependencies for
-    everything, plus the web extra for the panel (web/, app/panel.py: `station panel`) and the notebook extra for
+    everything, plus the web extra for the panel (web/, station/cli/panel.py: `station panel`) and the notebook extra
+    for
     station/notebook.py."""
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     main_deps = _requirement_names(project["dependencies"])
@@ -58,7 +59,7 @@ def test_every_imported_package_is_declared():
         for path in sorted((ROOT / pkg).rglob("*.py")):
             if "node_modules" in path.parts:
                 continue
-            panel = pkg == "web" or path == ROOT / "app" / "panel.py"
+            panel = pkg == "web" or path == ROOT / "station" / "cli" / "panel.py"
             allowed = main_deps | (extras["web"] if panel else set())
             if path == ROOT / "station" / "notebook.py":
                 allowed |= extras["notebook"]
@@ -100,7 +101,7 @@ def test_a_plain_install_runs_the_main_job_from_an_empty_folder(tmp_path):
     shutil.rmtree(src)  # nothing may come from the source tree from here on
 
     where = subprocess.run(
-        [str(py), "-c", "import station.defaults as d, web.app as w, app, json; "
+        [str(py), "-c", "import station.defaults as d, web.app as w, station.cli as app, json; "
          "print(json.dumps([str(d.config_dir()), str(w.UPLOT), app.__file__]))"],
         capture_output=True, text=True, check=True, env=env, cwd=tmp_path,
     ).stdout  # fmt: skip

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from session_files import set_cell
 
-from app.cli import main
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.cli.cli import main
 from station.interchange import SessionFormatError, read_session, write_session
 from station.store import SessionStore
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 
 @pytest.fixture(scope="module")

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from session_files import set_cell
 
-from app.cli import main
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.cli.cli import main
 from station.interchange import SessionFormatError, content_hash, read_session, write_session
 from station.provenance import PROVENANCE_KEYS
 from station.records import Field, RecordType
 from station.session import Measurement
 from station.store import SessionStore, StoreError
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 
 @pytest.fixture(scope="module")

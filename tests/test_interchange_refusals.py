@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from session_files import refused
 
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
 from station.interchange import Timing, read_session, write_session
 from station.records import Field, RecordError, RecordType
 from station.session import Measurement
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 POINT_COLUMNS = ["point_id", "sequence", "start_s", "position_deg", "freq_hz", "kind", "pulses", "Tm_s", "t1_s", "t2_s",
                  "Np"]  # fmt: skip

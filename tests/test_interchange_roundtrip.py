@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from procedure_runs import CONFIG, RUNS, record
 
-from models.config import default_twin
+from drivers.config import load_station_config
 from station.interchange import (
     TIMING_DEFAULTS,
     SessionFormatError,
@@ -22,6 +22,7 @@ from station.interchange import (
 )
 from station.provenance import PROVENANCE_KEYS
 from station.store import SessionStore
+from station.twin.config import default_twin
 
 
 def test_every_procedure_file_is_covered():
@@ -72,7 +73,8 @@ def test_export_then_import_gives_the_same_store_content(tmp_path, name):
         _same_arrays(a.arrays, b.arrays)
     assert after.provenance == before.provenance
     assert set(before.provenance) >= set(PROVENANCE_KEYS)
-    assert before.provenance["station_id"] == RUNS[name][0] and before.provenance["simulated"] is True
+    station_id = load_station_config(CONFIG / "stations" / f"{RUNS[name][0]}.toml").station_id
+    assert before.provenance["station_id"] == station_id and before.provenance["simulated"] is True
     assert before.provenance["seed"] == 11 and before.provenance["instrument_serial"] == "PIGA-RT-1"
     assert [r["result"] for r in after.results] == [r["result"] for r in before.results]
     for key in ("procedure", "params", "instrument_serial"):
@@ -87,7 +89,8 @@ def test_export_then_import_gives_the_same_store_content(tmp_path, name):
 
 
 def test_a_session_whose_table_ran_3e_4_off_frequency_exports_and_imports_again(tmp_path):
-    """The engine accepts a frequency error up to 5e-4 (engine.timing.FREQ_TOLERANCE_REL, Table 4) where an import
+    """The engine accepts a frequency error up to 5e-4 (station.engine.timing.FREQ_TOLERANCE_REL, Table 4) where an
+    import
     assumes 1e-4 unless session.json states more: the export states what the points show (rounded up to two
     digits), so the import's Np check passes them, and still refuses an Np one period off."""
     eps_f = 3e-4

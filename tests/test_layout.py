@@ -1,13 +1,14 @@
 """The layout is the data flow: layers import only downward, no cycles, drivers never import emulators.
 
-Layers, from the bottom: station (the core) < models (the twin) < engine < devices < methods < gap < web < app.
+Layers, from the bottom: the core (station/ outside the packages below) < station.twin < station.engine < drivers <
+procedures < station.gap < web < station.cli.
 A module may import its own layer and the layers below, with these exceptions, each a seam by design:
-- the engine imports no device and no method: it drives a station through engine.protocols, and the
-  procedure library is found by name (engine.registry imports the `methods` package to scan it);
-- the core (station/) knows no device, method, twin or engine; its one exception is `station.notebook`, the
+- the engine imports no driver and no procedure: it drives a station through station.engine.protocols, and the
+  procedure library is found by name (station.engine.registry imports the `procedures` package to scan it);
+- the core knows no driver, procedure, twin or engine; its one exception is `station.notebook`, the
   facade that notebooks reach as `station.open_store` (lazily, so `import station` stays light), which sits
   on top of everything it shows (stores, results, gap reports);
-- emulators are the only device modules that import the twin (models), and no driver imports an emulator.
+- emulators are the only driver modules that import the twin, and no driver imports an emulator.
 Imports under `if TYPE_CHECKING:` count: a cycle of type hints is a cycle of knowledge.
 """
 
@@ -19,13 +20,22 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("station", "models", "engine", "devices", "methods", "gap", "web", "app")
+PACKAGES = ("station", "drivers", "procedures", "web")
+LAYERS = ("core", "twin", "engine", "drivers", "procedures", "gap", "web", "cli")
 RANK = {name: i for i, name in enumerate(LAYERS)}
+INSIDE_STATION = ("twin", "engine", "gap", "cli")
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    if parts[0] != "station":
+        return parts[0]
+    return parts[1] if len(parts) > 1 and parts[1] in INSIDE_STATION else "core"
 
 
 def _modules() -> dict[str, Path]:
     mods = {}
-    for pkg in LAYERS:
+    for pkg in PACKAGES:
         for path in (ROOT / pkg).rglob("*.py"):
             rel = path.relative_to(ROOT).with_suffix("")
             parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
@@ -73,8 +83,9 @@ def _is_emulator(module: str) -> bool:
 
 
 def test_the_layout_has_its_packages() -> None:
-    assert all((ROOT / pkg / "__init__.py").is_file() for pkg in LAYERS)
-    devices = [p for p in (ROOT / "devices").iterdir() if (p / "__init__.py").is_file()]
+    assert all((ROOT / pkg / "__init__.py").is_file() for pkg in PACKAGES)
+    assert all((ROOT / "station" / pkg / "__init__.py").is_file() for pkg in INSIDE_STATION)
+    devices = [p for p in (ROOT / "drivers").iterdir() if (p / "__init__.py").is_file()]
     assert len(devices) >= 12
     for device in devices:
         assert {"driver.py", "emulator.py", "protocol.py", "kind.py"} <= {f.name for f in device.iterdir()}, device
@@ -115,15 +126,15 @@ def test_no_import_cycle() -> None:
 
 
 def _against_layout(module: str, target: str) -> bool:
-    layer, to = module.split(".")[0], target.split(".")[0]
+    layer, to = _layer(module), _layer(target)
     if RANK[to] > RANK[layer]:
-        return not (module == "engine.registry" and target == "methods") and module != "station.notebook"
+        return not (module == "station.engine.registry" and target == "procedures") and module != "station.notebook"
     if layer == "engine":
-        return to == "devices"
-    if layer != "devices":
+        return to == "drivers"
+    if layer != "drivers":
         return False
-    assembly = module in ("devices.station", "devices.world")
-    if to == "models" and not (_is_emulator(module) or assembly):
+    assembly = module in ("drivers.station", "drivers.world")
+    if to == "twin" and not (_is_emulator(module) or assembly):
         return True  # a driver knows its protocol, not the twin
     return _is_emulator(target) and not (_is_emulator(module) or module.endswith(".kind") or assembly)
 

@@ -129,9 +129,9 @@ def test_the_example_notebook_runs_on_a_simulated_session(run_dir):
 
 def test_session_takes_the_latest_finished_one_and_says_which(tmp_path, capsys):
     import station
-    from models.config import TwinConfig
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
+    from station.twin.config import TwinConfig
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     info = simulate_session(multiposition_plan([0.0], [10.0], window_s=20.0), TwinConfig(), seed=1).station
     db = tmp_path / "db.sqlite"

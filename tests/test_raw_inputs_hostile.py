@@ -22,15 +22,15 @@ import pytest
 from session_files import refused
 
 import station.safe_arrays
-from app.cli import main
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.cli.cli import main
 from station.interchange import SessionFormatError, read_session, write_session
 from station.raw_limits import DEFAULT_LIMITS, MiB, RawInputError, RawLimits
 from station.rawfile import read_point_file
 from station.safe_files import open_regular
 from station.store import SessionStore
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 # Limits this file relies on: the defaults (512 MiB per array, 8 GiB per session) and, where a test says so,
 # tight ones; memory: the gzip bomb's check may hold at most TRACED_PEAK bytes (one declared chunk, 800 kB here).

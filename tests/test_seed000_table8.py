@@ -19,10 +19,10 @@ import math
 import numpy as np
 import pytest
 
-from models.config import NoiseModel, TwinConfig
-from models.measurement import simulate_point
-from models.plan import PointSpec
-from models.precession import PrecessionWindow, periodic_rate
+from station.twin.config import NoiseModel, TwinConfig
+from station.twin.measurement import simulate_point
+from station.twin.plan import PointSpec
+from station.twin.precession import PrecessionWindow, periodic_rate
 
 TARGET = 2 * math.pi * 50
 SEED_VIB = {  # (theta_deg, f_hz): (Np, t1_s, Tm_s, t2_s); Np of the garbled first row from t1 + Np T - Tm = t2

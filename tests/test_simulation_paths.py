@@ -35,11 +35,11 @@ import pytest
 from engine_sessions import engine_session, shortcut_session
 from scipy import stats
 
-from methods.seed000.identify import design, identify
-from models.config import default_twin
-from models.effects import terms
-from models.precession import periodic_rate
+from procedures.integral_precession.identify import design, identify
 from station.session import Session
+from station.twin.config import default_twin
+from station.twin.effects import terms
+from station.twin.precession import periodic_rate
 
 PARAMS = {"positions_deg": [0, 36, 72, 108, 144, 180, 216, 252, 288, 324], "freqs_hz": [8, 10], "window_s": 30}
 SEEDS = range(1, 7)

@@ -1,5 +1,5 @@
 """Seed 001's two simulation paths on a common design and common seeds: the engine on the deterministic tumble
-station (config/station-tumble-sim.toml) and the methods.seed001.tumble_session shortcut (issue 27 step 3,
+station (config/stations/tumble-sim.toml) and the procedures.tumble.tumble_session shortcut (issue 27 step 3,
 deliverable 4).
 
 They cannot agree reading by reading: the shortcut draws the launch offset k0L and every reading's noise from one
@@ -61,9 +61,9 @@ from engine_sessions import (
     tumble_reading_sigma_g,
 )
 
-from methods.seed001.analysis import analyse_tumble, readings
-from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel, tumble_inputs_g
+from procedures.tumble.analysis import analyse_tumble, readings
 from station.session import Session
+from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel, tumble_inputs_g
 
 DESIGN = {"ramp_c_per_min": 5.0, "soak_s": 1200.0}
 SEEDS = range(1, 4)
@@ -73,7 +73,7 @@ SEEDS = range(1, 4)
 # than an hour).
 TRUTH_REL = 1e-5
 BIAS_DRIFT_G = 2e-5 / 43200 * 3600
-HEAD_TOL_DEG = 0.001  # config/station-tumble-sim.toml [indexing_head] settle_tol_deg
+HEAD_TOL_DEG = 0.001  # config/stations/tumble-sim.toml [indexing_head] settle_tol_deg
 LAWS = {  # eq. 4's laws: (TemperatureModel attribute, side) -> the model's field
     ("bias_g", "above"): "lambda_above_g_per_c",
     ("bias_g", "below"): "lambda_below_g_per_c",
@@ -172,7 +172,7 @@ def test_the_tumble_shortcut_is_statistically_the_engine_on_a_common_design() ->
 
 def test_the_engine_reads_the_first_tumble_reading_on_the_rising_branch() -> None:
     """The procedure starts the head from -45 deg so that the first reading, at 0 deg, is on the rising branch
-    (methods.seed001.procedure); the analysis and the shortcut take it so. One temperature, one cycle, no soak."""
+    (procedures.tumble.procedure); the analysis and the shortcut take it so. One temperature, one cycle, no soak."""
     m = AccelerometerModel()
     design = {"temperatures_c": [20.0], "cycles": 1, "soak_s": 0.0}
     session, truths = engine_tumble_session(design, 1)

@@ -1,5 +1,5 @@
 """Seed 002's two simulation paths on a common design and common seeds: the engine on the deterministic shaker
-station (config/station-shaker-sim.toml) and the methods.seed002.vibration_run shortcut (issue 27 step 3,
+station (config/stations/shaker-sim.toml) and the procedures.rlg_g_sensitivity.vibration_run shortcut (issue 27 step 3,
 deliverable 4).
 
 They cannot agree run by run: the shortcut draws each pose's mount error and then the sensor errors from one
@@ -27,7 +27,7 @@ heading turned by the Earth's rate: sigma_E, sigma_N of a run's attitude-error o
 - every run's B - A tau at the twin's tau over sigma_E, sigma_N (z): per path pooled over runs and seeds,
   |mean| <= 4 / sqrt(n) and sum z^2 within the chi-square(n) bounds at two-sided 1e-4; engine against shortcut:
   the ratio of mean z^2 within F's bounds at two-sided 1e-3;
-- the twelve flexure coefficients (eq. 21, weighted as the procedure weights: methods.seed002.analysis
+- the twelve flexure coefficients (eq. 21, weighted as the procedure weights: procedures.rlg_g_sensitivity.analysis
   run_weights; covariance from sigma_E, sigma_N, normal): per seed and path |tau_hat - tau| <= 4.5 sigma, the two
   paths' estimates within 4.5 sqrt(se^2 + ss^2), per path the mean over seeds of (tau_hat - tau) / sigma within
   4 / sqrt(seeds);
@@ -43,9 +43,9 @@ import numpy as np
 import pytest
 from engine_sessions import chi2_ok, engine_vibration_runs, f_ok, shortcut_vibration_runs
 
-from devices.pty_link import SIM_STREAM_BATCH_S
-from methods.seed002.analysis import estimate_flexure, run_weights
-from models.strapdown_imu import StrapdownImuTwin
+from drivers.pty_link import SIM_STREAM_BATCH_S
+from procedures.rlg_g_sensitivity.analysis import estimate_flexure, run_weights
+from station.twin.strapdown_imu import StrapdownImuTwin
 from tests.methods.test_seed002_analysis import a_priori_sigmas
 
 ALIGN_S = 20.0

@@ -9,10 +9,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
 from station.store import SessionStore, StoreError
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 
 def test_round_trip_with_raw(tmp_path):

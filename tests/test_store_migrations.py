@@ -80,7 +80,7 @@ def test_a_store_of_the_previous_release_is_upgraded_with_everything_kept(old_st
         assert t.measurements[0].arrays["volts"].shape == (4,)
         # and the upgraded store records new measurements through the inferred declaration, also where this
         # software declares the kind otherwise (seed 001's tumble): a session recorded before can be resumed
-        import methods.seed001.analysis  # noqa: F401 - declares "tumble"
+        import procedures.tumble.analysis  # noqa: F401 - declares "tumble"
 
         store.add_measurement(tumble["uid"], Measurement("T1-J3", "tumble", {"J": 3, "volts": 2, "samples": 9,
                                                                               "setup": "B"}))  # fmt: skip

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from station.cli.cli import main
 from station.htmlkit import with_provenance
 from station.interchange import read_session, write_session
 from station.provenance import PROVENANCE_KEYS, ProvenanceError, make_provenance, software_version
@@ -47,7 +47,8 @@ def test_a_real_station_needs_the_instrument_serial():
 
 def test_the_console_refuses_a_real_station_without_a_serial_before_opening_anything(tmp_path, capsys):
     out = tmp_path / "out"
-    code = main(["run", str(CONFIG / "procedures" / "seed000_integral.toml"), "--station", str(CONFIG / "station.toml"),
+    code = main(["run", str(CONFIG / "procedures" / "seed000_integral.toml"), "--station", str(CONFIG / "stations" /
+    "vibration.toml"),
                  "--out", str(out)])  # fmt: skip
     assert code == 2
     err = capsys.readouterr().err
@@ -70,14 +71,14 @@ def test_a_session_without_provenance_exports_without_inventing_one(tmp_path):
 
 def _control_rig(tmp_path, seed: int):
     """A simulated station under a controller and its control channel (closed by the caller's ExitStack)."""
-    from app.control import ControlServer
-    from app.controller import StationController
-    from devices.config import load_station_config
-    from devices.station import simulated_station
-    from models.config import default_twin
+    from drivers.config import load_station_config
+    from drivers.station import simulated_station
+    from station.cli.control import ControlServer
+    from station.cli.controller import StationController
     from station.control_channel import ControlClient
+    from station.twin.config import default_twin
 
-    config = load_station_config(CONFIG / "station-sim.toml")
+    config = load_station_config(CONFIG / "stations/vibration-sim.toml")
     sim = simulated_station(config, default_twin(), seed=seed)
     db = SessionStore(tmp_path / "s.db")
     controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)

@@ -6,14 +6,14 @@ import h5py
 import numpy as np
 import pytest
 
-import app.cli
-from app.cli import main
-from models.config import TwinConfig
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+import station.cli.cli
+from station.cli.cli import main
 from station.interchange import content_hash, read_session, write_session
 from station.rawfile import CHUNK, LazyRaw
 from station.store import SessionStore, StoreError
+from station.twin.config import TwinConfig
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +84,7 @@ def test_a_refused_import_leaves_no_raw_files(tmp_path, session):
 
 
 def test_simulate_raw_streams_with_progress(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(app.cli, "seed000_plan", lambda: multiposition_plan([0.0, 180.0], [10.0], window_s=5.0))
+    monkeypatch.setattr(station.cli.cli, "seed000_plan", lambda: multiposition_plan([0.0, 180.0], [10.0], window_s=5.0))
     out = tmp_path / "sim"
     assert main(["simulate", str(out), "--raw"]) == 0
     err = capsys.readouterr().err

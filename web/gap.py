@@ -13,10 +13,10 @@ from pathlib import Path
 
 from fastapi import HTTPException
 
-from gap.api import diagnose
-from gap.report import GapReport
-from models.config import TwinConfig, default_twin
+from station.gap.api import diagnose
+from station.gap.report import GapReport
 from station.session import Session
+from station.twin.config import TwinConfig, default_twin
 
 KEPT = 8
 

@@ -19,9 +19,9 @@ from pathlib import Path
 
 from fastapi import HTTPException
 
-from engine.registry import ProcedureError, get_procedure
-from methods.seed000.identify import METHODS, identify
+from procedures.integral_precession.identify import METHODS, identify
 from station.central.reader import CentralStore, HistoryQuery
+from station.engine.registry import ProcedureError, get_procedure
 from station.session import Session
 from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
@@ -160,7 +160,7 @@ class History:
 
     def certificate(self, uid: str, suffix: str = ".html") -> Path:
         """The calibration certificate that the station's analysis wrote beside the report (certificate-UID.html
-        and .pdf, methods.common.certificate); 404 when there is none."""
+        and .pdf, procedures.common.certificate); 404 when there is none."""
         for entry in self._find(uid).stations:
             path = entry.reports / f"certificate-{uid}{suffix}"
             if path.is_file():

@@ -12,7 +12,7 @@ from web.users import ROLES
 UID_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 SERIAL_PATTERN = r"^[\x20-\x7E]{0,64}$"
 
-# What a form can give a procedure parameter (engine/params.py validates the rest): bounded, finite.
+# What a form can give a procedure parameter (station/engine/params.py validates the rest): bounded, finite.
 Number = Annotated[float, Field(allow_inf_nan=False, ge=-1e15, le=1e15)]
 Whole = Annotated[int, Field(ge=-(2**53), le=2**53)]
 Text = Annotated[str, Field(max_length=200)]

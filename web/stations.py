@@ -11,7 +11,7 @@ from fastapi import HTTPException
 from station.control_channel import ControlClient, ControlError, ensure_token
 from web.config import PanelConfigError, StationEntry
 
-# The station's error types (app/control.py) as HTTP statuses; any other refusal is a conflict (409).
+# The station's error types (station/cli/control.py) as HTTP statuses; any other refusal is a conflict (409).
 HTTP_STATUS = {
     "ParameterError": 422,  # the message names the parameter, the value and what is allowed
     "ValidationError": 422,

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 import sqlalchemy as sa
 
-from models.config import default_twin
-from models.plan import seed000_plan
-from models.session_sim import simulate_session
 from station.central.server import ServerError, ThrowawayServer
 from station.session import Measurement, RawStreams
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.plan import seed000_plan
+from station.twin.session_sim import simulate_session
 
 _names = itertools.count()
 

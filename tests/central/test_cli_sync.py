@@ -9,16 +9,16 @@ from types import SimpleNamespace
 
 import sqlalchemy as sa
 
-from app.cli import build_parser, main
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
 from station.central.cli import SyncAfterRun
 from station.central.reader import CentralStore
+from station.cli.cli import build_parser, main
+from station.cli.controller import StationController
 from station.store import SessionStore
+from station.twin.config import default_twin
 
-CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "stations/vibration-sim.toml")
 QUICK = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [10], "window_s": 30, "settle_s": 2}
 
 

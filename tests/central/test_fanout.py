@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from gap.validate import main as validate_main
 from station.fanout import CaseLog, ExecutorSpec, FanoutError, run_cases
+from station.gap.validate import main as validate_main
 
 SQUARES = [float(k * k) for k in range(1, 9)]
 

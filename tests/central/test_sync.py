@@ -233,7 +233,7 @@ def test_a_sync_killed_mid_way_leaves_whole_sessions_and_the_next_one_completes(
         uids = fill(store, ("finished",) * 6, n_points=40)
     engine = open_central(central_url)
     migrate(engine)
-    cmd = [sys.executable, "-m", "app.cli", "sync", str(db), "--to", central_url, "--arrays", str(arrays_dir)]
+    cmd = [sys.executable, "-m", "station.cli.cli", "sync", str(db), "--to", central_url, "--arrays", str(arrays_dir)]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120.0
     while time.monotonic() < deadline and proc.poll() is None and counts(engine)["sessions"] == 0:

@@ -16,15 +16,15 @@ from typing import Any
 import pytest
 from links import serve
 
-from devices.counter_timer.driver import CounterTimer
-from devices.counter_timer.emulator import CounterEmulator
-from devices.grating.driver import GratingReadHead
-from devices.grating.emulator import GratingEmulator
-from devices.indexing_head.driver import IndexingHead
-from devices.indexing_head.emulator import IndexingEmulator
-from devices.reference_marks.driver import ReferenceMarks
-from devices.reference_marks.emulator import ReferenceEmulator
-from devices.world import SimStation
+from drivers.counter_timer.driver import CounterTimer
+from drivers.counter_timer.emulator import CounterEmulator
+from drivers.grating.driver import GratingReadHead
+from drivers.grating.emulator import GratingEmulator
+from drivers.indexing_head.driver import IndexingHead
+from drivers.indexing_head.emulator import IndexingEmulator
+from drivers.reference_marks.driver import ReferenceMarks
+from drivers.reference_marks.emulator import ReferenceEmulator
+from drivers.world import SimStation
 from station.clock import VirtualClock
 
 CRANK_ACCEL_RADPS2 = 1e6  # effectively a step to the commanded speed

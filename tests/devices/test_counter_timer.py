@@ -12,8 +12,8 @@ import time
 import numpy as np
 import pytest
 
-from devices.counter_timer import driver as ct
-from devices.errors import (
+from drivers.counter_timer import driver as ct
+from drivers.errors import (
     ChecksumError,
     DeviceFault,
     DeviceTimeout,
@@ -21,8 +21,8 @@ from devices.errors import (
     FrameError,
     LimitError,
 )
-from devices.pty_link import Fault
-from devices.serial_port import TICK_S, TickUnwrapper, ticks_of
+from drivers.pty_link import Fault
+from drivers.serial_port import TICK_S, TickUnwrapper, ticks_of
 
 pytestmark = pytest.mark.timeout(60)
 

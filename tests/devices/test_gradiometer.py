@@ -11,15 +11,15 @@ from collections.abc import Iterator
 import pytest
 from links import serve
 
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError
-from devices.gradiometer import driver as gm
-from devices.gradiometer import kind as gk
-from devices.gradiometer.emulator import GradiometerEmulator
-from devices.pty_link import Fault
-from devices.world import SimStation
-from models.config import default_twin
-from models.table_tilt import ARCSEC_RAD, TiltHarmonics
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError
+from drivers.gradiometer import driver as gm
+from drivers.gradiometer import kind as gk
+from drivers.gradiometer.emulator import GradiometerEmulator
+from drivers.pty_link import Fault
+from drivers.world import SimStation
 from station.clock import VirtualClock
+from station.twin.config import default_twin
+from station.twin.table_tilt import ARCSEC_RAD, TiltHarmonics
 
 pytestmark = pytest.mark.timeout(60)
 

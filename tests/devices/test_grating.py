@@ -1,6 +1,6 @@
 """Grating read head: frame codecs, then the real driver against its emulator over a pty and a sim:// line.
 
-The world-dependent tests use devices.world.SimStation with the table
+The world-dependent tests use drivers.world.SimStation with the table
 vibrating, so positions are checked against world.table_position_m at the
 samples' own time stamps (exact to the 1 nm quantisation).
 """
@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from devices.errors import (
+from drivers.errors import (
     ChecksumError,
     DeviceFault,
     DeviceTimeout,
@@ -24,11 +24,11 @@ from devices.errors import (
     FrameError,
     LimitError,
 )
-from devices.grating import driver as grating_driver
-from devices.grating import protocol as g
-from devices.grating.driver import GratingReadHead
-from devices.pty_link import Fault
-from devices.serial_port import SYNC, Frame, FrameParser, crc16, encode_frame
+from drivers.grating import driver as grating_driver
+from drivers.grating import protocol as g
+from drivers.grating.driver import GratingReadHead
+from drivers.pty_link import Fault
+from drivers.serial_port import SYNC, Frame, FrameParser, crc16, encode_frame
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from links import serve
 
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
-from devices.imu.driver import ImuRecording, StrapdownImu
-from devices.imu.emulator import FIFO_BYTES, ImuEmulator
-from devices.pty_link import Fault
-from models.shaker_motion import ShakerMotion, sine_drive
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
+from drivers.imu.driver import ImuRecording, StrapdownImu
+from drivers.imu.emulator import FIFO_BYTES, ImuEmulator
+from drivers.pty_link import Fault
+from station.twin.shaker_motion import ShakerMotion, sine_drive
 
 from .conftest import make_world
 

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from devices.errors import (
+from drivers.errors import (
     ChecksumError,
     DeviceFault,
     DeviceTimeout,
@@ -18,8 +18,8 @@ from devices.errors import (
     InterlockError,
     LimitError,
 )
-from devices.indexing_head import protocol as ih
-from devices.pty_link import Fault
+from drivers.indexing_head import protocol as ih
+from drivers.pty_link import Fault
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -10,9 +10,9 @@ import time
 import numpy as np
 import pytest
 
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError
-from devices.pty_link import Fault
-from devices.reference_marks import driver as r
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError
+from drivers.pty_link import Fault
+from drivers.reference_marks import driver as r
 
 pytestmark = pytest.mark.timeout(60)
 

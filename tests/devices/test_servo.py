@@ -1,7 +1,7 @@
 """Vibration-table servo driver against its emulator: real canopen on both sides of a
 python-can bus (separate Bus objects on one private channel per test), nothing mocked. Every test
 runs on both transports (`interface`): python-can's `virtual` bus, whose Notifier threads hand
-each frame over, and `station_sim` (devices/sim_can.py), which delivers in the sender's thread.
+each frame over, and `station_sim` (drivers/sim_can.py), which delivers in the sender's thread.
 
 Tolerances and bounds, derived:
 - velocity: 0x606C counts 1e-6 rev/s (1 uHz); at steady speed the emulator reports the
@@ -34,8 +34,8 @@ import canopen
 import numpy as np
 import pytest
 
-from devices.config import ServoSection, load_station_config
-from devices.errors import (
+from drivers.config import ServoSection, load_station_config
+from drivers.errors import (
     BusOff,
     DeviceFault,
     DeviceTimeout,
@@ -43,16 +43,16 @@ from devices.errors import (
     InterlockError,
     LimitError,
 )
-from devices.servo.driver import READ_ATTEMPTS, ServoLimits, VibrationTableServo
-from devices.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
-from devices.sim_can import bind_clock
-from models.crank import CrankModel
+from drivers.servo.driver import READ_ATTEMPTS, ServoLimits, VibrationTableServo
+from drivers.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
+from drivers.sim_can import bind_clock
 from station.clock import Clock, VirtualClock, WallClock, host_clock
 from station.event_clock import EventClock
+from station.twin.crank import CrankModel
 
 pytestmark = pytest.mark.timeout(20)
 
-CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "stations/vibration-sim.toml")
 LIMITS = ServoLimits.from_config(CONFIG)
 TIMEOUT_S = 0.2  # SDO/TPDO timeout for the tests (the config's 0.5 s would only slow them)
 # These rigs run in wall time (or a VirtualClock) on a shared machine: a 500 ms heartbeat so that a host stall of

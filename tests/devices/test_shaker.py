@@ -13,19 +13,19 @@ from pathlib import Path
 import pytest
 from links import serve
 
-from devices.config import load_station_config
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
-from devices.pty_link import Fault
-from devices.shaker.driver import ShakerController
-from devices.shaker.emulator import ShakerEmulator
-from devices.shaker.envelope import G_STANDARD_MPS2, check_random, random_sigmas
-from models.shaker_motion import ShakerMotion
+from drivers.config import load_station_config
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
+from drivers.pty_link import Fault
+from drivers.shaker.driver import ShakerController
+from drivers.shaker.emulator import ShakerEmulator
+from drivers.shaker.envelope import G_STANDARD_MPS2, check_random, random_sigmas
+from station.twin.shaker_motion import ShakerMotion
 
 from .conftest import make_world
 
 pytestmark = pytest.mark.timeout(60)
 
-SECTION = load_station_config(Path(__file__).parents[2] / "config" / "station-shaker-sim.toml").extras["shaker"]
+SECTION = load_station_config(Path(__file__).parents[2] / "config" / "stations/shaker-sim.toml").extras["shaker"]
 TIMEOUT_S = 0.3
 
 

@@ -1,4 +1,4 @@
-"""The `station_sim` python-can interface (devices/sim_can.py): delivery in the sender's thread, in order, without
+"""The `station_sim` python-can interface (drivers/sim_can.py): delivery in the sender's thread, in order, without
 recursion; canopen on it unchanged; send_periodic on the channel's clock; a clean shutdown.
 
 Timing is asserted in station seconds on a VirtualClock running at 1e-6 of wall speed, moved on by `advance_s`:
@@ -17,7 +17,7 @@ import can
 import canopen
 import pytest
 
-from devices.sim_can import StationSimBus, bind_clock
+from drivers.sim_can import StationSimBus, bind_clock
 from station.clock import VirtualClock
 
 EDS = Path(__file__).parents[2] / "config" / "eds" / "vibration_table_servo.eds"

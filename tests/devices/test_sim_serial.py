@@ -1,4 +1,4 @@
-"""The sim:// pyserial URL handler (devices.sim_serial): a line to an emulator called in the port user's thread.
+"""The sim:// pyserial URL handler (drivers.sim_serial): a line to an emulator called in the port user's thread.
 
 The emulators run on a VirtualClock 100 times faster than the wall clock, so that
 station seconds and wall seconds differ: every assertion on time is in station
@@ -16,10 +16,10 @@ from collections.abc import Iterator
 import pytest
 import serial
 
-from devices import sim_serial
-from devices.errors import Disconnected, DriverError
-from devices.pty_link import Fault, PtyEmulator
-from devices.serial_port import SerialLink
+from drivers import sim_serial
+from drivers.errors import Disconnected, DriverError
+from drivers.pty_link import Fault, PtyEmulator
+from drivers.serial_port import SerialLink
 from station.clock import VirtualClock
 
 pytestmark = pytest.mark.timeout(60)

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from devices.config import ConfigError, load_station_config
+from drivers.config import ConfigError, load_station_config
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
-REAL = CONFIG_DIR / "station.toml"
-SIM = CONFIG_DIR / "station-sim.toml"
+REAL = CONFIG_DIR / "stations" / "vibration.toml"
+SIM = CONFIG_DIR / "stations/vibration-sim.toml"
 EDS = CONFIG_DIR / "eds" / "vibration_table_servo.eds"
 
 pytestmark = pytest.mark.timeout(10)
@@ -48,7 +48,7 @@ def test_sim_station_file_leaves_ports_to_the_emulators() -> None:
 
 
 def _variant(tmp_path: Path, source: Path, edits: list[tuple[str, str]]) -> Path:
-    text = source.read_text().replace('"eds/vibration_table_servo.eds"', f'"{EDS}"')
+    text = source.read_text().replace('"../eds/vibration_table_servo.eds"', f'"{EDS}"')
     for pattern, repl in edits:
         new = re.sub(pattern, repl, text, count=1, flags=re.MULTILINE)
         assert new != text, f"edit {pattern!r} did not apply"

@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from devices.config import load_station_config
-from devices.errors import Disconnected, InterlockError
-from devices.station import StationDevices, simulated_station
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.errors import Disconnected, InterlockError
+from drivers.station import StationDevices, simulated_station
+from station.twin.config import default_twin
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
-SIM = load_station_config(CONFIG_DIR / "station-sim.toml")
-REAL = load_station_config(CONFIG_DIR / "station.toml")
+SIM = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml")
+REAL = load_station_config(CONFIG_DIR / "stations" / "vibration.toml")
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -92,7 +92,7 @@ def test_a_real_configuration_is_not_simulated() -> None:
 
 @pytest.mark.parametrize("stop", ["emergency_stop", "safe_stop"])
 def test_the_station_stops_reach_a_further_device_that_moves(stop: str) -> None:
-    shaker_station = load_station_config(CONFIG_DIR / "station-shaker-sim.toml")
+    shaker_station = load_station_config(CONFIG_DIR / "stations/shaker-sim.toml")
     with simulated_station(shaker_station, default_twin(), seed=3, speed=20.0) as s:
         shaker = s.devices.device("shaker")
         shaker.set_sine(20.0, 1.0)

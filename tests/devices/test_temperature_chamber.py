@@ -12,14 +12,14 @@ import pytest
 from links import serve
 from scipy.integrate import solve_ivp
 
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
-from devices.pty_link import Fault
-from devices.temperature_chamber import protocol as tc
-from devices.temperature_chamber.driver import TemperatureChamber
-from devices.temperature_chamber.emulator import PV_NOISE_C, ChamberEmulator, ChamberFault
-from devices.world import SimStation
-from models.chamber_thermal import ramped_lag, time_to_band_s
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
+from drivers.pty_link import Fault
+from drivers.temperature_chamber import protocol as tc
+from drivers.temperature_chamber.driver import TemperatureChamber
+from drivers.temperature_chamber.emulator import PV_NOISE_C, ChamberEmulator, ChamberFault
+from drivers.world import SimStation
 from station.clock import VirtualClock
+from station.twin.chamber_thermal import ramped_lag, time_to_band_s
 
 pytestmark = pytest.mark.timeout(60)
 TIMEOUT_S = 0.3

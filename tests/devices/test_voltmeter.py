@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from links import serve
 
-from devices.errors import DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
-from devices.pty_link import Fault
-from devices.temperature_chamber.emulator import ChamberEmulator
-from devices.voltmeter import driver as vm
-from devices.voltmeter.emulator import METER_NOISE_OF_RANGE, VoltmeterEmulator, VoltmeterFault, accelerometer
-from devices.world import SimStation
-from models.pendulous_accelerometer import AccelerometerModel, output_v
+from drivers.errors import DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
+from drivers.pty_link import Fault
+from drivers.temperature_chamber.emulator import ChamberEmulator
+from drivers.voltmeter import driver as vm
+from drivers.voltmeter.emulator import METER_NOISE_OF_RANGE, VoltmeterEmulator, VoltmeterFault, accelerometer
+from drivers.world import SimStation
 from station.clock import VirtualClock
+from station.twin.pendulous_accelerometer import AccelerometerModel, output_v
 
 pytestmark = pytest.mark.timeout(60)
 TIMEOUT_S = 0.3

@@ -1,4 +1,4 @@
-"""Counter/timer board: known-answer frames from the protocol in devices.counter_timer.driver's docstring.
+"""Counter/timer board: known-answer frames from the protocol in drivers.counter_timer.driver's docstring.
 
 Frame: sync A5 5A, type, u16 length (LE), payload, CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF) over
 type .. payload, little-endian. Time stamps: u32 counts of 50 ns ticks (1.0 s = 20 000 000 = 0x01312D00).
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from wire import FrozenClock, answers, scripted_port
 
-from devices.counter_timer.driver import CounterTimer
-from devices.counter_timer.emulator import CounterEmulator
-from devices.errors import ChecksumError, DeviceFault, LimitError
-from devices.world import SimStation
+from drivers.counter_timer.driver import CounterTimer
+from drivers.counter_timer.emulator import CounterEmulator
+from drivers.errors import ChecksumError, DeviceFault, LimitError
+from drivers.world import SimStation
 
 H = bytes.fromhex
 STATUS_Q = H("a5 5a 22 00 00 3a 24")
@@ -111,7 +111,7 @@ def test_fault_frame_aborts_the_window() -> None:
 
 
 def test_an_event_with_a_bad_crc_fails_the_open_window() -> None:
-    """A CRC mismatch shows once the next sync arrives (devices.serial_port framing): the window is not trusted."""
+    """A CRC mismatch shows once the next sync arrives (drivers.serial_port framing): the window is not trusted."""
     clock = FrozenClock(1.0)
     events = OPEN_1S + _bad_crc(REF_0) + CLOSE_3
     with scripted_port([(ARM_3, ACK_ARM_OK + events)]) as port, _board(port, clock).open() as board:

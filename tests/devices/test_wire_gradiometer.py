@@ -1,4 +1,4 @@
-"""Gradiometer: known-answer lines from the addressed ASCII protocol in devices.gradiometer.driver's docstring.
+"""Gradiometer: known-answer lines from the addressed ASCII protocol in drivers.gradiometer.driver's docstring.
 
 Request `#<aa><CMD>*<cs>` CR LF, reply `!<aa><CMD>,<field>,...*<cs>` CR LF; cs the byte sum of everything
 between the lead and the `*`, mod 256, as two upper-case hex digits (worked out by hand for each line below).
@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from wire import FrozenClock, answers, scripted_port
 
-from devices.errors import ChecksumError, DeviceFault
-from devices.gradiometer.driver import Gradiometer, Identity
-from devices.gradiometer.emulator import GradiometerEmulator
-from devices.pty_link import Fault
-from models.table_tilt import ARCSEC_RAD, TiltHarmonics
+from drivers.errors import ChecksumError, DeviceFault
+from drivers.gradiometer.driver import Gradiometer, Identity
+from drivers.gradiometer.emulator import GradiometerEmulator
+from drivers.pty_link import Fault
+from station.twin.table_tilt import ARCSEC_RAD, TiltHarmonics
 
 ID_Q, RD_Q = b"#01ID*EE\r\n", b"#01RD*F7\r\n"
 READING_7 = b"!01RD,7,01312D00,+1.250,-0.005,+0.000,0*5B\r\n"

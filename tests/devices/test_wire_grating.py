@@ -1,4 +1,4 @@
-"""Grating read head's interface board: known-answer frames from devices.grating.driver's docstring.
+"""Grating read head's interface board: known-answer frames from drivers.grating.driver's docstring.
 
 Framing as for every binary board (sync A5 5A, type, u16 length LE, payload, CRC-16/CCITT-FALSE LE).
 SAMPLE payload: u16 seq, u32 ticks (50 ns), 6-byte BiSS-C word big-endian: bits 43..8 the position,
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from wire import FrozenClock, answers, scripted_port
 
-from devices.errors import ChecksumError, DeviceFault
-from devices.grating import protocol
-from devices.grating.driver import GratingReadHead
-from devices.grating.emulator import GratingEmulator
+from drivers.errors import ChecksumError, DeviceFault
+from drivers.grating import protocol
+from drivers.grating.driver import GratingReadHead
+from drivers.grating.emulator import GratingEmulator
 
 H = bytes.fromhex
 START_1 = H("a5 5a 01 02 00 01 00 04 65")  # divider 1: every 5 kHz cycle

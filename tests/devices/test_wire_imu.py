@@ -1,4 +1,4 @@
-"""Strapdown IMU: known-answer frames from the protocol in devices.imu.driver's docstring.
+"""Strapdown IMU: known-answer frames from the protocol in drivers.imu.driver's docstring.
 
 Framing as for every binary board (sync A5 5A, type, u16 length LE, payload, CRC-16/CCITT-FALSE LE), worked
 out from those definitions outside the code under test. INFO: u16 rate, f64 gyro LSB (1e-9 rad), f64
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from wire import FrozenClock, answers, driver_on, scripted_port
 
-from devices.errors import DeviceFault, FrameError
-from devices.imu.driver import ImuInfo, StrapdownImu
-from devices.imu.emulator import ImuEmulator
-from devices.world import SimStation
+from drivers.errors import DeviceFault, FrameError
+from drivers.imu.driver import ImuInfo, StrapdownImu
+from drivers.imu.emulator import ImuEmulator
+from drivers.world import SimStation
 
 H = bytes.fromhex
 STOP, ACK_STOP = H("a5 5a 41 00 00 01 e6"), H("a5 5a c0 02 00 41 00 21 f1")

@@ -1,4 +1,4 @@
-"""Indexing head: known-answer lines from the Zaber-style protocol in devices.indexing_head.driver's docstring.
+"""Indexing head: known-answer lines from the Zaber-style protocol in drivers.indexing_head.driver's docstring.
 
 Command `/<device> <axis> <id> <command> [<data>]:<lrc>` LF; reply `@<device:02d> <axis> <id> <flag> <status>
 <warning> <data>:<lrc>` CR LF; lrc the two's complement of the byte sum between the lead and the `:`, mod 256,
@@ -10,10 +10,10 @@ from __future__ import annotations
 import pytest
 from wire import FrozenClock, answers, scripted_port
 
-from devices.errors import ChecksumError, DeviceFault, LimitError
-from devices.indexing_head.driver import IndexingHead
-from devices.indexing_head.emulator import IndexingEmulator
-from devices.world import SimStation
+from drivers.errors import ChecksumError, DeviceFault, LimitError
+from drivers.indexing_head.driver import IndexingHead
+from drivers.indexing_head.emulator import IndexingEmulator
+from drivers.world import SimStation
 
 
 def _head(port: str) -> IndexingHead:

@@ -1,4 +1,4 @@
-"""PIGA electronics: known-answer lines from the SCPI-like protocol in devices.piga_electronics.driver's docstring.
+"""PIGA electronics: known-answer lines from the SCPI-like protocol in drivers.piga_electronics.driver's docstring.
 
 Command `<body>*<cs>` LF, reply `<body>*<cs>` CR LF; cs the XOR of the body's bytes as two upper-case hex
 digits (worked out by hand for each line below). Every command gets exactly one reply; rejections are
@@ -13,10 +13,10 @@ import contextlib
 import pytest
 from wire import FrozenClock, answers, driver_on
 
-from devices.errors import ChecksumError, DeviceFault, LimitError
-from devices.piga_electronics.driver import PigaElectronics, ServoStatus
-from devices.piga_electronics.emulator import PigaElectronicsEmulator
-from devices.world import SimStation
+from drivers.errors import ChecksumError, DeviceFault, LimitError
+from drivers.piga_electronics.driver import PigaElectronics, ServoStatus
+from drivers.piga_electronics.emulator import PigaElectronicsEmulator
+from drivers.world import SimStation
 
 IDN_Q, OFFS_Q, STAT_Q, ERR_Q = b"*IDN?*56\n", b"SERV:OFFS?*0B\n", b"SERV:STAT?*05\n", b"SYST:ERR?*4D\n"
 SET_MINUS_0_85 = b"SERV:OFFS -0.850*1A\n"

@@ -1,4 +1,4 @@
-"""Reference marks monitor: known-answer lines from the NMEA-style protocol in devices.reference_marks.driver.
+"""Reference marks monitor: known-answer lines from the NMEA-style protocol in drivers.reference_marks.driver.
 
 `$` body `*` hh CR LF, hh the XOR of the body's bytes as two upper-case hex digits (worked out by hand
 for each line below); time stamps as 8 hex digits of 50 ns ticks: 1.1 s = 014FB180, 1.2 s = 016E3600,
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from wire import FrozenClock, answers, scripted_port
 
-from devices.errors import ChecksumError, DeviceFault
-from devices.reference_marks.driver import ReferenceMarks
-from devices.reference_marks.emulator import ReferenceEmulator
+from drivers.errors import ChecksumError, DeviceFault
+from drivers.reference_marks.driver import ReferenceMarks
+from drivers.reference_marks.emulator import ReferenceEmulator
 
 START, STOP, STATUS_Q = b"$START*40\r\n", b"$STOP*18\r\n", b"$STATUS?*2B\r\n"
 OK_START, OK_STOP = b"$OK,START*68\r\n", b"$OK,STOP*30\r\n"

@@ -1,4 +1,4 @@
-"""Second instrument's counter channel: the counter/timer board's frames (devices.counter_timer.driver's docstring)
+"""Second instrument's counter channel: the counter/timer board's frames (drivers.counter_timer.driver's docstring)
 on a port of its own, through the second instrument's kind (how it opens, how it is emulated).
 
 Frame: sync A5 5A, type, u16 length LE, payload, CRC-16/CCITT-FALSE LE, worked out outside the code under test.
@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from wire import FrozenClock, answers, scripted_port
 
-from devices.config import SerialSection
-from devices.second_instrument import kind
-from devices.world import SimStation
+from drivers.config import SerialSection
+from drivers.second_instrument import kind
+from drivers.world import SimStation
 
 H = bytes.fromhex
 STATUS_Q = H("a5 5a 22 00 00 3a 24")

@@ -7,7 +7,7 @@ heartbeat on 0x705 (0x7F pre-operational, 0x05 operational); RPDO1 0x205 = contr
 TPDO1 0x185 = statusword u16 + mode display i8; TPDO2 0x285 = velocity i32 (1e-6 rev/s) + position i32.
 Statusword state bits (CiA 402): SWITCH ON DISABLED 0x0040, READY TO SWITCH ON 0x0031, OPERATION ENABLED
 0x0037, with bit 9 (remote) set by this drive; fault 0x0008. Every bus test runs on python-can's `virtual` bus
-and on `station_sim` (devices/sim_can.py).
+and on `station_sim` (drivers/sim_can.py).
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ from pathlib import Path
 import can
 import pytest
 
-from devices.config import load_station_config
-from devices.servo import protocol
-from devices.servo.driver import ServoLimits, VibrationTableServo
-from devices.servo.emulator import ServoEmulator
+from drivers.config import load_station_config
+from drivers.servo import protocol
+from drivers.servo.driver import ServoLimits, VibrationTableServo
+from drivers.servo.emulator import ServoEmulator
 from station.clock import WallClock, host_clock
 
 pytestmark = pytest.mark.timeout(30)
 
-CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "stations/vibration-sim.toml")
 H = bytes.fromhex
 WAIT_S = 2.0  # wall time a frame may take on the shared machine
 # The drivers here run in wall time on threads (WallClock, python-can's virtual bus): the station file's 100 ms

@@ -1,4 +1,4 @@
-"""Shaker controller: known-answer lines from the protocol in devices.shaker.driver's docstring.
+"""Shaker controller: known-answer lines from the protocol in drivers.shaker.driver's docstring.
 
 Command `<text>*<crc>` LF, reply `<OK|ER> <data>*<crc>` CR LF; crc the CRC-16/CCITT-FALSE (poly 0x1021, init
 0xFFFF) of the text before `*`, four upper-case hex digits (worked out from that definition for each line
@@ -12,13 +12,13 @@ import contextlib
 import pytest
 from wire import FrozenClock, answers, driver_on
 
-from devices.errors import ChecksumError, DeviceFault, FrameError, LimitError
-from devices.shaker.driver import ShakerController, ShakerStatus
-from devices.shaker.emulator import ShakerEmulator
-from devices.shaker.envelope import ShakerSection
-from devices.world import SimStation
+from drivers.errors import ChecksumError, DeviceFault, FrameError, LimitError
+from drivers.shaker.driver import ShakerController, ShakerStatus
+from drivers.shaker.emulator import ShakerEmulator
+from drivers.shaker.envelope import ShakerSection
+from drivers.world import SimStation
 
-# config/station-shaker-sim.toml's table: 1-2500 Hz, 50 kN, 75 kg moving and 42 kg mounted
+# config/stations/shaker-sim.toml's table: 1-2500 Hz, 50 kN, 75 kg moving and 42 kg mounted
 TABLE = ShakerSection(port=None, baud=115_200, freq_min_hz=1.0, freq_max_hz=2500.0, displacement_max_m=0.0255,
                       velocity_max_mps=2.0, accel_max_g=100.0, thrust_sine_n=50_000.0, thrust_random_n=50_000.0,
                       moving_mass_kg=75.0, payload_kg=42.0, payload_max_kg=500.0, ramp_max_s=30.0)  # fmt: skip

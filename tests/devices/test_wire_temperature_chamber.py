@@ -1,4 +1,4 @@
-"""Temperature chamber: known-answer EI-Bisynch messages from the protocol in devices.temperature_chamber.driver.
+"""Temperature chamber: known-answer EI-Bisynch messages from the protocol in drivers.temperature_chamber.driver.
 
 Read [EOT] G G U U C1 C2 [ENQ] (address 01: `0011`); reply [STX] C1 C2 <data> [ETX] (BCC), or [EOT] for no
 such parameter. Write [EOT] G G U U [STX] C1 C2 <data> [ETX] (BCC); reply [ACK] or [NAK]. BCC: the XOR of
@@ -12,10 +12,10 @@ import contextlib
 import pytest
 from wire import FrozenClock, answers, driver_on
 
-from devices.errors import ChecksumError, DeviceFault, LimitError
-from devices.temperature_chamber.driver import ChamberStatus, TemperatureChamber
-from devices.temperature_chamber.emulator import ChamberEmulator, ChamberFault
-from devices.world import SimStation
+from drivers.errors import ChecksumError, DeviceFault, LimitError
+from drivers.temperature_chamber.driver import ChamberStatus, TemperatureChamber
+from drivers.temperature_chamber.emulator import ChamberEmulator, ChamberFault
+from drivers.world import SimStation
 
 EOT, ACK, NAK = b"\x04", b"\x06", b"\x15"
 READ_PV, READ_SL, READ_SP, READ_RR = b"\x040011PV\x05", b"\x040011SL\x05", b"\x040011SP\x05", b"\x040011RR\x05"

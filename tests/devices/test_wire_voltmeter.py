@@ -1,4 +1,4 @@
-"""Precision voltmeter: known-answer SCPI lines from the protocol in devices.voltmeter.driver's docstring.
+"""Precision voltmeter: known-answer SCPI lines from the protocol in drivers.voltmeter.driver's docstring.
 
 Commands end in LF; a query answers one line; readings are NR3 (`+1.23456789E+00`), comma-separated;
 an overloaded input reads +9.9E37; errors queue as `<code>,"<text>"` and SYST:ERR? answers
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from wire import FrozenClock, answers, scripted_port
 
-from devices.errors import DeviceFault, FrameError, LimitError
-from devices.voltmeter.driver import Voltmeter
-from devices.voltmeter.emulator import VoltmeterEmulator, VoltmeterFault
-from devices.world import SimStation
+from drivers.errors import DeviceFault, FrameError, LimitError
+from drivers.voltmeter.driver import Voltmeter
+from drivers.voltmeter.emulator import VoltmeterEmulator, VoltmeterFault
+from drivers.world import SimStation
 
 NO_ERROR = b'0,"No error"\n'
 CONFIGURE_20V_10PLC_3 = [

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from devices.world import SimStation
+from drivers.world import SimStation
 from station.event_clock import EventClock
 
 

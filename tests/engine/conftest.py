@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import SimulatedStation, simulated_station
-from models.config import TwinConfig, default_twin
+from drivers.config import load_station_config
+from drivers.station import SimulatedStation, simulated_station
+from station.cli.controller import StationController
 from station.store import SessionStore
+from station.twin.config import TwinConfig, default_twin
 
-CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "stations/vibration-sim.toml")
 # Five positions at 10 Hz with 30 s windows: every coefficient identifiable, about 0.2 h of
 # station time, a few seconds of wall time at 1000x.
 QUICK = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [10], "window_s": 30, "settle_s": 2}

@@ -1,6 +1,6 @@
 """A lost counter ARM reply (issue 31, deliverable 2): the board carried the ARM out, the driver never heard so
 (ReplyLost, "the board may be armed"). The point is measured again, the board aborted before it is armed again,
-and the session finishes with every point stored: on the station's own counter (devices.station.measure_window)
+and the session finishes with every point stored: on the station's own counter (drivers.station.measure_window)
 and on the second instrument's (seed 003, CounterTimer.measure). Deterministic simulated stations."""
 
 from __future__ import annotations
@@ -10,19 +10,19 @@ from pathlib import Path
 
 import pytest
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.counter_timer import protocol as c
-from devices.counter_timer.emulator import CounterEmulator
-from devices.errors import ReplyLost
-from devices.pty_link import Fault
-from devices.station import simulated_station
-from engine.planning import Plan, plan_procedure
-from engine.registry import get_procedure
-from engine.runner import Engine, State
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.counter_timer import protocol as c
+from drivers.counter_timer.emulator import CounterEmulator
+from drivers.errors import ReplyLost
+from drivers.pty_link import Fault
+from drivers.station import simulated_station
+from station.cli.controller import StationController
+from station.engine.planning import Plan, plan_procedure
+from station.engine.registry import get_procedure
+from station.engine.runner import Engine, State
 from station.session import PointRecord
 from station.store import SessionStore
+from station.twin.config import default_twin
 from tests.procedure_runs import CONFIG, procedure_spec
 
 NAMES = {c.ARM: "ARM", c.ABORT: "ABORT", c.STATUS_Q: "STATUS?"}
@@ -60,7 +60,7 @@ def _check_repeat(events: list[dict], n: int = 1) -> None:
 
 
 def test_a_lost_arm_reply_leaves_the_board_armed_and_measure_aborts_it() -> None:
-    cfg = load_station_config(CONFIG / "station-sim.toml")
+    cfg = load_station_config(CONFIG / "stations/vibration-sim.toml")
     with simulated_station(cfg, default_twin(), seed=11) as sim, sim.devices.clock.party("test"):
         emulator, board = sim.emulators["counter"], sim.devices.counter
         emulator.inject(Fault.LOST_REPLY)
@@ -77,7 +77,7 @@ def test_a_lost_arm_reply_leaves_the_board_armed_and_measure_aborts_it() -> None
 
 def test_a_lost_arm_reply_is_aborted_and_the_point_measured_again(tmp_path: Path) -> None:
     name = "seed000_baseline"
-    cfg = load_station_config(CONFIG / "station-sim.toml")
+    cfg = load_station_config(CONFIG / "stations/vibration-sim.toml")
     spec = procedure_spec(name)
     shorter = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10}
     params = spec.validate(
@@ -107,7 +107,7 @@ def test_a_lost_arm_reply_is_aborted_and_the_point_measured_again(tmp_path: Path
 
 
 def test_a_lost_arm_reply_on_the_second_instrument_is_aborted_and_the_point_measured_again(tmp_path: Path) -> None:
-    config = load_station_config(CONFIG / "station-dual-sim.toml")
+    config = load_station_config(CONFIG / "stations/dual-sim.toml")
     quick = {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0, "setup1_n": 6, "setup2_n": 6,
              "calibration_schemes": "none"}  # fmt: skip
     with (

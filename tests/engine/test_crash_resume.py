@@ -36,7 +36,7 @@ def test_kill_9_mid_session_then_resume(tmp_path) -> None:
     proc_file = tmp_path / "quick.toml"
     proc_file.write_text(PROCEDURE)
     db = tmp_path / "station.sqlite"
-    cmd = [sys.executable, "-m", "app.cli", "run", str(proc_file), "--out", str(tmp_path), "--speed", "200"]
+    cmd = [sys.executable, "-m", "station.cli.cli", "run", str(proc_file), "--out", str(tmp_path), "--speed", "200"]
     child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         t0 = time.monotonic()
@@ -54,7 +54,7 @@ def test_kill_9_mid_session_then_resume(tmp_path) -> None:
     assert status == "running"  # as the kill left it: neither finished nor failed
 
     done = subprocess.run(
-        [sys.executable, "-m", "app.cli", "resume", uid, "--out", str(tmp_path)],
+        [sys.executable, "-m", "station.cli.cli", "resume", uid, "--out", str(tmp_path)],
         capture_output=True, text=True, timeout=150,
     )  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr

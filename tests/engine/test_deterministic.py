@@ -1,4 +1,4 @@
-"""The deterministic simulated station (devices.station.simulated_station(deterministic=True): the discrete-event
+"""The deterministic simulated station (drivers.station.simulated_station(deterministic=True): the discrete-event
 clock of station.event_clock, the station_sim CAN interface, sim:// serial lines): a short session run twice,
 the second time beside two busy loops that keep both cores of a 2-core machine busy, stores the same points,
 raw records and results, to the bit (session uids, time stamps of the provenance and wall durations aside)."""
@@ -9,7 +9,7 @@ import pytest
 from busy import busy_loops
 from procedure_runs import stable
 
-from engine.runner import State
+from station.engine.runner import State
 from station.interchange import content_hash
 
 pytestmark = pytest.mark.timeout(180)

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from devices.config import load_station_config
-from engine.context import StationModel, ValidationError
-from engine.params import Param, ParameterError
-from engine.planning import plan_procedure
-from engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
-from engine.steps import MeasurePoint, MoveIndex, SetVibration
+from drivers.config import load_station_config
+from station.engine.context import StationModel, ValidationError
+from station.engine.params import Param, ParameterError
+from station.engine.planning import plan_procedure
+from station.engine.registry import ProcedureError, ProcedureSpec, get_procedure, load_procedure_file
+from station.engine.steps import MeasurePoint, MoveIndex, SetVibration
 
 from .conftest import CONFIG
 
@@ -32,7 +32,7 @@ def _spec(*steps) -> ProcedureSpec:
 
 def test_every_shipped_procedure_file_plans() -> None:
     """On the core station, or (a procedure with further devices) on a simulated station file that has them."""
-    stations = sorted(CONFIG_DIR.glob("station-*-sim.toml"))
+    stations = sorted(CONFIG_DIR.glob("stations/*-sim.toml"))
     models = [MODEL] + [load_station_config(f).station_model() for f in stations]
     for path in sorted(PROCEDURES.glob("*.toml")):
         spec, params = load_procedure_file(path)

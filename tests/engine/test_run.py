@@ -8,10 +8,10 @@ import time
 
 import pytest
 
-from devices.pty_link import Fault
-from devices.servo.emulator import ServoEmulator
-from engine.runner import State
-from models.config import default_twin
+from drivers.pty_link import Fault
+from drivers.servo.emulator import ServoEmulator
+from station.engine.runner import State
+from station.twin.config import default_twin
 
 from .conftest import CONFIG, PROCEDURE, QUICK
 
@@ -187,7 +187,8 @@ def test_a_drive_whose_bus_was_lost_is_reconnected_by_a_reset(make_rig) -> None:
 def test_a_stop_between_the_start_request_and_the_first_step_ends_the_run_before_anything_moves(
     make_rig, stop: str, when: str
 ) -> None:
-    """A stop requested while a start is under way is the new run's (engine.runner.StopCount): it used to be lost
+    """A stop requested while a start is under way is the new run's (station.engine.runner.StopCount): it used to be
+    lost
     when the run began and cleared the flags, and the run then moved the head and the table."""
     rig = make_rig()
     controller, moves = rig.controller, []

@@ -25,15 +25,15 @@ from pathlib import Path
 
 import pytest
 
-from app.controller import StationController
-from devices.errors import DeviceFault, DriverError
-from devices.servo.driver import ABORT_CONNECTION_OPTION, QUICK_STOP_OPTION, ServoLimits, VibrationTableServo
-from devices.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
-from engine.registry import procedure
-from engine.runner import State
-from engine.steps import Step
-from engine.supervisor import QUICK_STOP_BOUND_S, STALE_S, TICK_S
+from drivers.errors import DeviceFault, DriverError
+from drivers.servo.driver import ABORT_CONNECTION_OPTION, QUICK_STOP_OPTION, ServoLimits, VibrationTableServo
+from drivers.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
+from station.cli.controller import StationController
 from station.clock import WallClock
+from station.engine.registry import procedure
+from station.engine.runner import State
+from station.engine.steps import Step
+from station.engine.supervisor import QUICK_STOP_BOUND_S, STALE_S, TICK_S
 from station.session_lock import SessionLock, SessionLocked, recover_interrupted
 
 from .conftest import CONFIG, PROCEDURE, QUICK

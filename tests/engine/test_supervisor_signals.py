@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.supervisor import ABORT_GRACE_S
+from station.engine.supervisor import ABORT_GRACE_S
 
 from .test_crash_resume import PROCEDURE  # the same quick session
 
@@ -49,7 +49,17 @@ def _wait(predicate, timeout_s: float, child: subprocess.Popen | None = None) ->
 def _start(tmp_path: Path, speed: float = 200.0) -> tuple[subprocess.Popen, Path]:
     proc_file = tmp_path / "quick.toml"
     proc_file.write_text(PROCEDURE)
-    cmd = [sys.executable, "-m", "app.cli", "run", str(proc_file), "--out", str(tmp_path), "--speed", str(speed)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "station.cli.cli",
+        "run",
+        str(proc_file),
+        "--out",
+        str(tmp_path),
+        "--speed",
+        str(speed),
+    ]
     child = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return child, tmp_path / "station.sqlite"
 
@@ -89,7 +99,7 @@ def test_ctrl_c_pauses_and_asks_an_answer_resumes_a_second_ctrl_c_aborts(tmp_pat
     seqs = [s for (s,) in _query(db, "SELECT sequence FROM points ORDER BY sequence")]
     assert seqs == list(range(len(seqs))) and len(seqs) < 10
     # resumable: the rest is measured, nothing twice
-    done = subprocess.run([sys.executable, "-m", "app.cli", "resume", uid, "--out", str(tmp_path)],
+    done = subprocess.run([sys.executable, "-m", "station.cli.cli", "resume", uid, "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=150)  # fmt: skip
     assert done.returncode == 0, done.stdout + done.stderr
     assert [s for (s,) in _query(db, "SELECT sequence FROM points ORDER BY sequence")] == list(range(10))
@@ -100,7 +110,7 @@ def test_sigterm_aborts_cleanly_and_a_second_process_is_refused(tmp_path) -> Non
     try:
         _wait(lambda: _points(db) >= 1, 90, child)
         ((uid,),) = _query(db, "SELECT uid FROM sessions")
-        second = subprocess.run([sys.executable, "-m", "app.cli", "resume", uid, "--out", str(tmp_path)],
+        second = subprocess.run([sys.executable, "-m", "station.cli.cli", "resume", uid, "--out", str(tmp_path)],
                                 capture_output=True, text=True, timeout=120)  # fmt: skip
         assert second.returncode == 2
         assert f"session {uid} is being run by another process" in second.stderr
@@ -125,10 +135,11 @@ def test_a_session_left_running_by_kill_9_is_found_interrupted_and_listed(tmp_pa
         os.kill(child.pid, signal.SIGKILL)
         child.communicate()
     assert _query(db, "SELECT status FROM sessions") == [("running",)]
-    listed = subprocess.run([sys.executable, "-m", "app.cli", "sessions", "--db", str(db)], capture_output=True,
+    listed = subprocess.run([sys.executable, "-m", "station.cli.cli", "sessions", "--db", str(db)], capture_output=True,
                             text=True, timeout=60)  # fmt: skip
     assert listed.returncode == 0 and " interrupted " in listed.stdout, listed.stdout + listed.stderr
     ((uid,),) = _query(db, "SELECT uid FROM sessions")
-    exported = subprocess.run([sys.executable, "-m", "app.cli", "export", uid, str(tmp_path / "x"), "--db", str(db)],
+    exported = subprocess.run([sys.executable, "-m", "station.cli.cli", "export", uid, str(tmp_path / "x"), "--db",
+    str(db)],
                               capture_output=True, text=True, timeout=60)  # fmt: skip
     assert exported.returncode == 0, exported.stderr

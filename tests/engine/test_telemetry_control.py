@@ -9,7 +9,7 @@ import time
 import pytest
 import zmq
 
-from app.control import ControlServer
+from station.cli.control import ControlServer
 from station.clock import VirtualClock
 from station.control_channel import ControlClient
 from station.telemetry import TelemetryPublisher

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from engine.timing import TimingFault, capture_timing, cross_check
+from station.engine.timing import TimingFault, capture_timing, cross_check
 
 F_HZ = 10.0
 T_S = 1 / F_HZ

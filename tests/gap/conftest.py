@@ -11,11 +11,11 @@ import functools
 
 import pytest
 
-from gap.api import diagnose
-from gap.report import GapReport
-from gap.validate import Case, make_session
-from models.config import TwinConfig, default_twin
+from station.gap.api import diagnose
+from station.gap.report import GapReport
+from station.gap.validate import Case, make_session
 from station.session import Session
+from station.twin.config import TwinConfig, default_twin
 
 
 @functools.cache

@@ -7,12 +7,12 @@ from dataclasses import replace
 
 import pytest
 
-from app.cli import main
-from gap.api import diagnose
-from gap.design import GapInputError
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.cli.cli import main
+from station.gap.api import diagnose
+from station.gap.design import GapInputError
 from station.interchange import write_session
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 
 def _session(twin, positions, freqs, seed=1):

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import pytest
 
-from gap.api import diagnose
-from gap.verdict import Verdict, VerdictError
-from models.config import default_twin
+from station.gap.api import diagnose
+from station.gap.verdict import Verdict, VerdictError
 from station.interchange import read_session
+from station.twin.config import default_twin
 
 
 def assert_cannot_tell_rule(v: Verdict) -> None:

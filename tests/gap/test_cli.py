@@ -7,10 +7,10 @@ import re
 
 import pytest
 
-from app.cli import main
-from models.config import TwinConfig
+from station.cli.cli import main
 from station.interchange import write_session
 from station.store import SessionStore
+from station.twin.config import TwinConfig
 
 REQUIRED = {"verdict", "effects", "candidates", "gap_before", "gap_after", "where", "identifiability"}
 CANDIDATE_KEYS = {"name", "parameters", "uncertainty", "evidence", "heldout_shrink", "identifiable"}
@@ -95,7 +95,7 @@ def test_without_json_a_short_human_summary_is_printed(outputs, capsys):
 
 
 def test_the_summary_names_what_the_design_cannot_test_and_the_points_that_would(seed000_report):
-    from gap.api import summary_text
+    from station.gap.api import summary_text
 
     rep = seed000_report("effect", "mount_misalignment", 15.0, 3, suggest=True)
     text = summary_text(rep)

@@ -15,10 +15,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from gap.api import diagnose
-from gap.rawstreams import _pulse_lsq
-from models.config import default_twin
+from station.gap.api import diagnose
+from station.gap.rawstreams import _pulse_lsq
 from station.interchange import read_session
+from station.twin.config import default_twin
 
 generator = pytest.importorskip("indep.generator")  # tests/indep, the project's second generator
 

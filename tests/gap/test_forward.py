@@ -7,13 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from gap.design import PointDesign
-from gap.forward import CALIBRATED, predict, predict_full
-from gap.validate import injected_effects
-from models.config import NoiseModel
-from models.effects import EFFECTS
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.gap.design import PointDesign
+from station.gap.forward import CALIBRATED, predict, predict_full
+from station.gap.validate import injected_effects
+from station.twin.config import NoiseModel
+from station.twin.effects import EFFECTS
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 PLAN = multiposition_plan([0.0, 72.0, 144.0, 216.0, 288.0], (8.0, 10.0))
 

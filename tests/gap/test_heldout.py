@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from gap.design import PointDesign
-from gap.heldout import Folds, HeldOut, heldout, shrink
+from station.gap.design import PointDesign
+from station.gap.heldout import Folds, HeldOut, heldout, shrink
 
 
 @pytest.fixture(scope="module")

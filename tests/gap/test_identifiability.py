@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from gap.api import diagnose
-from gap.identifiability import ABSORBED_RHO, COLLINEAR_COS, CandidateId, IdentifiabilityReport
-from models.plan import multiposition_plan, seed000_plan
-from models.session_sim import simulate_session
+from station.gap.api import diagnose
+from station.gap.identifiability import ABSORBED_RHO, COLLINEAR_COS, CandidateId, IdentifiabilityReport
+from station.twin.plan import multiposition_plan, seed000_plan
+from station.twin.session_sim import simulate_session
 
 KOQ = 1e-3  # rad/s/g^2: large, so that what kzz absorbs stands far above kzz's uncertainty
 

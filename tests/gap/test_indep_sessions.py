@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from gap.api import diagnose, summary_text
-from gap.report import GapReport
-from models.config import default_twin
+from station.gap.api import diagnose, summary_text
+from station.gap.report import GapReport
 from station.interchange import read_session
+from station.twin.config import default_twin
 
 indep = pytest.importorskip("indep.cases")
 

@@ -9,9 +9,9 @@ to the fine grid's 0.7 % steps: allowed 5 %.
 
 from __future__ import annotations
 
-from gap.api import diagnose
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.gap.api import diagnose
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 FR_HZ, Q, L0, KX = 8.5, 6.0, 0.02, 2e-4
 PLAN = multiposition_plan([0.0, 60.0, 120.0, 180.0, 240.0, 300.0], (3.0, 5.0, 7.0, 8.0, 9.0, 10.0), window_s=200.0)
@@ -43,8 +43,8 @@ def test_the_pulse_record_chooses_fr_and_q_where_the_rates_cannot():
     import pytest
 
     indep = pytest.importorskip("indep.cases")
-    from models.config import default_twin
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     out = Path(tempfile.mkdtemp(prefix="gap_lateral_")) / "s"
     truth = indep.make_case(200128, "lateral_resonance", out, snr=10.0, family="unequal")

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import pytest
 
-from gap.api import diagnose
-from gap.candidates import LIBRARY
-from gap.report import render
-from models.config import default_twin
+from station.gap.api import diagnose
+from station.gap.candidates import LIBRARY
+from station.gap.report import render
 from station.interchange import read_session
+from station.twin.config import default_twin
 
 indep = pytest.importorskip("indep.cases")
 

@@ -1,5 +1,5 @@
 """An effect is a plug-in: a module's `Effect`, registered, reaches the twin, the candidates, the validation and the
-report without a line changed elsewhere (models.effects; README, "Adding an effect")."""
+report without a line changed elsewhere (station.twin.effects; README, "Adding an effect")."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from gap import candidates as cl
-from gap import validate
-from gap.api import diagnose
-from gap.report import render, summary_text
-from models.config import TwinConfig, TwinConfigError, default_twin
-from models.effects import EFFECTS, Effect, Param, Params, Terms, registered
-from models.inputs import instrument_rate_radps
+from station.gap import candidates as cl
+from station.gap import validate
+from station.gap.api import diagnose
+from station.gap.report import render, summary_text
+from station.twin.config import TwinConfig, TwinConfigError, default_twin
+from station.twin.effects import EFFECTS, Effect, Param, Params, Terms, registered
+from station.twin.inputs import instrument_rate_radps
 
 
 def _rate(p: Params, a_i: np.ndarray, a_p: np.ndarray, a_o: np.ndarray) -> np.ndarray:

@@ -11,11 +11,11 @@ from dataclasses import replace
 
 import pytest
 
-from gap.api import diagnose
-from gap.design import PointDesign
-from gap.validate import scaled_injection
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.gap.api import diagnose
+from station.gap.design import PointDesign
+from station.gap.validate import scaled_injection
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 PLAN = multiposition_plan([0.0, 45.0, 135.0, 180.0, 225.0, 315.0], (8.0, 10.0), window_s=20.0)
 ALPHA_NULL = 1e-3  # a null session's pulse test is rejected at this level once in 1000 sessions
@@ -77,8 +77,8 @@ def test_null_sessions_of_another_implementation_pass_the_pulse_test(seed):
     import tempfile
     from pathlib import Path
 
-    from models.config import default_twin
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     out = Path(tempfile.mkdtemp(prefix="gap_pulse_")) / "s"
     indep.make_case(seed, "null", out, family="equal_angle", raw=True)
@@ -100,8 +100,8 @@ def test_a_table_tilt_at_2psi_is_told_from_a_parasitic_rotation_by_the_pulse_rec
     import tempfile
     from pathlib import Path
 
-    from models.config import default_twin
     from station.interchange import read_session
+    from station.twin.config import default_twin
 
     out = Path(tempfile.mkdtemp(prefix="gap_tilt_")) / "s"
     indep.make_case(300108, "ool:table_tilt_2psi", out, snr=10.0, family="equal_accel", raw=True)

@@ -6,12 +6,12 @@ from dataclasses import replace
 
 import pytest
 
-from gap.api import diagnose
-from gap.design import PointDesign
-from gap.rawstreams import raw_evidence
-from gap.validate import scaled_injection, timing_stamp_sd_s
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from station.gap.api import diagnose
+from station.gap.design import PointDesign
+from station.gap.rawstreams import raw_evidence
+from station.gap.validate import scaled_injection, timing_stamp_sd_s
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 PLAN = multiposition_plan([0.0, 45.0, 135.0, 180.0, 225.0, 315.0], (8.0, 10.0), window_s=20.0)
 

@@ -13,9 +13,9 @@ from dataclasses import replace
 
 import pytest
 
-from gap.api import diagnose
-from gap.design import GapInputError
-from gap.noise import StatedNoise
+from station.gap.api import diagnose
+from station.gap.design import GapInputError
+from station.gap.noise import StatedNoise
 
 TRUE_REPEATABILITY_RADPS = 1e-6  # the default twin's rate_noise_radps at rate_noise_ref_s = 560 s
 

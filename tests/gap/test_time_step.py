@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gap.api import diagnose
-from gap.report import GapReport
-from models.config import default_twin
+from station.gap.api import diagnose
+from station.gap.report import GapReport
 from station.interchange import read_session
+from station.twin.config import default_twin
 
 indep = pytest.importorskip("indep.cases")
 ALPHA_NULL = 1e-3  # a null session's step test is rejected at this level once in 1000 sessions

@@ -8,13 +8,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import models.measurement
-import models.session_sim
-from app.cli import main
-from gap import candidates as cl
-from gap.design import PointDesign
-from gap.forward import CALIBRATED, predict_full
-from gap.validate import (
+import station.twin.measurement
+import station.twin.session_sim
+from station.cli.cli import main
+from station.gap import candidates as cl
+from station.gap.design import PointDesign
+from station.gap.forward import CALIBRATED, predict_full
+from station.gap.validate import (
     _extra_signal,
     effect_snr,
     injected_effects,
@@ -23,9 +23,9 @@ from gap.validate import (
     step_sequence,
     within_bounds,
 )
-from models.config import NoiseModel
-from models.plan import seed000_plan
-from models.session_sim import simulate_session
+from station.twin.config import NoiseModel
+from station.twin.plan import seed000_plan
+from station.twin.session_sim import simulate_session
 
 
 @pytest.fixture(scope="module")
@@ -62,12 +62,12 @@ def test_an_injection_never_goes_beyond_the_plausible_bounds(design, twin):
 
 
 def test_an_out_of_library_term_reaches_the_simulated_rate_only_inside_its_context(twin):
-    simulate, rate = models.session_sim.simulate_point, models.measurement.periodic_rate
+    simulate, rate = station.twin.session_sim.simulate_point, station.twin.measurement.periodic_rate
     with out_of_library("bias_step", 1e-6, 40):
-        assert models.session_sim.simulate_point is not simulate
+        assert station.twin.session_sim.simulate_point is not simulate
     with out_of_library("quartic_term", 1e-7, 40):
-        assert models.measurement.periodic_rate is not rate
-    assert models.session_sim.simulate_point is simulate and models.measurement.periodic_rate is rate
+        assert station.twin.measurement.periodic_rate is not rate
+    assert station.twin.session_sim.simulate_point is simulate and station.twin.measurement.periodic_rate is rate
 
 
 @pytest.mark.parametrize(("kind", "value"), [("bias_step", 1e-6), ("quartic_term", 1e-6)])

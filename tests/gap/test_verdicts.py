@@ -79,9 +79,9 @@ def test_an_effect_this_design_cannot_separate_gives_cannot_tell_with_the_points
 
 def test_an_effect_whose_model_fails_out_of_sample_is_not_explained():
     """In-sample tests all pass, but the held-out gap left is 30 se: the effect does not generalise."""
-    from gap.attribute import Scored, Selection
-    from gap.identifiability import IdentifiabilityReport
-    from gap.verdict import HELDOUT_AFTER_SE, NoiseCheck, decide
+    from station.gap.attribute import Scored, Selection
+    from station.gap.identifiability import IdentifiabilityReport
+    from station.gap.verdict import HELDOUT_AFTER_SE, NoiseCheck, decide
 
     chosen = Scored("index_harmonics", None, 50.0, 1e-20, 0.0, -80.0, 400.0, 0.0)
     selection = Selection([chosen], [[chosen]], None)

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 
 from indep.world import Coefficients, Perturbation, Stamper, Window, window_timing
-from models.config import InstrumentCoefficients, NoiseModel, TwinConfig
-from models.effects import EFFECTS as TWIN_EFFECTS
-from models.measurement import simulate_point
-from models.plan import PointSpec
+from station.twin.config import InstrumentCoefficients, NoiseModel, TwinConfig
+from station.twin.effects import EFFECTS as TWIN_EFFECTS
+from station.twin.measurement import simulate_point
+from station.twin.plan import PointSpec
 
 K = {"k0": -2.3e-4, "kz": 0.71, "kzz": -1.4e-5, "ky": 2.2e-5, "k3": -3.1e-6}  # far from seed 000
 START_S = 1234.5
@@ -101,7 +101,7 @@ def test_window_agrees_with_twin(name: str) -> None:
 
 
 def test_every_effect_of_the_twin_has_its_independent_counterpart_here() -> None:
-    """A new effect module (models.effects) is compared here too: its independent implementation is part of its
+    """A new effect module (station.twin.effects) is compared here too: its independent implementation is part of its
     tests (README, "Adding an effect")."""
     assert set(EFFECTS) - {"none"} == set(TWIN_EFFECTS)
 

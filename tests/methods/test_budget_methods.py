@@ -10,7 +10,7 @@ Coverage bands: per coefficient the count of sessions with |k_hat - k| <= U is b
 95 % interval; the tests accept it within 3.29 binomial standard deviations (two-sided 99.9 %), so a correct
 budget fails one coefficient's check in 1000. The Monte Carlo draws every Type B input from the distribution the
 references state (rectangular where they say so), which the budget's coverage factor takes into account
-(methods.common.uncertainty: Student's t times the shape factor; BENCHMARKS.md, issue 15).
+(procedures.common.uncertainty: Student's t times the shape factor; BENCHMARKS.md, issue 15).
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from methods.common.references import load_references
-from methods.common.uncertainty import COVERAGE_PROBABILITY
+from procedures.common.references import load_references
+from procedures.common.uncertainty import COVERAGE_PROBABILITY
 from station.session import Measurement, Session, StationInfo
 
 ROOT = Path(__file__).parents[2]
@@ -65,9 +65,9 @@ def assert_gum_json(doc: dict, names) -> None:
 
 
 def _tumble(**inputs):
-    from methods.seed001.analysis import analyse_tumble
-    from methods.seed001.tumble_session import tumble_session
-    from models.pendulous_accelerometer import AccelerometerModel
+    from procedures.tumble.analysis import analyse_tumble
+    from procedures.tumble.tumble_session import tumble_session
+    from station.twin.pendulous_accelerometer import AccelerometerModel
 
     session, _ = tumble_session(AccelerometerModel(), [20.0], 3, 8e-6, np.random.default_rng(7), **inputs)
     return analyse_tumble(session, 20.0)[1][0]
@@ -103,8 +103,8 @@ def test_seed001_type_b_rows_match_tumbles_made_again_with_the_input() -> None:
 
 
 def test_seed001_json_carries_the_budget_of_eq6_and_of_the_error_model() -> None:
-    from methods.seed001.analysis import ERROR_NAMES
-    from models.pendulous_accelerometer import CF_NAMES
+    from procedures.tumble.analysis import ERROR_NAMES
+    from station.twin.pendulous_accelerometer import CF_NAMES
 
     doc = _tumble().to_json()
     cf, errors = doc["gum_cf"], doc["gum_errors"]
@@ -114,10 +114,10 @@ def test_seed001_json_carries_the_budget_of_eq6_and_of_the_error_model() -> None
 
 
 def test_seed001_report_shows_the_budget() -> None:
-    from methods.seed001.analysis import analyse_tumble
-    from methods.seed001.report import render_tumble_report
-    from methods.seed001.tumble_session import tumble_session
-    from models.pendulous_accelerometer import AccelerometerModel
+    from procedures.tumble.analysis import analyse_tumble
+    from procedures.tumble.report import render_tumble_report
+    from procedures.tumble.tumble_session import tumble_session
+    from station.twin.pendulous_accelerometer import AccelerometerModel
 
     session, _ = tumble_session(AccelerometerModel(), [20.0, 80.0], 3, 8e-6, np.random.default_rng(1))
     html = render_tumble_report(session, *analyse_tumble(session, 20.0), title="t")
@@ -138,11 +138,11 @@ def test_seed001_monte_carlo_coverage() -> None:
 @pytest.fixture(scope="module")
 def imu_runs():
     """Nine calibration runs (60 s at rest, 30 s of vibration: the test's, not the seed's) and the site."""
-    from methods.seed002.vibration_run import simulate_run
-    from models.fixture_poses import CALIBRATION_POSES, POSES
-    from models.shaker_motion import sine_drive
-    from models.strapdown_imu import Site, StrapdownImuTwin
+    from procedures.rlg_g_sensitivity.vibration_run import simulate_run
     from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+    from station.twin.fixture_poses import CALIBRATION_POSES, POSES
+    from station.twin.shaker_motion import sine_drive
+    from station.twin.strapdown_imu import Site, StrapdownImuTwin
 
     site = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
     rng = np.random.default_rng(3)
@@ -154,7 +154,7 @@ def imu_runs():
 
 def _observe(runs, site, accel: np.ndarray | None = None, bias_radps: np.ndarray | None = None):
     """Each run reduced (eqs. 17-22) with its accelerometers scaled by 1 + accel and a gyro bias added."""
-    from methods.seed002.analysis import RunRecord, observation_values, observe_run
+    from procedures.rlg_g_sensitivity.analysis import RunRecord, observation_values, observe_run
 
     accel = np.zeros(3) if accel is None else accel
     bias = np.zeros(3) if bias_radps is None else bias_radps
@@ -166,9 +166,9 @@ def _observe(runs, site, accel: np.ndarray | None = None, bias_radps: np.ndarray
 
 
 def _tau(values) -> np.ndarray:
-    """Eq. 21 as the session's analysis weights it (methods.seed002.analysis.run_weights), in arcsec/g."""
-    from methods.seed002.analysis import estimate_flexure, run_weights
-    from models.strapdown_imu import ARCSEC_PER_G
+    """Eq. 21 as the session's analysis weights it (procedures.rlg_g_sensitivity.analysis.run_weights), in arcsec/g."""
+    from procedures.rlg_g_sensitivity.analysis import estimate_flexure, run_weights
+    from station.twin.strapdown_imu import ARCSEC_PER_G
 
     A, B = np.vstack([v["A"] for v in values]), np.concatenate([v["B"] for v in values])
     return estimate_flexure(A, B, run_weights(values)).values / ARCSEC_PER_G
@@ -181,7 +181,7 @@ def test_seed002_type_b_rows_match_runs_reduced_again(imu_runs) -> None:
     horizontal rows): measured on these poses at most 17 % of the largest sensitivity, so 20 % is allowed
     (a contribution of 1e-4 arcsec/g at 50 ppm, against 0.05-0.1 arcsec/g of Type A). Latitude: the runs
     reduced at lam +- 0.5 deg; the budget's first order in the attitude error (1e-4 rad) allows 2 %."""
-    from methods.seed002.budget import flexure_budget
+    from procedures.rlg_g_sensitivity.budget import flexure_budget
 
     runs, site = imu_runs
     budget = flexure_budget(_observe(runs, site), site, REFS)
@@ -211,8 +211,8 @@ def test_seed002_type_b_rows_match_runs_reduced_again(imu_runs) -> None:
 
 
 def test_seed002_report_json_carries_the_budget(imu_runs) -> None:
-    from methods.seed002.report import analyse_session
-    from models.strapdown_imu import TAU_NAMES
+    from procedures.rlg_g_sensitivity.report import analyse_session
+    from station.twin.strapdown_imu import TAU_NAMES
 
     runs, site = imu_runs
     values = _observe(runs, site)
@@ -239,11 +239,11 @@ def test_seed002_monte_carlo_coverage() -> None:
 
 def _seed003_case(twin_changes=None, latitude_deg: float | None = None, exact: bool = False):
     """Noise-free four-pose windows and A's equal-angle calibration of the seed-003 twin (optionally changed)."""
-    from devices.second_instrument.emulator import static_rates_radps
-    from methods.seed003.sequences import sequence_deg
-    from models.config import TwinConfig
+    from drivers.second_instrument.emulator import static_rates_radps
+    from procedures.multiposition.sequences import sequence_deg
+    from station.twin.config import TwinConfig
 
-    twin = TwinConfig.from_toml(ROOT / "config" / "twin-seed003.toml")
+    twin = TwinConfig.from_toml(ROOT / "config" / "twins" / "multiposition.toml")
     if exact:  # the model fits such data exactly: no head error, A's axis on the head zero
         twin = twin.without_effect("index_harmonics").with_effect("mount_misalignment", dtheta_mount=0.0)
     for effect, params in (twin_changes or {}).items():
@@ -256,9 +256,9 @@ def _seed003_case(twin_changes=None, latitude_deg: float | None = None, exact: b
 
 
 def _seed003_fits(windows, cal, rates):
-    from methods.seed003.four_pose import fit_four_pose
-    from methods.seed003.static_model import MODELS, fit_static, with_angle_uncertainty
-    from models.fixture import pose_rad
+    from procedures.multiposition.four_pose import fit_four_pose
+    from procedures.multiposition.static_model import MODELS, fit_static, with_angle_uncertainty
+    from station.twin.fixture import pose_rad
 
     st, terms = StationInfo(), MODELS["seed003"]
     unc = fit_static(cal + pose_rad(1), rates, terms, st)
@@ -277,8 +277,8 @@ def test_seed003_type_b_rows_match_the_twin_made_again_with_the_input() -> None:
     residuals vanish do the two agree: the refit also turns the regressors against the residuals, which is
     the measurement model's own sensitivity. The fits are linear in the rates and the angles enter smoothly:
     1 % of the largest sensitivity allowed (second order in h = 1e-6 rad)."""
-    from methods.seed003 import budget as gum
-    from models.fixture import pose_rad
+    from procedures.multiposition import budget as gum
+    from station.twin.fixture import pose_rad
 
     _, windows, cal, rates = _seed003_case(exact=True)
     unc, fp, comp, total = _seed003_fits(windows, cal, rates)
@@ -306,9 +306,9 @@ def test_seed003_type_b_rows_match_the_twin_made_again_with_the_input() -> None:
 
 
 def test_seed003_json_carries_both_budgets() -> None:
-    from methods.seed003 import budget as gum
-    from methods.seed003 import gravity_field as gf
-    from models.fixture import pose_rad
+    from procedures.multiposition import budget as gum
+    from procedures.multiposition import gravity_field as gf
+    from station.twin.fixture import pose_rad
 
     _, windows, cal, rates = _seed003_case()
     unc, fp, comp, total = _seed003_fits(windows, cal, rates)
@@ -338,10 +338,10 @@ def test_seed003_monte_carlo_coverage() -> None:
 
 @pytest.fixture(scope="module")
 def seed004_case():
-    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, calibrate, pooled
-    from models.config import default_twin
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
+    from procedures.nonlinear_suppression.analysis import AFTER_REMOVAL, AT_BEST, calibrate, pooled
+    from station.twin.config import default_twin
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     plan = multiposition_plan([0.0, 180.0, 60.0], [8.0, 9.0, 10.0], 560.0)
     s1, s2 = (simulate_session(plan, default_twin(), seed=s) for s in (41, 42))
@@ -355,8 +355,8 @@ def test_seed004_type_b_rows_match_eqs_21_22_and_a_recalibration(seed004_case) -
     exactly (the refit's central difference at u is exact to (u/b)^2 = 2e-6): 1e-5 relative allowed. g: K2 of
     the calibration re-run (seed 004's own calibrate) with the station's g at +- u, against the row carried by
     the chain rule from seed 000's budget: 1 % allowed (both are central differences of one linear fit)."""
-    from methods.seed004.analysis import calibrate, correction
-    from methods.seed004.budget import suppression_budget
+    from procedures.nonlinear_suppression.analysis import calibrate, correction
+    from procedures.nonlinear_suppression.budget import suppression_budget
 
     s1, s2, best, after = seed004_case
     nominal = (0.1, 20.607, 45.0)
@@ -378,8 +378,8 @@ def test_seed004_type_b_rows_match_eqs_21_22_and_a_recalibration(seed004_case) -
 
 
 def test_seed004_gum_json_carries_the_budget(seed004_case) -> None:
-    from methods.seed004.analysis import Suppression, SweepFit, correction, report_html
-    from methods.seed004.budget import suppression_budget
+    from procedures.nonlinear_suppression.analysis import Suppression, SweepFit, correction, report_html
+    from procedures.nonlinear_suppression.budget import suppression_budget
 
     s1, s2, best, after = seed004_case
     nominal = (0.1, 20.607, 45.0)
@@ -408,15 +408,15 @@ def test_procedure_analyses_of_seeds_001_and_004_write_the_budget_in_their_resul
     """What app.analysis_job prints: the procedure's analyse(session) results, JSON-safe, with the GUM fields."""
     import json
 
-    from methods.seed001.procedure import analyse as analyse_tumble_session
-    from methods.seed001.tumble_session import tumble_session
-    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, SWEEP, servo_offset_measurement
-    from methods.seed004.procedure import analyse_suppression, sweep_prefix
-    from models.config import default_twin
-    from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
+    from procedures.nonlinear_suppression.analysis import AFTER_REMOVAL, AT_BEST, SWEEP, servo_offset_measurement
+    from procedures.nonlinear_suppression.procedure import analyse_suppression, sweep_prefix
+    from procedures.tumble.procedure import analyse as analyse_tumble_session
+    from procedures.tumble.tumble_session import tumble_session
     from station.jsonsafe import json_safe
+    from station.twin.config import default_twin
+    from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     session, _ = tumble_session(AccelerometerModel(), [20.0, 80.0], 3, 8e-6, np.random.default_rng(2))
     doc = json.loads(json.dumps(json_safe(analyse_tumble_session(session).results)))
@@ -444,7 +444,7 @@ def test_transformed_and_stacked_budgets_follow_the_chain_rule_and_keep_shared_i
     """y = (a, b) from a fit (Type A cov C, dof 8) and one input x (u = 2, c = (1, 3)); z = a / b by the chain rule
     J = (1/b, -a/b^2): Cov(z) = J (C + c c^T u^2) J^T (GUM eq. 13). Two such budgets on independent data that
     share x: the fits block-diagonal, x's row side by side, so Cov(z1, z2) = (J1 c) (J2 c) u^2."""
-    from methods.common.uncertainty import Input, fit_budget, refit_sources, stacked, transformed
+    from procedures.common.uncertainty import Input, fit_budget, refit_sources, stacked, transformed
 
     cov = np.array([[0.5, 0.1], [0.1, 0.2]])
     y = np.array([2.0, 4.0])

@@ -17,17 +17,17 @@ import pypdf
 import pytest
 import scipy.stats
 
-from methods.common.certificate import (
+from procedures.common.certificate import (
     CertificateError,
     Limit,
     conformity,
     load_instrument_spec,
 )
-from methods.seed000.procedure import analyse_integral, analyse_multi_frequency
-from models.config import default_twin
-from models.plan import multiposition_plan, seed000_plan
-from models.session_sim import simulate_session
+from procedures.integral_precession.procedure import analyse_integral, analyse_multi_frequency
 from station.jsonsafe import json_safe
+from station.twin.config import default_twin
+from station.twin.plan import multiposition_plan, seed000_plan
+from station.twin.session_sim import simulate_session
 
 PROVENANCE = {"simulated": True, "station_id": "sim-test", "instrument_serial": "SIM-PIGA-0001", "seed": 3,
               "created_utc": "2026-12-01T20:00:00+00:00", "software_version": "0.1.0+gtest", "operator": "tester",
@@ -149,8 +149,8 @@ def test_multi_frequency_flags_too_few_dof_and_quotes_t_based_u() -> None:
 @pytest.mark.parametrize("positions", [[0.0, 180.0], [0.0, 120.0, 240.0], [0.0, 60.0, 180.0, 300.0]])
 def test_self_alignment_report_has_no_nan(positions) -> None:
     """Eq. 26 (two positions) and eq. 25 with no residual dof (three) cannot estimate every sigma: said, not nan."""
-    from methods.seed000.procedure import analyse_alignment
-    from models.plan import PointSpec, preset_pulses
+    from procedures.integral_precession.procedure import analyse_alignment
+    from station.twin.plan import PointSpec, preset_pulses
 
     plan = [PointSpec(p, 0.0, preset_pulses(p, 560.0)) for p in positions]
     s = simulate_session(plan, default_twin(), seed=1)
@@ -168,7 +168,7 @@ def test_self_alignment_report_has_no_nan(positions) -> None:
 def test_environment_comes_from_the_stations_sensors_where_it_has_them() -> None:
     from dataclasses import replace
 
-    from methods.common.session_certificate import environment_conditions
+    from procedures.common.session_certificate import environment_conditions
 
     s = simulate_session(multiposition_plan([0.0, 180.0], [10.0], 560.0), default_twin(), seed=2)
     assert "not measured" in dict(environment_conditions(s))["temperature"]

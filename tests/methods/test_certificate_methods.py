@@ -26,9 +26,9 @@ import numpy as np
 import pypdf
 import pytest
 
-from engine.registry import Analysis
-from methods.common.certificate import fmt_dof
-from methods.common.references import load_references
+from procedures.common.certificate import fmt_dof
+from procedures.common.references import load_references
+from station.engine.registry import Analysis
 
 ROOT = Path(__file__).parents[2]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -51,9 +51,9 @@ def _stamp(session, uid: str, serial: str, procedure: str, params: dict | None =
 
 
 def seed001_analysis() -> Analysis:
-    from methods.seed001.procedure import analyse
-    from methods.seed001.tumble_session import tumble_session
-    from models.pendulous_accelerometer import AccelerometerModel
+    from procedures.tumble.procedure import analyse
+    from procedures.tumble.tumble_session import tumble_session
+    from station.twin.pendulous_accelerometer import AccelerometerModel
 
     session, _ = tumble_session(AccelerometerModel(), [20.0, 80.0, -40.0, 20.0], 1, 8e-6, np.random.default_rng(4))
     return analyse(_stamp(session, "c001", "SIM-ACC-0001", "seed001.tumble"))
@@ -61,14 +61,14 @@ def seed001_analysis() -> Analysis:
 
 def seed002_analysis() -> Analysis:
     """Nine calibration runs (60 s at rest, 30 s of vibration: short for the test) reduced as the procedure does."""
-    from methods.seed002.analysis import RunRecord, observation_values, observe_run
-    from methods.seed002.report import analyse_session
-    from methods.seed002.vibration_run import simulate_run
-    from models.fixture_poses import CALIBRATION_POSES, POSES
-    from models.shaker_motion import sine_drive
-    from models.strapdown_imu import Site, StrapdownImuTwin
+    from procedures.rlg_g_sensitivity.analysis import RunRecord, observation_values, observe_run
+    from procedures.rlg_g_sensitivity.report import analyse_session
+    from procedures.rlg_g_sensitivity.vibration_run import simulate_run
     from station.constants import G_MPS2
     from station.session import Measurement, Session, StationInfo
+    from station.twin.fixture_poses import CALIBRATION_POSES, POSES
+    from station.twin.shaker_motion import sine_drive
+    from station.twin.strapdown_imu import Site, StrapdownImuTwin
 
     st = StationInfo()
     site = Site(st.g_mps2, st.earth_rate_radps, st.latitude_rad)
@@ -90,13 +90,13 @@ def seed002_analysis() -> Analysis:
 def seed003_session():
     """Both PIGAs' four-pose windows and A's two calibration sequences (22 positions each) of the seed-003 twin,
     as the gravity-field procedure stores them (points tagged dut, setup, pose, block), with A on the head zero."""
-    from devices.second_instrument.emulator import static_rates_radps
-    from methods.seed003.gravity_field import ALIGNMENT, CALIBRATION
-    from methods.seed003.sequences import SCHEMES, sequence_deg
-    from models.config import TwinConfig
+    from drivers.second_instrument.emulator import static_rates_radps
+    from procedures.multiposition.gravity_field import ALIGNMENT, CALIBRATION
+    from procedures.multiposition.sequences import SCHEMES, sequence_deg
     from station.session import Measurement, PointRecord, Session
+    from station.twin.config import TwinConfig
 
-    twin = TwinConfig.from_toml(ROOT / "config" / "twin-seed003.toml").with_effect("mount_misalignment",
+    twin = TwinConfig.from_toml(ROOT / "config" / "twins" / "multiposition.toml").with_effect("mount_misalignment",
                                                                                   dtheta_mount=0.0)  # fmt: skip
     rng, ppr, noise = np.random.default_rng(5), twin.station.pulses_per_rev, 2e-7
     windows = [(w.instrument, w.setup, w.pose, w.theta_rad, w.rate_radps, "four_pose")
@@ -120,7 +120,7 @@ def seed003_session():
 
 
 def seed003_analysis() -> Analysis:
-    from methods.seed003.procedure import analyse_gravity_field
+    from procedures.multiposition.procedure import analyse_gravity_field
 
     params = {"model": "seed003", "harmonics": 3}
     return analyse_gravity_field(_stamp(seed003_session(), "c003", "SIM-PIGA-0001", "seed003.gravity_field", params))
@@ -129,13 +129,13 @@ def seed003_analysis() -> Analysis:
 def seed004_analysis() -> Analysis:
     """Six sweep offsets, the best offset and after the removal (half the quadratic term, as a removal leaves it),
     each a 0/180/60 deg x 8/9/10 Hz calibration of the seed-004 float model's kzz at that offset."""
-    from methods.seed004.analysis import AFTER_REMOVAL, AT_BEST, SWEEP, servo_offset_measurement
-    from methods.seed004.procedure import analyse_suppression, sweep_prefix
-    from models import nonlinear_error as ne
-    from models.config import default_twin
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
+    from procedures.nonlinear_suppression.analysis import AFTER_REMOVAL, AT_BEST, SWEEP, servo_offset_measurement
+    from procedures.nonlinear_suppression.procedure import analyse_suppression, sweep_prefix
     from station.session import Session
+    from station.twin import nonlinear_error as ne
+    from station.twin.config import default_twin
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     kz, twin = 0.56, default_twin()
     model = ne.FloatModel.seed004(kz)
@@ -291,7 +291,7 @@ def test_every_pdf_page_says_simulated_and_its_number_and_states_the_results(ana
 
 def test_limits_of_each_headline_coefficient_are_in_its_instrument_file() -> None:
     """Every coefficient whose limit the certificate names is judged against the file's numbers."""
-    from methods.common.certificate import load_instrument_spec
+    from procedures.common.certificate import load_instrument_spec
 
     files = {"001": ("accelerometer-sim.toml", {"K1", "k0", "k2", "k3", "delta_o", "delta_ip"}),
              "002": ("imu-sim.toml", {"tau"}), "003": ("piga-sim.toml", {"k0+ky", "kz", "kzz-ky", "koq"}),

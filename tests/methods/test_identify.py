@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from parallel import map_seeds
 
-from methods.common.least_squares import FitError
-from methods.seed000.identify import identify
-from models.config import NoiseModel, TwinConfig
-from models.plan import multiposition_plan, seed000_plan
-from models.regressors import baseline_regressors
-from models.session_sim import simulate_session
-from models.window_means import window_means
+from procedures.common.least_squares import FitError
+from procedures.integral_precession.identify import identify
 from station.session import point_table
+from station.twin.config import NoiseModel, TwinConfig
+from station.twin.plan import multiposition_plan, seed000_plan
+from station.twin.regressors import baseline_regressors
+from station.twin.session_sim import simulate_session
+from station.twin.window_means import window_means
 
 TRUE = {"kz": 0.56, "kzz": 6.0e-6, "ky": 5.0e-6, "k3": 7.0e-7}
 NOISE_FREE = TwinConfig(noise=NoiseModel(timer_tick_s=0.0))
@@ -60,7 +60,7 @@ def _normalised_errors(n_sessions: int, method: str = "integral", ols_on_y: bool
 
 def _ols_on_y(session):
     """The seed's eq. 20-22 literally: OLS on Y = vibration - its static point."""
-    from methods.seed000.identify import design
+    from procedures.integral_precession.identify import design
 
     rates, index, L, _names, vib = design(session)
     static = {int(i): r for i, r, v in zip(index, rates, vib, strict=True) if not v}

@@ -19,32 +19,32 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from app.controller import RunOutcome, StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from engine.context import StationModel, ValidationError
-from engine.params import ParameterError
-from engine.planning import Plan, plan_procedure
-from engine.registry import get_procedure
-from engine.runner import State
-from methods.seed000.frequency_stability import mean_rate_error_radps
-from methods.seed000.parasitic_rotation import (
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from procedures.integral_precession.frequency_stability import mean_rate_error_radps
+from procedures.integral_precession.parasitic_rotation import (
     SEED_HARMONICS_ARCSEC,
     TABLE7_ANGLE_DEG,
     TABLE7_ARCSEC,
     eq34,
     table7_psi_rad,
 )
-from methods.seed000.procedure_error_sources import INTEGRAL, analyse_stability
-from methods.seed000.table_motion import SEED_TABLE5_M, fit_zs1, sampling_delay_error_m
-from models.config import TwinConfig, default_twin
-from models.table_tilt import ARCSEC_RAD
+from procedures.integral_precession.procedure_error_sources import INTEGRAL, analyse_stability
+from procedures.integral_precession.table_motion import SEED_TABLE5_M, fit_zs1, sampling_delay_error_m
+from station.cli.controller import RunOutcome, StationController
+from station.engine.context import StationModel, ValidationError
+from station.engine.params import ParameterError
+from station.engine.planning import Plan, plan_procedure
+from station.engine.registry import get_procedure
+from station.engine.runner import State
 from station.store import SessionStore
+from station.twin.config import TwinConfig, default_twin
+from station.twin.table_tilt import ARCSEC_RAD
 
 pytestmark = pytest.mark.timeout(120)
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
-STATION = load_station_config(CONFIG_DIR / "station-gradiometer-sim.toml")
+STATION = load_station_config(CONFIG_DIR / "stations/gradiometer-sim.toml")
 K = 4.0  # standard uncertainties allowed between a recovered and an injected value
 
 Z0_M, Z1_M_S = -1.299e-4, 3.2e-6  # seed 000 eq. 32 in metres
@@ -201,7 +201,7 @@ def _plan(procedure: str, params: dict, model: StationModel) -> Plan:
 
 def test_bad_input_is_refused_before_anything_moves() -> None:
     model = STATION.station_model()
-    bare = load_station_config(CONFIG_DIR / "station-sim.toml").station_model()
+    bare = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml").station_model()
     with pytest.raises(ParameterError, match=r"'freq_hz' = 2\.0: out of range, allowed float in \[0\.1, 1\] Hz"):
         _plan("seed000.parasitic_rotation", {"freq_hz": 2.0}, model)
     with pytest.raises(ValidationError, match=r"CaptureGrating.*duration_s = 1010\.0.*0 \.\. 600 s"):

@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from methods.seed001.analysis import EQ6, analyse_tumble, position_deg
-from methods.seed001.report import render_tumble_report
-from methods.seed001.tumble_session import tumble_session
-from models.pendulous_accelerometer import CF_NAMES, AccelerometerModel, cf_coefficients, output_v
+from procedures.tumble.analysis import EQ6, analyse_tumble, position_deg
+from procedures.tumble.report import render_tumble_report
+from procedures.tumble.tumble_session import tumble_session
+from station.twin.pendulous_accelerometer import CF_NAMES, AccelerometerModel, cf_coefficients, output_v
 
 THETA = np.radians([position_deg(J) for J in range(1, 10)])
 
@@ -42,7 +42,7 @@ def test_eq6_behaves_as_the_seed_says_under_a_setting_angle() -> None:
 
 
 def test_stated_uncertainties_match_the_scatter_of_simulated_sessions() -> None:
-    """Normalised errors (estimate - truth) / sigma of N sessions (methods.seed001.tumble_session: the procedure's
+    """Normalised errors (estimate - truth) / sigma of N sessions (procedures.tumble.tumble_session: the procedure's
     readings from the model, returning to T0) are N(0, 1) if the sigmas are honest: their mean within 4 / sqrt(N)
     of 0 and their standard deviation within 4 / sqrt(2 N) of 1 (4 standard errors)."""
     m = AccelerometerModel()

@@ -12,24 +12,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from devices.temperature_chamber.emulator import ChamberFault
-from devices.voltmeter.emulator import accelerometer
-from engine.context import ValidationError
-from engine.planning import plan_procedure
-from engine.registry import get_procedure
-from engine.runner import State
-from methods.seed001.analysis import READING, SOAK
-from models.chamber_thermal import time_to_band_s
-from models.config import default_twin
-from models.pendulous_accelerometer import CF_NAMES, cf_coefficients
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from drivers.temperature_chamber.emulator import ChamberFault
+from drivers.voltmeter.emulator import accelerometer
+from procedures.tumble.analysis import READING, SOAK
+from station.cli.controller import StationController
+from station.engine.context import ValidationError
+from station.engine.planning import plan_procedure
+from station.engine.registry import get_procedure
+from station.engine.runner import State
 from station.store import SessionStore
+from station.twin.chamber_thermal import time_to_band_s
+from station.twin.config import default_twin
+from station.twin.pendulous_accelerometer import CF_NAMES, cf_coefficients
 
 pytestmark = pytest.mark.timeout(120)
 CONFIG_DIR = Path(__file__).parents[2] / "config"
-TUMBLE = load_station_config(CONFIG_DIR / "station-tumble-sim.toml")
+TUMBLE = load_station_config(CONFIG_DIR / "stations/tumble-sim.toml")
 # A product that follows the chamber within a minute keeps the soaks short.
 CONFIG = dataclasses.replace(
     TUMBLE, extras=TUMBLE.extras | {"temperature_chamber": dataclasses.replace(
@@ -70,7 +70,7 @@ def test_planning_refuses_what_the_station_must_not_do() -> None:
     assert "ramp_c_per_min = 8.0 is not allowed: 0 < rate <= 5 deg C/min" in _plan_error({"ramp_c_per_min": 8})
     assert "range_v = 0.2 is not allowed: a range that holds 1.49 V" in _plan_error({"range_v": 0.2})
     assert "range_v = 3.0 is not allowed: 0.2, 2, 20, 200, 1000 V" in _plan_error({"range_v": 3.0})
-    bare = load_station_config(CONFIG_DIR / "station-sim.toml")
+    bare = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml")
     assert "device = 'temperature_chamber' is not allowed" in _plan_error({}, bare)
 
 

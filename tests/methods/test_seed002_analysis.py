@@ -1,4 +1,4 @@
-"""Seed 002's analysis on runs of the IMU's twin made off line (methods.seed002.vibration_run): the model
+"""Seed 002's analysis on runs of the IMU's twin made off line (procedures.rlg_g_sensitivity.vibration_run): the model
 of eqs. 9-14, the nine poses' design, the attitude-error observation of eqs. 17-22, the least squares of
 eq. 21 against the noise the twin puts in, and the velocity error with and without compensation."""
 
@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from methods.seed002.analysis import RunRecord, estimate_flexure, navigate, observe_run
-from methods.seed002.strapdown import attitude_history, coarse_alignment, rates_at_stamps
-from methods.seed002.vibration_run import simulate_run
-from models.fixture_poses import CALIBRATION_POSES, POSES, ROCKING_AXIS_N, SLIP_AXIS_N
-from models.shaker_motion import random_drive, sine_drive
-from models.strapdown_imu import TAU_NAMES, Site, StrapdownImuTwin, equivalent_drift, gamma_matrix
+from procedures.rlg_g_sensitivity.analysis import RunRecord, estimate_flexure, navigate, observe_run
+from procedures.rlg_g_sensitivity.strapdown import attitude_history, coarse_alignment, rates_at_stamps
+from procedures.rlg_g_sensitivity.vibration_run import simulate_run
 from station.constants import EARTH_RATE_RADPS, G_MPS2, LATITUDE_DEG
+from station.twin.fixture_poses import CALIBRATION_POSES, POSES, ROCKING_AXIS_N, SLIP_AXIS_N
+from station.twin.shaker_motion import random_drive, sine_drive
+from station.twin.strapdown_imu import TAU_NAMES, Site, StrapdownImuTwin, equivalent_drift, gamma_matrix
 
 SITE = Site(G_MPS2, EARTH_RATE_RADPS, math.radians(LATITUDE_DEG))
 TWIN = StrapdownImuTwin()

@@ -15,27 +15,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.controller import RunOutcome, StationController
-from devices.config import load_station_config
-from devices.station import SimulatedStation, simulated_station
-from engine.context import ValidationError
-from engine.params import ParameterError
-from engine.planning import plan_procedure
-from engine.registry import get_procedure, load_procedure_file
-from engine.runner import State
-from models.config import default_twin
-from models.shaker_motion import ShakerMotion
-from models.strapdown_imu import StrapdownImuTwin
+from drivers.config import load_station_config
+from drivers.station import SimulatedStation, simulated_station
+from station.cli.controller import RunOutcome, StationController
 from station.constants import G_MPS2
+from station.engine.context import ValidationError
+from station.engine.params import ParameterError
+from station.engine.planning import plan_procedure
+from station.engine.registry import get_procedure, load_procedure_file
+from station.engine.runner import State
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.shaker_motion import ShakerMotion
+from station.twin.strapdown_imu import StrapdownImuTwin
 
 from .test_seed002_analysis import a_priori_sigmas, flexure_covariance
 
 pytestmark = pytest.mark.timeout(180)
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
-STATION = load_station_config(CONFIG_DIR / "station-shaker-sim.toml")
-CORE = load_station_config(CONFIG_DIR / "station-sim.toml")
+STATION = load_station_config(CONFIG_DIR / "stations/shaker-sim.toml")
+CORE = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml")
 PROCEDURE = "seed002.g_sensitive_misalignment"
 ALIGN_S = 20.0
 # The seed's calibration runs, shortened; the sine verification at 2.5 g and 16 Hz, nearer the dampers'

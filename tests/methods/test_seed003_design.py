@@ -10,20 +10,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from devices.second_instrument.emulator import static_rates_radps
-from methods.common.least_squares import FitError
-from methods.seed003.alignment import horizontal_axis_alignment
-from methods.seed003.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
-from methods.seed003.four_pose import PoseWindow, fit_four_pose
-from methods.seed003.lsq import solve
-from methods.seed003.sequences import HEAD_COUNTS_PER_DEG, sequence_deg
-from methods.seed003.static_model import MODELS
-from models.config import TwinConfig
-from models.fixture import POSES_DEG, SETUPS, mounted_twin
-from models.inputs import instrument_rate_radps
+from drivers.second_instrument.emulator import static_rates_radps
+from procedures.common.least_squares import FitError
+from procedures.multiposition.alignment import horizontal_axis_alignment
+from procedures.multiposition.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
+from procedures.multiposition.four_pose import PoseWindow, fit_four_pose
+from procedures.multiposition.lsq import solve
+from procedures.multiposition.sequences import HEAD_COUNTS_PER_DEG, sequence_deg
+from procedures.multiposition.static_model import MODELS
 from station.session import StationInfo
+from station.twin.config import TwinConfig
+from station.twin.fixture import POSES_DEG, SETUPS, mounted_twin
+from station.twin.inputs import instrument_rate_radps
 
-TWIN = TwinConfig.from_toml(Path(__file__).parents[2] / "config" / "twin-seed003.toml")
+TWIN = TwinConfig.from_toml(Path(__file__).parents[2] / "config" / "twins" / "multiposition.toml")
 STATION = StationInfo()
 TERMS = MODELS["seed003"]
 TEN_PI = 10 * math.pi  # seed 003's precession angle per position

@@ -15,36 +15,36 @@ import numpy as np
 import pytest
 from links import serve
 
-from app.controller import StationController
-from devices.config import ConfigError, load_station_config
-from devices.config import SerialSection as Section
-from devices.counter_timer.driver import CounterTimer
-from devices.counter_timer.emulator import CounterEmulator
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError
-from devices.indexing_head.driver import IndexingHead
-from devices.indexing_head.emulator import IndexingEmulator
-from devices.pty_link import Fault
-from devices.registry import device_kinds
-from devices.second_instrument.emulator import FIXTURE, INSTRUMENT_B, SEAT_ERRORS_RAD, DualFixture, InstrumentOnHead
-from devices.station import simulated_station
-from devices.world import SimStation
-from engine.context import ValidationError
-from engine.params import ParameterError
-from engine.planning import plan_procedure
-from engine.registry import get_procedure
-from engine.runner import State
-from models.config import TwinConfig
-from models.fixture import mounted_twin, pose_rad
-from models.inputs import instrument_rate_radps
+from drivers.config import ConfigError, load_station_config
+from drivers.config import SerialSection as Section
+from drivers.counter_timer.driver import CounterTimer
+from drivers.counter_timer.emulator import CounterEmulator
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError
+from drivers.indexing_head.driver import IndexingHead
+from drivers.indexing_head.emulator import IndexingEmulator
+from drivers.pty_link import Fault
+from drivers.registry import device_kinds
+from drivers.second_instrument.emulator import FIXTURE, INSTRUMENT_B, SEAT_ERRORS_RAD, DualFixture, InstrumentOnHead
+from drivers.station import simulated_station
+from drivers.world import SimStation
+from station.cli.controller import StationController
 from station.clock import VirtualClock
+from station.engine.context import ValidationError
+from station.engine.params import ParameterError
+from station.engine.planning import plan_procedure
+from station.engine.registry import get_procedure
+from station.engine.runner import State
 from station.store import SessionStore
+from station.twin.config import TwinConfig
+from station.twin.fixture import mounted_twin, pose_rad
+from station.twin.inputs import instrument_rate_radps
 
 pytestmark = pytest.mark.timeout(120)
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
-TWIN = TwinConfig.from_toml(CONFIG_DIR / "twin-seed003.toml")
+TWIN = TwinConfig.from_toml(CONFIG_DIR / "twins" / "multiposition.toml")
 KIND = device_kinds()["second_instrument"]
-SILENCE_S = 3.0  # devices.counter_timer.driver default: a silent board is a DeviceTimeout after this
+SILENCE_S = 3.0  # drivers.counter_timer.driver default: a silent board is a DeviceTimeout after this
 
 
 @pytest.fixture
@@ -196,7 +196,7 @@ QUICK = {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0, "se
 
 @pytest.fixture
 def dual_station(tmp_path):
-    config = load_station_config(CONFIG_DIR / "station-dual-sim.toml")
+    config = load_station_config(CONFIG_DIR / "stations/dual-sim.toml")
     sim = simulated_station(config, TWIN, seed=4)
     store = SessionStore(tmp_path / "station.sqlite")
     controller = StationController(sim.devices, store, config.station_model(), reports_dir=tmp_path)
@@ -256,7 +256,7 @@ def test_bad_parameters_name_the_field_value_and_allowed(params, named) -> None:
 
 def test_a_station_without_the_second_instrument_is_refused_in_planning() -> None:
     spec = get_procedure("seed003.gravity_field")
-    model = load_station_config(CONFIG_DIR / "station-sim.toml").station_model()
+    model = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml").station_model()
     with pytest.raises(ValidationError, match="device = 'second_instrument' is not allowed: a device of this"):
         plan_procedure(spec, spec.validate({}), model)
 
@@ -265,7 +265,7 @@ def test_dry_run_shows_the_hours_where_an_input_axis_is_horizontal() -> None:
     """With B 90 deg from A, the four-pose positions at 0 and 180 deg put B's input axis horizontal: its
     rate is about k0, so a 10 pi window takes 2 pi 5 / (k0 + kz cos 90.0) of the planning model, days."""
     spec = get_procedure("seed003.gravity_field")
-    model = load_station_config(CONFIG_DIR / "station-dual-sim.toml").station_model()
+    model = load_station_config(CONFIG_DIR / "stations/dual-sim.toml").station_model()
     est = plan_procedure(spec, spec.validate({}), model).key_estimates_s()
     slow = 2 * math.pi * 5 / abs(model.nominal_rate_radps(90.0))
     assert est["S1-01-0deg-B"] == pytest.approx(slow, rel=1e-3) and slow > 24 * 3600
@@ -273,8 +273,8 @@ def test_dry_run_shows_the_hours_where_an_input_axis_is_horizontal() -> None:
 
 
 def test_a_bad_section_names_the_key(tmp_path) -> None:
-    text = (CONFIG_DIR / "station-dual-sim.toml").read_text().replace("baud = 921_600", "baud = 50")
-    text = text.replace('eds = "eds/', f'eds = "{CONFIG_DIR}/eds/')
+    text = (CONFIG_DIR / "stations/dual-sim.toml").read_text().replace("baud = 921_600", "baud = 50")
+    text = text.replace('eds = "../eds/', f'eds = "{CONFIG_DIR}/eds/')
     path = tmp_path / "station.toml"
     path.write_text(text)
     with pytest.raises(ConfigError, match=r"\[second_instrument\] baud = 50: not allowed \(allowed: 300 <= value"):

@@ -4,7 +4,7 @@ drivers and the emulators, with the head's angle error switched on at the seed's
 Shortened for CI: 1/16 revolution per window instead of 10 pi (the slow windows, where an input axis is
 horizontal, still take an hour or two of station time), with the white rate noise rescaled so that every
 window has the error of a 10 pi window at the same position (sigma = 2e-7 rad/s in 57 s at 0 deg,
-config/twin-seed003.toml). Everything else is the seed's process: 22-position four-pose sequences (equal
+config/twins/multiposition.toml). Everything else is the seed's process: 22-position four-pose sequences (equal
 acceleration in setup 1, equal angle in setup 2), both 22-position calibration sequences of A.
 """
 
@@ -18,29 +18,29 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.second_instrument.emulator import IA_ERROR_B_RAD, INSTRUMENT_B, SEAT_ERRORS_RAD
-from devices.station import simulated_station
-from engine.runner import State
-from methods.seed003 import gravity_field as gf
-from methods.seed003.four_pose import harmonic_names
-from methods.seed003.static_model import (
+from drivers.config import load_station_config
+from drivers.second_instrument.emulator import IA_ERROR_B_RAD, INSTRUMENT_B, SEAT_ERRORS_RAD
+from drivers.station import simulated_station
+from procedures.multiposition import gravity_field as gf
+from procedures.multiposition.four_pose import harmonic_names
+from procedures.multiposition.static_model import (
     MODELS,
     fit_static,
     rate_slope_radps,
     true_static_terms,
 )
-from models.config import TwinConfig
-from models.fixture import mounted_twin, pose_rad
-from models.inputs import instrument_rate_radps
+from station.cli.controller import StationController
+from station.engine.runner import State
 from station.store import SessionStore
+from station.twin.config import TwinConfig
+from station.twin.fixture import mounted_twin, pose_rad
+from station.twin.inputs import instrument_rate_radps
 
 pytestmark = pytest.mark.timeout(240)
 
 ROOT = Path(__file__).parents[2]
-CONFIG = load_station_config(ROOT / "config" / "station-dual-sim.toml")
-TWIN = TwinConfig.from_toml(ROOT / "config" / "twin-seed003.toml")
+CONFIG = load_station_config(ROOT / "config" / "stations/dual-sim.toml")
+TWIN = TwinConfig.from_toml(ROOT / "config" / "twins" / "multiposition.toml")
 SEED_REV = 5.0  # seed 003: 10 pi per window
 REV = 1 / 16
 PARAMS = {"precession_rev": REV, "alignment_rev": REV / 2, "settle_s": 1.0}

@@ -9,13 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from methods.common.least_squares import FitError
-from methods.seed004 import analysis as a
-from models import nonlinear_error as ne
-from models.config import default_twin
-from models.plan import multiposition_plan
-from models.session_sim import simulate_session
+from procedures.common.least_squares import FitError
+from procedures.nonlinear_suppression import analysis as a
 from station.session import StationInfo
+from station.twin import nonlinear_error as ne
+from station.twin.config import default_twin
+from station.twin.plan import multiposition_plan
+from station.twin.session_sim import simulate_session
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -12,19 +12,19 @@ from pathlib import Path
 import pytest
 from links import serve
 
-from devices.config import ConfigError, load_station_config
-from devices.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
-from devices.piga_electronics import protocol as pe
-from devices.piga_electronics.driver import PigaElectronics
-from devices.piga_electronics.emulator import PigaElectronicsEmulator
-from devices.pty_link import Fault
-from devices.world import SimStation
-from models.nonlinear_error import ARCSEC_RAD, MASS_REMOVAL, FloatModel
+from drivers.config import ConfigError, load_station_config
+from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, DriverError, FrameError, LimitError
+from drivers.piga_electronics import protocol as pe
+from drivers.piga_electronics.driver import PigaElectronics
+from drivers.piga_electronics.emulator import PigaElectronicsEmulator
+from drivers.pty_link import Fault
+from drivers.world import SimStation
 from station.clock import VirtualClock
+from station.twin.nonlinear_error import ARCSEC_RAD, MASS_REMOVAL, FloatModel
 
 pytestmark = pytest.mark.timeout(60)
 
-CONFIG = Path(__file__).parents[2] / "config" / "station-electronics-sim.toml"
+CONFIG = Path(__file__).parents[2] / "config" / "stations/electronics-sim.toml"
 SETTLE_S = 2.0  # station seconds the emulated servo takes to follow an offset change
 
 
@@ -193,7 +193,7 @@ def test_station_file_and_bad_section(tmp_path) -> None:
     cfg = load_station_config(CONFIG)
     section = cfg.extras["piga_electronics"]
     assert section.port is None and section.offset_max_arcsec == 10.0 and section.servo_settle_s == 2.0
-    text = CONFIG.read_text().replace('"eds/', f'"{CONFIG.parent}/eds/')
+    text = CONFIG.read_text().replace('"../eds/', f'"{CONFIG.parent.parent}/eds/')
     bad = tmp_path / "station.toml"
     bad.write_text(text.replace("offset_max_arcsec = 10.0", "offset_max_arcsec = -1"))
     with pytest.raises(ConfigError, match=r"\[piga_electronics\] offset_max_arcsec = -1.*0 < value <= 60"):

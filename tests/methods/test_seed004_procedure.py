@@ -12,22 +12,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli import main
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from engine.context import ValidationError
-from engine.params import ParameterError
-from engine.planning import plan_procedure
-from engine.registry import get_procedure, load_procedure_file
-from engine.runner import State
-from methods.seed004.analysis import spline_minimum
-from models.config import default_twin
-from models.nonlinear_error import ARCSEC_RAD, FloatModel, removal_inertia_product_kgm2
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from procedures.nonlinear_suppression.analysis import spline_minimum
+from station.cli.cli import main
+from station.cli.controller import StationController
+from station.engine.context import ValidationError
+from station.engine.params import ParameterError
+from station.engine.planning import plan_procedure
+from station.engine.registry import get_procedure, load_procedure_file
+from station.engine.runner import State
 from station.store import SessionStore
+from station.twin.config import default_twin
+from station.twin.nonlinear_error import ARCSEC_RAD, FloatModel, removal_inertia_product_kgm2
 
 CONFIG = Path(__file__).parents[2] / "config"
-STATION = CONFIG / "station-electronics-sim.toml"
+STATION = CONFIG / "stations/electronics-sim.toml"
 PROCEDURE = CONFIG / "procedures" / "seed004_suppression.toml"
 KZ = 0.56  # the simulated PIGA's scale factor (default twin)
 
@@ -56,7 +56,7 @@ def test_bad_input_is_refused_before_anything_moves() -> None:
     with pytest.raises(ValidationError, match=r"offset_arcsec = 12\.0 is not allowed: -10 \.\. 10 arcsec"):
         _plan(offsets_arcsec=[-2.0, 0.0, 2.0, 12.0])
     with pytest.raises(ValidationError, match=r"device = 'piga_electronics' is not allowed"):
-        _plan(station=CONFIG / "station-sim.toml")
+        _plan(station=CONFIG / "stations/vibration-sim.toml")
     with pytest.raises(ValidationError, match=r"positions_deg, freqs_hz .* separate kzz, ky and k3"):
         _plan(positions_deg=[0.0, 120.0, 240.0])
     with pytest.raises(ValidationError, match=r"offsets_arcsec .* at least 4 offsets"):

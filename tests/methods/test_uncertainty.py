@@ -17,8 +17,8 @@ import pytest
 import scipy.stats
 from parallel import map_seeds
 
-from methods.common.references import load_references
-from methods.common.uncertainty import (
+from procedures.common.references import load_references
+from procedures.common.uncertainty import (
     Budget,
     UncertaintyError,
     coverage_factor,
@@ -26,11 +26,11 @@ from methods.common.uncertainty import (
     type_b_source,
     welch_satterthwaite,
 )
-from methods.seed000.budget import seed000_budget
-from methods.seed000.identify import identify, point_weights, seed_eq28
-from models.config import NoiseModel, default_twin
-from models.plan import multiposition_plan, seed000_plan
-from models.session_sim import simulate_session
+from procedures.integral_precession.budget import seed000_budget
+from procedures.integral_precession.identify import identify, point_weights, seed_eq28
+from station.twin.config import NoiseModel, default_twin
+from station.twin.plan import multiposition_plan, seed000_plan
+from station.twin.session_sim import simulate_session
 
 
 def test_coverage_factor_is_students_t_at_95_percent() -> None:
@@ -178,7 +178,7 @@ def test_eq28_is_the_seeds_on_the_residuals_of_y() -> None:
     r = identify(s)
     doc = r.to_json()
     # independent recomputation: Y = vibration - its position's static rate, OLS on L (eq. 20), eq. 21, eq. 28
-    from methods.seed000.identify import design
+    from procedures.integral_precession.identify import design
 
     rates, index, L, _, vib = design(s)
     static = {int(i): x for i, x, v in zip(index, rates, vib, strict=True) if not v}

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from models.config import NoiseModel, TwinConfig, TwinConfigError
-from models.effects import EFFECTS
-from models.measurement import simulate_point
-from models.plan import PointSpec
-from models.precession import periodic_rate
+from station.twin.config import NoiseModel, TwinConfig, TwinConfigError
+from station.twin.effects import EFFECTS
+from station.twin.measurement import simulate_point
+from station.twin.plan import PointSpec
+from station.twin.precession import periodic_rate
 
 EXACT = TwinConfig(noise=NoiseModel(timer_tick_s=0.0))
 PHYSICS_TABLE = {

@@ -1,7 +1,7 @@
 """Tm of the closed-form twin against brute-force integration of the rate (first passage).
 
 The reference integrates w_out(t) evaluated directly from the rate model
-(models.inputs, not the Fourier series) by adaptive quadrature, then
+(station.twin.inputs, not the Fourier series) by adaptive quadrature, then
 scans the last periods in steps of T/64 and solves the first passage with
 brentq. Physics.md asks Tm to better than 1e-9 relative: that is the tolerance.
 """
@@ -13,11 +13,11 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from models.config import NoiseModel, TwinConfig
-from models.inputs import instrument_inputs, instrument_rate_radps
-from models.measurement import simulate_point
-from models.plan import PointSpec
-from models.precession import PrecessionWindow, periodic_rate
+from station.twin.config import NoiseModel, TwinConfig
+from station.twin.inputs import instrument_inputs, instrument_rate_radps
+from station.twin.measurement import simulate_point
+from station.twin.plan import PointSpec
+from station.twin.precession import PrecessionWindow, periodic_rate
 
 
 def brute_force_first_passage(theta, f, gamma0, cfg, target):

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from models.config import NoiseModel, TwinConfig
-from models.measurement import simulate_point
-from models.plan import PointSpec
+from station.twin.config import NoiseModel, TwinConfig
+from station.twin.measurement import simulate_point
+from station.twin.plan import PointSpec
 
 EXACT = TwinConfig(noise=NoiseModel(timer_tick_s=0.0))
 Q = 2 * math.pi / 16384
@@ -76,7 +76,7 @@ def test_reference_crossings_are_zero_phase_one_period_apart():
 def test_raw_streams_too_large_for_memory_are_refused_before_allocation() -> None:
     # A static window at 90 deg precesses on k0 alone: one revolution lasts 2 pi / k0 = 11.6 h of a
     # 5 kHz record (2e8 samples, 1.7 GB per array): refused with the sizes, in milliseconds.
-    from models.raw import RawStreamsTooLargeError
+    from station.twin.raw import RawStreamsTooLargeError
 
     with pytest.raises(RawStreamsTooLargeError, match=r"grating samples .* exceed"):
         simulate_point(PointSpec(90.0, 0.0, 16384), TwinConfig(), np.random.default_rng(0), raw=True)

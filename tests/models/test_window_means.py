@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from models.window_means import window_means
+from station.twin.window_means import window_means
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -22,7 +22,7 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 
-from app.panel import panel_server
+from station.cli.panel import panel_server
 from station.control_channel import TOKEN_FILE, ControlClient, ensure_token
 from web.app import create_app
 from web.config import PanelConfig, StationEntry
@@ -77,7 +77,7 @@ class StationProcess:
 
 def start_station(out: Path, name: str = "sim", speed: float | None = None) -> StationProcess:
     control, telemetry = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
-    cmd = [sys.executable, "-m", "app.cli", "serve", "--out", str(out), "--name", name, "--control", control,
+    cmd = [sys.executable, "-m", "station.cli.cli", "serve", "--out", str(out), "--name", name, "--control", control,
            "--telemetry", telemetry, *(["--speed", str(speed)] if speed else [])]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + STATION_START_S

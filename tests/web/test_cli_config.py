@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import main
+from station.cli.cli import main
 from web.config import PanelConfig, PanelConfigError
 from web.users import UserBook
 

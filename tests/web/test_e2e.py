@@ -30,7 +30,9 @@ PAUSED_HOLD_S = 1.5
 
 
 def run_cli(*args: str, env: dict | None = None) -> None:
-    subprocess.run([sys.executable, "-m", "app.cli", *args], check=True, env=env, capture_output=True, text=True)
+    subprocess.run(
+        [sys.executable, "-m", "station.cli.cli", *args], check=True, env=env, capture_output=True, text=True
+    )
 
 
 def serving(url: str) -> bool:
@@ -55,7 +57,7 @@ def panel_url(tmp_path_factory, passwords, tools) -> Iterator[str]:
     for name, role in (("olga", "operator"), ("victor", "viewer")):
         run_cli("panel-user", "add", name, "--role", role, "--config", str(config), "--password-env", "PW",
                 env=os.environ | {"PW": passwords[name]})  # fmt: skip
-    panel = subprocess.Popen([sys.executable, "-m", "app.cli", "panel", "--config", str(config)],
+    panel = subprocess.Popen([sys.executable, "-m", "station.cli.cli", "panel", "--config", str(config)],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
     try:
         line = panel.stdout.readline()

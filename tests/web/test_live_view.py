@@ -198,7 +198,9 @@ def test_a_session_watched_on_a_phone(browser, site, passwords, quick):
     uid = href.split("/")[3]
     report = page.request.get(f"{site['url']}{href}")
     assert report.status == 200 and "Coefficients" in report.text()
-    certificate = results.locator("a.certificate-link")  # seed 000's analysis issues one (methods.common.certificate)
+    certificate = results.locator(
+        "a.certificate-link"
+    )  # seed 000's analysis issues one (procedures.common.certificate)
     expect(certificate).to_have_attribute("href", f"/api/sessions/{uid}/certificate")
     cert = page.request.get(f"{site['url']}/api/sessions/{uid}/certificate")
     assert cert.status == 200 and "SIMULATED" in cert.text()
@@ -250,12 +252,12 @@ NODE = shutil.which("node")
 def test_the_panel_reads_results_as_the_console_does(tmp_path):
     """web/static/common.js coefficientRows against station.coefficients.coefficient_rows on a seed-001 tumble's
     results (lists of blocks, GUM blocks beside plain ones, units from names) and a seed-000 style result."""
-    import methods.seed001.procedure  # noqa: F401 - registers the procedure
-    from engine.registry import get_procedure
-    from methods.seed001.tumble_session import tumble_session
-    from models.pendulous_accelerometer import AccelerometerModel
+    import procedures.tumble.procedure  # noqa: F401 - registers the procedure
+    from procedures.tumble.tumble_session import tumble_session
     from station.coefficients import coefficient_rows
+    from station.engine.registry import get_procedure
     from station.jsonsafe import json_safe
+    from station.twin.pendulous_accelerometer import AccelerometerModel
 
     session, _ = tumble_session(AccelerometerModel(), [20, 80], 3, 1e-5, np.random.default_rng(3))
     seed001 = json_safe(get_procedure("seed001.tumble").analyse(session).results)

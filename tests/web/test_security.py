@@ -181,10 +181,10 @@ def _zipped_session_with_raw(tmp_path: Path, make) -> bytes:
     """A small raw session's directory, its first point's pulse_t replaced by make(group, name), zipped."""
     import h5py
 
-    from models.config import TwinConfig
-    from models.plan import multiposition_plan
-    from models.session_sim import simulate_session
     from station.interchange import write_session
+    from station.twin.config import TwinConfig
+    from station.twin.plan import multiposition_plan
+    from station.twin.session_sim import simulate_session
 
     session = simulate_session(multiposition_plan([0.0], [10.0], window_s=2.0), TwinConfig(), seed=3, raw=True)
     d = write_session(session, tmp_path / "s")
@@ -226,10 +226,10 @@ def test_an_uploads_compressed_hdf5_arrays_are_held_to_the_bound(panel, log_in, 
 
 
 def test_a_lawful_upload_still_unpacks(tmp_path: Path) -> None:
-    from models.config import default_twin
-    from models.plan import seed000_plan
-    from models.session_sim import simulate_session
     from station.interchange import write_session
+    from station.twin.config import default_twin
+    from station.twin.plan import seed000_plan
+    from station.twin.session_sim import simulate_session
 
     session = simulate_session(seed000_plan(), default_twin(), 3, raw=False, notes="upload test")
     write_session(session, tmp_path / "s")
@@ -263,10 +263,10 @@ def test_request_bodies_over_the_limit_get_413_declared_or_streamed() -> None:
 
 
 def test_a_session_left_running_by_a_dead_process_is_interrupted_reportable_and_diagnosable(panel, log_in) -> None:
-    from models.config import default_twin
-    from models.plan import seed000_plan
-    from models.session_sim import simulate_session
     from station.store import SessionStore
+    from station.twin.config import default_twin
+    from station.twin.plan import seed000_plan
+    from station.twin.session_sim import simulate_session
 
     client, config = panel
     session = simulate_session(seed000_plan(), default_twin(), 5, raw=False, notes="crashed")

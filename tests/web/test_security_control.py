@@ -12,11 +12,10 @@ from pathlib import Path
 import pytest
 import zmq
 
-from app.control import ControlServer
-from app.controller import StationController
-from devices.config import load_station_config
-from devices.station import simulated_station
-from models.config import default_twin
+from drivers.config import load_station_config
+from drivers.station import simulated_station
+from station.cli.control import ControlServer
+from station.cli.controller import StationController
 from station.clock import VirtualClock, utc_s
 from station.control_channel import (
     MAX_DEPTH,
@@ -30,9 +29,10 @@ from station.control_channel import (
 )
 from station.store import SessionStore
 from station.telemetry import TelemetryPublisher, curve_client, ensure_telemetry_keys
+from station.twin.config import default_twin
 
 pytestmark = pytest.mark.timeout(60)
-CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "station-sim.toml")
+CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "stations/vibration-sim.toml")
 TOKEN = "t0ken" * 8
 
 
@@ -186,7 +186,7 @@ def test_a_captured_frame_sent_again_is_refused_and_logged(server, caplog) -> No
     for cmd, captured in frames.items():
         assert raw_request(server.endpoint, captured)["ok"] is True, cmd
     before = server.refusals.counts["Replay"]
-    with caplog.at_level("WARNING", logger="app.control"):
+    with caplog.at_level("WARNING", logger="station.cli.control"):
         for cmd, captured in frames.items():
             reply = raw_request(server.endpoint, captured)
             assert reply["error"]["type"] == "Replay", (cmd, reply)
@@ -205,7 +205,7 @@ def test_a_stale_or_future_frame_is_refused(server) -> None:
 
 
 def test_a_lower_seq_is_refused_and_another_sender_has_its_own() -> None:
-    from app.control import ReplayGuard
+    from station.cli.control import ReplayGuard
 
     guard = ReplayGuard(window_s=30.0, max_senders=3)
     assert guard.admit(b"panel", Stamp(b"A" * 8, 5, 100.0), 100.0) is None

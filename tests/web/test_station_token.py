@@ -11,7 +11,7 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
-from app.cli import main
+from station.cli.cli import main
 from web.app import create_app
 from web.config import PanelConfig, StationEntry
 
@@ -24,7 +24,7 @@ def token_station(tmp_path_factory, tools) -> Iterator[StationEntry]:
     out = tmp_path_factory.mktemp("token-station")
     control, telemetry = f"tcp://127.0.0.1:{tools.free_port()}", f"tcp://127.0.0.1:{tools.free_port()}"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "serve", "--out", str(out), "--name", "sim", "--control", control,
+        [sys.executable, "-m", "station.cli.cli", "serve", "--out", str(out), "--name", "sim", "--control", control,
          "--telemetry", telemetry, "--token-env", TOKEN_VAR],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=os.environ | {TOKEN_VAR: TOKEN},
     )  # fmt: skip
@@ -47,9 +47,7 @@ def test_the_panel_sends_the_token_from_its_environment(token_station, tmp_path,
         assert reply.json()["detail"] == "station sim: bad or missing control token"
 
 
-def test_a_token_variable_that_is_not_set_stops_the_panel_at_start(
-    token_station, tmp_path, monkeypatch, capsys, tools
-):
+def test_a_token_variable_that_is_not_set_stops_the_panel_at_start(token_station, tmp_path, monkeypatch, capsys, tools):
     monkeypatch.delenv(TOKEN_VAR, raising=False)
     config = tmp_path / "panel.toml"
     e = token_station

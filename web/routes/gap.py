@@ -10,8 +10,8 @@ from fastapi import APIRouter, Depends, File, HTTPException, Path, Request, Uplo
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import HTMLResponse
 
-from gap.heldout import shrink
-from gap.report import GapReport, render
+from station.gap.heldout import shrink
+from station.gap.report import GapReport, render
 from station.interchange import SessionFormatError
 from web.archive import unpack
 from web.auth import ViewerAction, viewer

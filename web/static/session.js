@@ -27,7 +27,7 @@ function residualCharts(residuals) {
   const methods = Object.entries(residuals).filter(([, r]) => !r.error);
   const notes = Object.entries(residuals).filter(([, r]) => r.error).map(([m, r]) => el("p", {}, `${m}: ${r.error}`));
   box.replaceChildren(...notes);
-  if (!methods.length) return;
+  if (!procedures.length) return;
   const n = methods[0][1].residuals_radps.length;
   const x = Array.from({ length: n }, (_, i) => i + 1);
   const colours = ["#1565c0", "#c62828", "#2e7d32"];
@@ -37,13 +37,13 @@ function residualCharts(residuals) {
     ["Proportional residuals |e / (a cos θ)|", "proportional_residuals", "rad/s/g", true]]) {
     const holder = el("div", { class: "chart", dataset: { chart: key } });
     box.append(holder);
-    const series = methods.map(([m], i) => ({ label: `${m} (${unit})`, scale: m, stroke: colours[i % colours.length],
+    const series = procedures.map(([m], i) => ({ label: `${m} (${unit})`, scale: m, stroke: colours[i % colours.length],
       points: { show: true } }));
     const scales = { x: { time: false } };
     for (const [m] of methods) scales[m] = log ? { distr: 3 } : {};
     const axes = [{ label: "vibration point" }, ...methods.map(([m], i) => ({ scale: m, side: i ? 1 : 3, size: 80,
       label: `${m} (${unit})`, values, stroke: colours[i % colours.length], grid: { show: i === 0 } }))];
-    const ys = methods.map(([, r]) => r[key].map((v) => (log ? Math.abs(v) : v)));
+    const ys = procedures.map(([, r]) => r[key].map((v) => (log ? Math.abs(v) : v)));
     chart(holder, { title, scales, axes, series: [{ label: "vibration point" }, ...series] }, [x, ...ys]);
   }
 }

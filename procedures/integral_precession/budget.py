@@ -1,0 +1,252 @@
+"""GUM uncertainty budget of the seed-000 coefficients (JCGM 100; seed 000 eqs. 19-22, 31-34).
+
+Type A: the weighted joint fit (eq. 22, its n - p dof). Type B, each propagated through
+the identification itself (the refit at x +- u, procedures.common.uncertainty.sensitivity):
+
+- Zs1 = z0 + z1 w (eq. 32) and axs1 (eq. 34): the compensation is re-run with the
+  perturbed value; z0 and z1 are correlated through their line fit (their covariance
+  enters once, as a block);
+- eps_f (w = w_cmd (1 + eps_f)), A0 and g (a = A0 w^2 / g), read-head latency (t1, t2):
+  the design is rebuilt with the perturbed value;
+- latitude and the unmodelled second harmonic (Zs2, Zc2): inputs the identification does
+  not model; their rate change per point is computed by the exact window model of the
+  twin (station.twin.precession: the rate's Fourier series over a crank turn, integrated over
+  [0, Tm] with psi = w (t - t1)) at the identified coefficients, and refitted;
+- timer resolution: a random error of each stamp (Tm, t1, t2 of every point), propagated
+  point by point and root-sum-squared; it is already in the fit's scatter (Type A), so it is
+  listed and not added again (GUM 4.3.10 double counting).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from procedures.common.least_squares import fit_joint
+from procedures.common.references import Reference, default_references
+from procedures.common.uncertainty import (
+    Budget,
+    Shape,
+    Source,
+    UncertaintyError,
+    check_uncertainty,
+    type_a_source,
+    type_b_source,
+)
+from procedures.integral_precession.identify import (
+    COEFFICIENT_UNITS,
+    Compensation,
+    Identification,
+    design,
+    point_weights,
+)
+from station.session import PointRecord, Session
+from station.twin.config import InstrumentCoefficients, TwinConfig
+from station.twin.precession import PrecessionWindow, periodic_rate
+
+# The references this budget uses (config/instruments/references.toml): the certificate's traceability.
+SEED000_REFERENCES = ("A0_m", "g_mps2", "latitude_deg", "timer_resolution_s", "readhead_latency_s", "eps_f",
+                      "zs1_z0_m", "zs1_z1_m_s", "axs1_rad", "second_harmonic_m")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A measured input with its value and standard uncertainty (from an error-source experiment)."""
+
+    value: float
+    u: float
+    origin: str
+    shape: Shape = "normal"  # the references' shape where u comes from them; a measured sigma: normal
+
+
+def measured_inputs(params: Mapping, refs: Mapping[str, Reference], compensated: bool = True) -> dict[str, Measured]:
+    """z0, z1 (and their correlation), axs1, eps_f: the procedure's params where given, else the references.
+
+    For an identification that did not compensate them (`compensated` False) the input's value is 0 and a
+    measured value v that was left uncorrected is folded into its uncertainty, u = sqrt(u^2 + v^2).
+    """
+
+    def one(key: str, value_key: str, sigma_key: str) -> Measured:
+        v = float(params.get(value_key, 0.0) or 0.0)
+        s = params.get(sigma_key)
+        u = float(s) if s is not None else refs[key].standard_uncertainty
+        origin = f"u from params {sigma_key}" if s is not None else f"u from the references ({refs[key].distribution})"
+        if not compensated and v:
+            return Measured(0.0, math.hypot(u, v), f"measured {v:.3g} not compensated here: u = sqrt(u^2 + v^2); "
+                            + origin)  # fmt: skip
+        shape = refs[key].shape if s is None else "normal"
+        return Measured(v, u, ("compensated; " if v else "not compensated (none measured); ") + origin, shape)
+
+    out = {
+        "zs1_z0_m": one("zs1_z0_m", "zs1_z0_m", "zs1_z0_sigma_m"),
+        "zs1_z1_m_s": one("zs1_z1_m_s", "zs1_z1_m_s", "zs1_z1_sigma_m_s"),
+        "axs1_rad": one("axs1_rad", "axs1_rad", "axs1_sigma_rad"),
+        "eps_f": one("eps_f", "eps_f", "eps_f_sigma"),
+    }
+    for k, m in out.items():
+        check_uncertainty(k, m.value, m.u)
+    return out
+
+
+def _comp(m: Mapping[str, float], base: Compensation) -> Compensation:
+    z0, z1 = m["zs1_z0_m"], m["zs1_z1_m_s"]
+    zs1 = (lambda w: z0 + z1 * w) if (z0 or z1) else None
+    return replace(base, zs1_m=zs1, axs1_rad=m["axs1_rad"], eps_f=m["eps_f"])
+
+
+class _Refit:
+    """The identification at perturbed inputs: same session, weights and method, design rebuilt."""
+
+    def __init__(self, session: Session, result: Identification, values: Mapping[str, float]) -> None:
+        self.session, self.method = session, result.method
+        self.values = dict(values)
+        self.weights, _ = point_weights(session)
+        self.rates, self.index, _, self.names, self.vib = design(session, result.method, self.compensation())
+
+    def compensation(self, **changes: float) -> Compensation:
+        v = {**self.values, **changes}
+        base = Compensation(latency_s=v["latency_s"], A0_m=v["A0_m"], g_mps2=v["g_mps2"])
+        return _comp(v, base)
+
+    def __call__(self, delta_rates: np.ndarray | None = None, session: Session | None = None, **changes) -> np.ndarray:
+        s = session or self.session
+        rates, index, L, names, _ = design(s, self.method, self.compensation(**changes))
+        if session is None:
+            rates = self.rates
+        if delta_rates is not None:
+            rates = rates + delta_rates
+        return fit_joint(rates, index, L, names, weights=self.weights).values
+
+    def along(self, key: str):
+        return lambda x: self(**{key: x})
+
+
+def _exact_cfg(session: Session, result: Identification, **station_changes) -> TwinConfig:
+    st = session.station
+    k = dict(zip(result.names, result.values, strict=True))
+    geo = replace(st, **station_changes)
+    coefs = InstrumentCoefficients(k0=0.0, kz=k.get("kz", 0.56), kzz=k["kzz"], ky=k["ky"], k3=k["k3"])
+    return TwinConfig(station=geo, instrument=coefs)
+
+
+def _window_mean_rate(p: PointRecord, cfg: TwinConfig) -> float:
+    """Exact mean rate over [0, Tm] of the twin's rate model, psi = w (t - t1) (physics.md, window means)."""
+    theta = math.radians(p.position_deg)
+    rate = periodic_rate(theta, p.freq_hz, cfg)
+    w = 2 * math.pi * p.freq_hz
+    gamma0 = -w * (p.t1_s or 0.0)
+    return float(PrecessionWindow(rate, w, gamma0).phi_rad(p.Tm_s)) / p.Tm_s
+
+
+def exact_rate_shift(session: Session, cfg_with: TwinConfig, cfg_without: TwinConfig) -> np.ndarray:
+    """Change of every point's window-mean rate when an unmodelled effect is switched on."""
+    return np.array([_window_mean_rate(p, cfg_with) - _window_mean_rate(p, cfg_without) for p in session.points])
+
+
+def _shifted(session: Session, i: int, field_name: str, du: float) -> Session:
+    pts = list(session.points)
+    p = pts[i]
+    pts[i] = replace(p, **{field_name: getattr(p, field_name) + du})
+    return replace(session, points=pts)
+
+
+def timer_resolution_contribution(session: Session, refit: _Refit, u_s: float) -> np.ndarray:
+    """RSS over every stamp (Tm of each point, t1 and t2 of each vibration point) of |dK/dt| u (GUM eq. 10)."""
+    base = refit(session=session)
+    total = np.zeros_like(base)
+    for i, p in enumerate(session.points):
+        for name in ("Tm_s", "t1_s", "t2_s") if p.kind == "vibration" else ("Tm_s",):
+            d = refit(session=_shifted(session, i, name, u_s)) - base
+            total += d * d
+    return np.sqrt(total)
+
+
+def seed000_budget(
+    session: Session,
+    result: Identification,
+    params: Mapping | None = None,
+    references: Mapping[str, Reference] | None = None,
+    *,
+    compensated: bool = True,
+    timer_rows: bool = True,
+) -> Budget:
+    """The GUM budget of `result` (an integral or baseline identification of `session`); `compensated`: whether
+    `result` used the params' measured Zs1, axs1 and eps_f; `timer_rows` False leaves the timer-resolution
+    row (listed, not added) at zero."""
+    params = dict(params if params is not None else session.meta.get("params", {}))
+    refs = dict(references if references is not None else default_references())
+    meas = measured_inputs(params, refs, compensated)
+    st = session.station
+    values = {k: m.value for k, m in meas.items()} | {"latency_s": 0.0, "A0_m": st.A0_m, "g_mps2": st.g_mps2}
+    refit = _Refit(session, result, values)
+    names = result.names
+    sources: list[Source] = [type_a_source(names, result.cov, result.dof, f"weights: {result.weighting}")]
+    labels = {
+        "zs1_z0_m": "parasitic translation Zs1: z0 (eq. 32)",
+        "zs1_z1_m_s": "parasitic translation Zs1: z1 (eq. 32)",
+        "axs1_rad": "parasitic rotation axs1 (gradiometer, eq. 34)",
+        "eps_f": "vibration frequency error eps_f (Table 6)",
+    }
+    for key, label in labels.items():
+        m = meas[key]
+        sources.append(type_b_source(label, m.value, m.u, refs[key].unit, refit.along(key), note=m.origin,
+                                     shape=m.shape))  # fmt: skip
+    corr = float(params.get("zs1_z0_z1_corr", 0.0) or 0.0)
+    if not -1.0 <= corr <= 1.0:
+        raise UncertaintyError(f"params zs1_z0_z1_corr = {corr!r}: expected a correlation in [-1, 1]")
+    for key, label, value in (
+        ("A0_m", "crank radius A0", st.A0_m),
+        ("g_mps2", "local gravity g", st.g_mps2),
+        ("readhead_latency_s", "read-head latency (t1, t2 stamped late)", 0.0),
+    ):
+        r = refs[key]
+        along = "latency_s" if key == "readhead_latency_s" else key
+        note = f"{r.distribution}; not corrected" if key == "readhead_latency_s" else r.distribution
+        sources.append(type_b_source(label, value, r.standard_uncertainty, r.unit, refit.along(along), note=note,
+                                     shape=r.shape))  # fmt: skip
+    # inputs outside the identification model: exact rate change -> refit
+    cfg0 = _exact_cfg(session, result)
+    r_lat = refs["latitude_deg"]
+    lat_note = f"{r_lat.distribution}; enters the static and vibration rates alike through w_ie sin(lam - theta)"
+
+    def lat_refit(x: float) -> np.ndarray:
+        return refit(delta_rates=exact_rate_shift(session, _exact_cfg(session, result, latitude_deg=x), cfg0))
+
+    sources.append(type_b_source("latitude", st.latitude_deg, r_lat.standard_uncertainty, "deg", lat_refit,
+                                 note=lat_note, shape=r_lat.shape))  # fmt: skip
+    r2 = refs["second_harmonic_m"]
+    for comp_key in ("Zs2", "Zc2"):
+
+        def harm_refit(x: float, comp_key: str = comp_key) -> np.ndarray:
+            cfg = cfg0.with_effect("waveform_harmonics", **{comp_key: x})
+            return refit(delta_rates=exact_rate_shift(session, cfg, cfg0))
+
+        sources.append(type_b_source(f"unmodelled second harmonic {comp_key}", 0.0, r2.standard_uncertainty, "m",
+                                     harm_refit, note=r2.distribution, shape=r2.shape))  # fmt: skip
+    r_t = refs["timer_resolution_s"]
+    # listed only (in the Type A scatter): `timer_rows=False` skips its 3 refits per point (Monte Carlo)
+    c_t = np.zeros(len(names))
+    if timer_rows:
+        c_t = timer_resolution_contribution(session, refit, r_t.standard_uncertainty)
+    sources.append(
+        Source(
+            "timer resolution (every stamp)",
+            "B",
+            0.0,
+            r_t.standard_uncertainty,
+            "s",
+            c_t / r_t.standard_uncertainty if r_t.standard_uncertainty else c_t,
+            note=f"{r_t.distribution}; "
+            "random per stamp, root-sum-square over all stamps: already in the fit's scatter (Type A), not added",
+            in_combined=False,
+        )
+    )
+    by_name = {s.source: s for s in sources}
+    c0 = by_name[labels["zs1_z0_m"]].sensitivity * meas["zs1_z0_m"].u
+    c1 = by_name[labels["zs1_z1_m_s"]].sensitivity * meas["zs1_z1_m_s"].u
+    extra = corr * (np.outer(c0, c1) + np.outer(c1, c0))
+    units = {n: COEFFICIENT_UNITS[n] for n in names}
+    return Budget(names, np.asarray(result.values, dtype=float), units, sources, cov_a=result.cov, extra_cov=extra)
