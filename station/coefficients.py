@@ -1,4 +1,4 @@
-"""Coefficient tables and verdicts from any method's results JSON, for the console, notebooks and reports.
+"""Coefficient tables and the fit-check lines from any method's results JSON, for the console, notebooks and reports.
 
 Methods report coefficients in one of two shapes:
 
@@ -163,26 +163,25 @@ def acceptance(results: Mapping[str, Any]) -> list[tuple[str, bool, str]]:
     return out
 
 
-def verdict(state: str, results: Mapping[str, Any] | None, faults: list[str] | tuple[str, ...] = ()) -> str:
-    """One line: ACCEPTED or NOT ACCEPTED, with the reasons (run state, faults, mu vs mu_c)."""
-    reasons: list[str] = []
-    bad = False
-    if state != "finished":
-        bad = True
-        reasons.append(f"the run {state}")
-    if faults:
-        bad = True
-        reasons.append(f"{len(faults)} fault{'s' if len(faults) != 1 else ''}: {faults[0]}")
-    if results is None and state == "finished" and not faults:
-        reasons.append("no analysis for this procedure")
+def conclusion(
+    state: str, results: dict | None, faults: list[str] | tuple[str, ...] = (), certificate: bool = False
+) -> list[str]:
+    """The run, the fit check (mu against mu_c: an outlier among the residuals, seed 000 eq. 28) and conformity,
+    each on its own line: passing the fit check says nothing about the limits, and a method that reports no
+    outlier test passes nothing."""
+    run = f"run: {state}" + (f"; {len(faults)} fault{'s' if len(faults) != 1 else ''}: {faults[0]}" if faults
+                             else ", no fault")  # fmt: skip
     checks = acceptance(results or {})
-    bad = bad or any(not ok for _, ok, _ in checks)
-    reasons += [r for _, _, r in checks]
-    if not checks and results:
-        reasons.append("this method reports no outlier test (mu, mu_c)")
-    if not bad and not faults:
-        reasons.append("no fault")
-    return f"verdict: {'NOT ACCEPTED' if bad else 'ACCEPTED'}: " + "; ".join(reasons)
+    if results is None:
+        fit = "fit check: none (no analysis for this run)"
+    elif not checks:
+        fit = "fit check: none (this method reports no outlier test, mu against mu_c; no outlier was looked for)"
+    else:
+        passed = all(ok for _, ok, _ in checks)
+        fit = f"fit check: {'passed' if passed else 'FAILED'}: " + "; ".join(r for _, _, r in checks)
+    where = "the certificate beside the report" if certificate else "no certificate for this run"
+    conformity = f"conformity against the instrument's limits: not decided by the fit check; see {where}"
+    return [run, fit, conformity]
 
 
 def format_value(x: float | None, digits: int = 7) -> str:

@@ -6,7 +6,7 @@
     s = store.session()                 # the latest finished one, named (store.session(uid), store[uid])
     s.points, s.measurements, s.events  # DataFrames
     s.results                           # one row per coefficient: value, u, U = k u, unit
-    s.result("integral")                # rich display in Jupyter: coefficients with units, mu vs mu_c, verdict
+    s.result("integral")                # rich display in Jupyter: coefficients with units, the fit check (mu vs mu_c)
     s.gap()                             # the sim-to-real gap diagnosis (gap.report.GapReport, rich display too)
 
 Everything is read from the store (SQLite WAL: safe while a station writes). Units are in the
@@ -23,7 +23,7 @@ from typing import Any
 
 import pandas as pd
 
-from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, CoefficientRow, coefficient_rows, verdict
+from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, CoefficientRow, coefficient_rows, conclusion
 from station.errors import InputError
 from station.session import Session
 from station.store import SessionStore
@@ -208,9 +208,10 @@ class Result:
         return _rows_frame(self.rows)
 
     @property
-    def verdict(self) -> str:
-        """One line: accepted or not, with its reasons (station.coefficients.verdict)."""
-        return verdict(self.status, {self.method: self.doc})
+    def conclusion(self) -> list[str]:
+        """The run, the fit check and conformity, each a line, as the console prints them
+        (station.coefficients.conclusion): no line says ACCEPTED."""
+        return conclusion(self.status, {self.method: self.doc})
 
     @staticmethod
     def table_html(rows: list[CoefficientRow]) -> str:
@@ -237,9 +238,9 @@ class Result:
             unit = d.get("units", {}).get("sigma_residual", "")
             parts.append(f"<p>residual sigma = {d['sigma_residual']:.3e} {html.escape(unit)}"
                          + (f"; mu = {d['mu']:.2f}, mu_c = {d['mu_c']:.2f}" if "mu" in d else "") + "</p>")  # fmt: skip
-        parts.append(f"<p><b>{html.escape(self.verdict)}</b></p>")
+        parts.append("<p>" + "<br>".join(html.escape(line) for line in self.conclusion) + "</p>")
         parts.append(f"<p><small>{html.escape(UNCERTAINTY_NOTE)}; {html.escape(MU_NOTE)}</small></p>")
         return "\n".join(parts)
 
     def __repr__(self) -> str:
-        return f"Result({self.method!r}, {len(self.rows)} quantities; {self.verdict})"
+        return f"Result({self.method!r}, {len(self.rows)} quantities; {self.conclusion[1]})"

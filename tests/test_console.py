@@ -1,5 +1,6 @@
-"""What the console prints: facts on stdout (units, u and U = k u, mu vs mu_c, a verdict), progress and the
-analysis-and-report stage on stderr; and station.coefficients, which reads any method's results for it."""
+"""What the console prints: facts on stdout (units, u and U = k u; the run, the fit check and conformity on
+their own lines), progress and the analysis-and-report stage on stderr; and station.coefficients, which reads
+any method's results for it."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import sys
 import pytest
 from quick_run import run_quick_session
 
-from station.coefficients import COVERAGE_K, coefficient_rows, format_rows, verdict
+from station.coefficients import COVERAGE_K, coefficient_rows, conclusion, format_rows
 
 UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3"}
 
@@ -20,7 +21,7 @@ def run(tmp_path_factory) -> subprocess.CompletedProcess:
     return run_quick_session(tmp_path_factory.mktemp("console"))
 
 
-def test_stdout_has_units_uncertainty_meaning_and_a_verdict_and_no_progress(run):
+def test_stdout_has_units_uncertainty_meaning_and_the_fit_check_and_no_progress(run):
     out = run.stdout
     assert "\r" not in out and "station-s [" not in out and "progress:" not in out  # no bar in a redirected log
     for name, unit in UNITS.items():  # every printed coefficient carries its unit, on the value and on u and U
@@ -73,16 +74,6 @@ def test_coefficient_rows_read_both_shapes_and_the_budget():
     assert "(k = 2.00)" in lines[1] and "not identified" in lines[2]
 
 
-def test_the_verdict_gives_its_reasons():
-    ok = verdict("finished", {"integral": SEED000_DOC})
-    assert ok == "verdict: ACCEPTED: integral: mu 1.40 < mu_c 2.20 (no outlier), 20 points; no fault"
-    outlier = verdict("finished", {"integral": {**SEED000_DOC, "mu": 2.5, "reliable": False}})
-    assert outlier.startswith("verdict: NOT ACCEPTED: ") and "mu 2.50 >= mu_c 2.20 (an outlier" in outlier
-    aborted = verdict("aborted", None, ["DeviceTimeout: counter: no answer"])
-    assert aborted == "verdict: NOT ACCEPTED: the run aborted; 1 fault: DeviceTimeout: counter: no answer"
-    assert "reports no outlier test" in verdict("finished", {"tumble": {"K1": {"value": 1.0, "sigma": 0.1}}})
-
-
 def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():
     """seed 001's results: per-temperature blocks in a list, each coefficient stated plainly and again in its
     GUM block; the console shows each once per block, with its unit and the budget's k."""
@@ -106,8 +97,6 @@ def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():
 
 
 def test_the_console_separates_the_fit_check_from_conformity_and_accepts_nothing_untested():
-    from station.cli.console import conclusion
-
     lines = conclusion("finished", {"integral": SEED000_DOC}, certificate=True)
     assert lines == ["run: finished, no fault",
                      "fit check: passed: integral: mu 1.40 < mu_c 2.20 (no outlier), 20 points",

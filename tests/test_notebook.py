@@ -85,7 +85,7 @@ def test_sessions_as_dataframes_match_the_store_and_the_run(run_dir):
                 assert row.unit == written[method]["units"][name]
 
 
-def test_a_result_displays_its_units_uncertainty_meaning_and_verdict(run_dir):
+def test_a_result_displays_its_units_uncertainty_meaning_and_fit_check(run_dir):
     import station
 
     with station.open_store(run_dir / "station.sqlite") as store:
@@ -95,13 +95,17 @@ def test_a_result_displays_its_units_uncertainty_meaning_and_verdict(run_dir):
         for text in ("rad/s/g^2", "rad/s/g^3", "u (k = 1)", "U = k u", "mu_c", "standard uncertainty"):
             assert text in html, text
         doc = s.result_docs()["integral"]
-        assert ("ACCEPTED" in r.verdict) and (("NOT" in r.verdict) == (doc["mu"] >= doc["mu_c"]))
+        passed = doc["mu"] < doc["mu_c"]
+        assert r.conclusion[1].startswith(f"fit check: {'passed' if passed else 'FAILED'}: integral: mu ")
+        assert not any("ACCEPTED" in line for line in r.conclusion) and "fit check" in html
         assert "integral" in s._repr_html_() and s.uid in store._repr_html_()
         with pytest.raises(InputError, match="no result 'nope'"):
             s.result("nope")
-    # A fit with an outlier (mu >= mu_c, seed 000 eq. 28) is not accepted, and says why.
+    # A fit with an outlier (mu >= mu_c, seed 000 eq. 28) fails the fit check, and says why; conformity is the
+    # certificate's, never the fit check's.
     bad = station.notebook.Result("integral", {**doc, "mu": doc["mu_c"] + 0.5, "reliable": False})
-    assert bad.verdict.startswith("verdict: NOT ACCEPTED") and "outlier" in bad.verdict
+    assert bad.conclusion[1].startswith("fit check: FAILED") and "outlier" in bad.conclusion[1]
+    assert bad.conclusion[2].startswith("conformity against the instrument's limits: not decided")
 
 
 def test_the_example_notebook_runs_on_a_simulated_session(run_dir):

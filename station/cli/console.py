@@ -21,7 +21,7 @@ from tqdm import tqdm
 from drivers.config import StationConfig, load_station_config
 from drivers.station import StationDevices, simulated_station
 from station.cli.controller import RunOutcome, StationController
-from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, acceptance, coefficient_rows, format_rows
+from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, conclusion, format_rows
 from station.defaults import config_dir
 from station.engine.planning import Plan
 from station.engine.protocols import StationHardware
@@ -164,27 +164,6 @@ def write_outputs(store: SessionStore, outcome: RunOutcome, out_dir: Path, out: 
     results = outcome.analysis.results if outcome.analysis is not None else None
     for line in conclusion(str(outcome.state), results, outcome.faults, outcome.report_path is not None):
         print(line, file=out)
-
-
-def conclusion(
-    state: str, results: dict | None, faults: list[str] | tuple[str, ...] = (), certificate: bool = False
-) -> list[str]:
-    """The run, the fit check (mu against mu_c: an outlier among the residuals, seed 000 eq. 28) and conformity,
-    each on its own line: passing the fit check says nothing about the limits, and a method that reports no
-    outlier test passes nothing."""
-    run = f"run: {state}" + (f"; {len(faults)} fault{'s' if len(faults) != 1 else ''}: {faults[0]}" if faults
-                             else ", no fault")  # fmt: skip
-    checks = acceptance(results or {})
-    if results is None:
-        fit = "fit check: none (no analysis for this run)"
-    elif not checks:
-        fit = "fit check: none (this method reports no outlier test, mu against mu_c; no outlier was looked for)"
-    else:
-        passed = all(ok for _, ok, _ in checks)
-        fit = f"fit check: {'passed' if passed else 'FAILED'}: " + "; ".join(r for _, _, r in checks)
-    where = "the certificate beside the report" if certificate else "no certificate for this run"
-    conformity = f"conformity against the instrument's limits: not decided by the fit check; see {where}"
-    return [run, fit, conformity]
 
 
 def describe_results(results: dict, summary: str) -> str:
