@@ -26,10 +26,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from indep.generator import FAMILIES, Truth, random_coefficients, random_design, random_noise, write_session
 
-from procedures.common.least_squares import FitError
 from procedures.integral_precession.budget import seed000_budget
 from procedures.integral_precession.identify import identify
 from station.interchange import read_session
+from station.least_squares import FitError
 
 NAMES = ("kz", "kzz", "ky", "k3")
 

@@ -1,1 +1,1 @@
-"""What the methods share: least squares with their uncertainties."""
+"""What the procedures share: uncertainty budgets, certificates and the reference standards they cite."""

@@ -25,7 +25,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from procedures.common.least_squares import fit_joint
 from procedures.common.references import Reference, default_references
 from procedures.common.uncertainty import (
     Budget,
@@ -43,6 +42,7 @@ from procedures.integral_precession.identify import (
     design,
     point_weights,
 )
+from station.least_squares import fit_joint
 from station.session import PointRecord, Session
 from station.twin.config import InstrumentCoefficients, TwinConfig
 from station.twin.precession import PrecessionWindow, periodic_rate

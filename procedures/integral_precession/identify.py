@@ -14,8 +14,8 @@ from typing import Literal
 
 import numpy as np
 
-from procedures.common.least_squares import FitError, JointFit, fit_joint, reliability
 from procedures.common.uncertainty import Budget
+from station.least_squares import FitError, JointFit, fit_joint, reliability
 from station.session import Session
 from station.twin.regressors import (
     BASELINE_COEFFICIENTS,

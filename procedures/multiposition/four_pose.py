@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from procedures.common.least_squares import FitError
 from procedures.integral_precession.alignment import earth_rate_along_ia
 from procedures.multiposition.lsq import Fit, solve
 from procedures.multiposition.static_model import fit_static, rate_slope_radps, regressors
+from station.least_squares import FitError
 from station.session import StationInfo
 from station.twin.fixture import pose_rad
 

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from procedures.common.least_squares import FitError
 from procedures.common.uncertainty import Budget, merged_json
 from procedures.multiposition import budget as gum
 from procedures.multiposition.four_pose import FourPoseFit, PoseWindow, fit_four_pose, harmonic_names
@@ -31,6 +30,7 @@ from procedures.multiposition.static_model import (
     relative_fitting_accuracy_g,
     with_angle_uncertainty,
 )
+from station.least_squares import FitError
 from station.records import Field, declare
 from station.session import Session
 from station.twin.fixture import pose_rad

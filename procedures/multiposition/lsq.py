@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from procedures.common.least_squares import FitError
 from procedures.common.uncertainty import type_a_json
+from station.least_squares import FitError
 
 # Units of the static model's identified terms (seed 003 eq. 14; procedures.multiposition.static_model)
 UNITS = {"k0+ky": "rad/s", "kz": "rad/s/g", "kzz-ky": "rad/s/g²", "koq": "rad/s/g²", "k3": "rad/s/g³"}

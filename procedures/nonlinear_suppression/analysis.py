@@ -29,10 +29,10 @@ from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
 from procedures.common.certificate import budget_rows
-from procedures.common.least_squares import FitError
 from procedures.common.uncertainty import Budget, merged_json, type_a_json
 from procedures.integral_precession.identify import identify
 from station.htmlkit import document, esc, mapping_table, svg, table
+from station.least_squares import FitError
 from station.records import Field, declare
 from station.session import Measurement, PointRecord, Session, StationInfo
 from station.twin import nonlinear_error as ne

@@ -23,7 +23,6 @@ from functools import cached_property
 import numpy as np
 import scipy.linalg
 
-from procedures.common.least_squares import FitError
 from procedures.rlg_g_sensitivity.strapdown import (
     attitude_error,
     attitude_history,
@@ -32,6 +31,7 @@ from procedures.rlg_g_sensitivity.strapdown import (
     rates_at_stamps,
     rotated_gamma_sums,
 )
+from station.least_squares import FitError
 from station.twin.strapdown_imu import Site, equivalent_drift, gamma_matrix
 
 HORIZONTAL = slice(0, 2)  # D of eq. 22: east and north

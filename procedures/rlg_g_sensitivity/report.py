@@ -16,7 +16,6 @@ import numpy as np
 from scipy.stats import chi2
 
 from procedures.common.certificate import budget_rows
-from procedures.common.least_squares import FitError
 from procedures.common.session_certificate import certificate_files, result_provenance
 from procedures.common.uncertainty import merged_json
 from procedures.rlg_g_sensitivity.analysis import FlexureFit, estimate_flexure, run_weights
@@ -24,6 +23,7 @@ from procedures.rlg_g_sensitivity.budget import SEED002_TYPE_B, flexure_budget
 from procedures.rlg_g_sensitivity.certificate import VERIFY_HEADER, certificate, verification_rows
 from station.engine.registry import Analysis
 from station.htmlkit import document, mapping_table, svg, table
+from station.least_squares import FitError
 from station.session import Measurement, Session
 from station.twin.fixture_poses import POSES
 from station.twin.strapdown_imu import ARCSEC_PER_G, ARCSEC_RAD, TABLE1_ARCSEC_PER_G, TAU_NAMES, Site

@@ -34,10 +34,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from procedures.common.least_squares import FitError, reliability
 from procedures.common.references import Reference
 from procedures.common.uncertainty import Budget, merged_json, transformed
 from procedures.tumble.budget import eq6_budget
+from station.least_squares import FitError, reliability
 from station.records import Field, declare
 from station.session import Session
 from station.twin.pendulous_accelerometer import CF_NAMES, branch_after_move

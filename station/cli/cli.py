@@ -21,7 +21,6 @@ from tqdm import tqdm
 
 from drivers.config import ConfigError
 from drivers.errors import DriverError
-from procedures.common.least_squares import FitError
 from procedures.integral_precession.identify import METHODS, identify
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.cli.console import (
@@ -51,6 +50,7 @@ from station.engine.registry import (
 )
 from station.errors import StationError
 from station.interchange import SessionFormatError, SessionWriter, content_hash, read_session, write_session
+from station.least_squares import FitError
 from station.provenance import make_provenance
 from station.session import Session
 from station.session_lock import recover_interrupted

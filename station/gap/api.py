@@ -30,7 +30,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from procedures.common.least_squares import FitError, fit_joint
 from station.gap import candidates as cl
 from station.gap.attribute import ALPHA, AMBIGUOUS_DBIC, MAX_EFFECTS, Scored, Selection, forward_select
 from station.gap.design import GapInputError, PointDesign, check_geometry
@@ -57,6 +56,7 @@ from station.gap.rawstreams import GratingRecord, PulseRecord, raw_evidence, raw
 from station.gap.report import GapReport, render, summary_text
 from station.gap.subsets import best_subset
 from station.gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide, family_level
+from station.least_squares import FitError, fit_joint
 from station.session import Session
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
 

@@ -8,7 +8,7 @@ of every period identity, tau_i = Np_i (T_true - T_cmd)(p), and of the grating's
 harmonics at every point with a raw record (gap.rawstreams.GratingRecord): rate
 rows, then timing rows, then grating rows, each whitened by its own noise. For given
 effect parameters p the bias k0 (the one free level) and K follow by the weighted joint
-least squares of procedures.common.least_squares.fit_joint (weights from
+least squares of station.least_squares.fit_joint (weights from
 gap.noise), so the calibrated terms are refitted at every p (variable
 projection). p is fitted with finite-difference columns of the exact forward
 model: the columns at the twin's own values are computed once per session
@@ -26,11 +26,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from procedures.common.least_squares import JointFit, fit_joint
 from station.gap import candidates as cl
 from station.gap.design import PointDesign
 from station.gap.forward import CALIBRATED, Prediction, period_identity_s, predict, predict_full
 from station.gap.rawstreams import GratingRecord, PulseRecord
+from station.least_squares import JointFit, fit_joint
 from station.twin.config import TwinConfig
 
 # Stop when the whitened sum of squares changes by less than 1e-4 of itself (a few 1e-3 of one

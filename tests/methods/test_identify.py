@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from parallel import map_seeds
 
-from procedures.common.least_squares import FitError
 from procedures.integral_precession.identify import identify
+from station.least_squares import FitError
 from station.session import point_table
 from station.twin.config import NoiseModel, TwinConfig
 from station.twin.plan import multiposition_plan, seed000_plan

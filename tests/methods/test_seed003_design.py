@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from drivers.second_instrument.emulator import static_rates_radps
-from procedures.common.least_squares import FitError
 from procedures.multiposition.alignment import horizontal_axis_alignment
 from procedures.multiposition.design import efficiency_sensitivity, total_test_time_s, uncertainty_factors
 from procedures.multiposition.four_pose import PoseWindow, fit_four_pose
 from procedures.multiposition.lsq import solve
 from procedures.multiposition.sequences import HEAD_COUNTS_PER_DEG, sequence_deg
 from procedures.multiposition.static_model import MODELS
+from station.least_squares import FitError
 from station.session import StationInfo
 from station.twin.config import TwinConfig
 from station.twin.fixture import POSES_DEG, SETUPS, mounted_twin

@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from procedures.common.least_squares import FitError
 from procedures.nonlinear_suppression import analysis as a
+from station.least_squares import FitError
 from station.session import StationInfo
 from station.twin import nonlinear_error as ne
 from station.twin.config import default_twin

@@ -10,6 +10,10 @@ understates sigma_k (physics.md). Fitting every measured rate directly,
 with independent errors, is the generalised least squares of Y with its true
 covariance (the c_i are profiled out), so sigma_k = sqrt(diag((X^T X)^-1)) sigma
 (seed 000 eq. 22) is honest. sigma = sqrt(e^T e / (n - p)) (eq. 21).
+
+It lives in the core, not in procedures/ or the twin: it is the estimator of seed 000's identification
+equations, a pure function of arrays that knows no procedure and simulates nothing, and both the
+procedures (identification, budgets) and station.gap (which may import only the core and the twin) fit with it.
 """
 
 from __future__ import annotations
