@@ -9,7 +9,7 @@ on one core, a local pool or a dask cluster (station/fanout.py); with
 --results each session's errors are logged as it finishes and a rerun resumes.
 
 Which simulation path (`--path`):
-- `engine` (the default): each session is seed000_integral.toml's full session through the engine on the
+- `engine` (the default): each session is integral_precession.toml's full session through the engine on the
   deterministic station (config/stations/vibration-sim.toml: drivers against their emulators, in each worker process;
   tests/engine_sessions.py), about 16 s of CPU a session, so N defaults to 40. This is the procedure's
   behaviour: the window phases are the ones the station's timeline gives (on the deterministic station nearly

@@ -37,9 +37,9 @@ from station.twin.plan import seed000_plan
 from station.twin.session_sim import simulate_session
 
 REPEATS = 20
-PROCEDURES = ("seed000.integral_precession", "seed000.integer_periodic_vibration", "seed000.multi_frequency",
-              "seed000.self_alignment", "seed001.tumble", "seed002.g_sensitive", "seed003.gravity_field",
-              "seed004.suppression")  # fmt: skip
+PROCEDURES = ("integral_precession", "integral_precession.integer_periodic_vibration",
+              "integral_precession.multi_frequency", "integral_precession.self_alignment", "tumble",
+              "rlg_g_sensitivity", "multiposition", "nonlinear_suppression")  # fmt: skip
 STATUSES = ("finished",) * 80 + ("aborted",) * 12 + ("imported",) * 5 + ("failed",) * 3
 T0 = datetime(2024, 1, 1, tzinfo=UTC)
 
@@ -73,7 +73,7 @@ QUERIES = {
     "one station": HistoryQuery(station="station-07"),
     "part of a serial (any case)": HistoryQuery(serial="iga-042"),
     "one serial, whole": HistoryQuery(serial="PIGA-1234"),
-    "procedure + status": HistoryQuery(procedure="seed002.g_sensitive", status="failed"),
+    "procedure + status": HistoryQuery(procedure="rlg_g_sensitivity", status="failed"),
     "one month": HistoryQuery(since=date(2025, 6, 1), until=date(2025, 6, 30)),
     "station + serial part + a year": HistoryQuery(
         serial="-01", station="station-11", since=date(2025, 1, 1), until=date(2025, 12, 31)
@@ -101,7 +101,7 @@ def time_sync(url: str, n_sessions: int) -> None:
     with tempfile.TemporaryDirectory() as tmp, SessionStore(Path(tmp) / "s.sqlite") as store:
         for k in range(n_sessions):
             s = simulate_session(seed000_plan(), twin, seed=k, raw=k == 0)
-            uid = store.create_session(s.station, "seed000.integral_precession", instrument_serial=f"PIGA-{k:04d}")
+            uid = store.create_session(s.station, "integral_precession", instrument_serial=f"PIGA-{k:04d}")
             for i, p in enumerate(s.points):
                 store.add_point(uid, p, s.raw.get(p.point_id) if i < 2 else None)
             store.add_event(uid, "end", "finished")

@@ -31,7 +31,7 @@ from station.store import SessionStore
 from station.twin.config import default_twin
 
 ROOT = Path(__file__).resolve().parents[1]
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 PARAMS = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [10], "window_s": 30, "settle_s": 2}
 
 

@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/bench_engine.py [--speeds 500 1000] [--repeats 1]
 
-Runs config/procedures/seed000_integral.toml (10 positions, 8/9/10 Hz and static, 40 points) on the
+Runs config/procedures/integral_precession.toml (10 positions, 8/9/10 Hz and static, 40 points) on the
 deterministic simulated station of config/stations/vibration-sim.toml (discrete-event clock, the real drivers against
 their emulators) as fast as the CPU allows and, for each of `--speeds`, paced at that ceiling (station
 seconds per wall second, as `--speed` for watching live), and prints a markdown table: wall time, CPU,
@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def run_once(speed: float | None, seed: int) -> dict:
     cfg = load_station_config(ROOT / "config" / "stations/vibration-sim.toml")
-    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed000_integral.toml")
+    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "integral_precession.toml")
     twin = default_twin()
     with tempfile.TemporaryDirectory() as tmp:
         t0, cpu0 = time.perf_counter(), time.process_time()

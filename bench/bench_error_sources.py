@@ -2,10 +2,10 @@
 procedures end to end on a simulated station whose twin carries the seed's errors.
 
 (a) the analyses on the seed's own numbers: eq. 32 from Table 5, eq. 31's column, eq. 34 from Table 7;
-(b) `seed000.parasitic_translation` (Table 5's frequencies, 5 turns each): z0, z1 recovered against
+(b) `integral_precession.parasitic_translation` (Table 5's frequencies, 5 turns each): z0, z1 recovered against
     the twin's eq. 32 (z0 = -1.299e-4 m, z1 = 3.2e-6 m s/rad), Table 5's Zs1 beside them;
-(c) `seed000.frequency_stability` (Table 6's frequencies, 10 periods each) with eps_f = 1e-6;
-(d) `seed000.parasitic_rotation` (0.1 Hz, 2 turns, 12 readings a turn) with the twin's parasitic
+(c) `integral_precession.frequency_stability` (Table 6's frequencies, 10 periods each) with eps_f = 1e-6;
+(d) `integral_precession.parasitic_rotation` (0.1 Hz, 2 turns, 12 readings a turn) with the twin's parasitic
     rotation set to eq. 34 of Table 7 (ax0 16.579", axs1 -0.921", axc1 0.195").
 Each run: the procedure file's parameters, 1000x virtual time, wall time measured.
 
@@ -85,7 +85,7 @@ def translation(out: Path) -> None:
         .with_effect("waveform_fundamental", z0=SEED_Z0_M, z1=SEED_Z1_M_S_PER_RAD)
         .with_effect("waveform_harmonics", Zs2=2.4e-6, Zc2=-4.2e-6)
     )
-    r, wall, station = run("seed000_parasitic_translation.toml", twin, out)
+    r, wall, station = run("integral_precession.parasitic_translation.toml", twin, out)
     r = r["parasitic_translation"]
     fit = r["zs1_fit"]
     print(f"\n(b) parasitic translation: {wall:.1f} s wall, {station:.0f} s station")
@@ -102,7 +102,7 @@ def translation(out: Path) -> None:
 
 def stability(out: Path) -> None:
     twin = default_twin().with_effect("frequency_error", eps_f=EPS_F)
-    r, wall, station = run("seed000_frequency_stability.toml", twin, out)
+    r, wall, station = run("integral_precession.frequency_stability.toml", twin, out)
     r = r["frequency_stability"]
     print(f"\n(c) frequency stability: {wall:.1f} s wall, {station:.0f} s station; passed {r['passed']}")
     print("| f (Hz) | f̄ (Hz) | Δf (Hz) | −ε_f f (Hz) | σ_f/f | Δα eq. 33 (rad/s) |")
@@ -120,7 +120,7 @@ def rotation(out: Path) -> None:
     a0, as1, ac1 = seed.a0, seed.as1, seed.ac1
     twin = default_twin().with_effect("parasitic_rotation", ax0=a0 * ARCSEC_RAD, axs1=as1 * ARCSEC_RAD,
                                       axc1=ac1 * ARCSEC_RAD)  # fmt: skip
-    r, wall, station = run("seed000_parasitic_rotation.toml", twin, out)
+    r, wall, station = run("integral_precession.parasitic_rotation.toml", twin, out)
     r = r["parasitic_rotation"]
     print(f"\n(d) parasitic rotation: {wall:.1f} s wall, {station:.0f} s station")
     print("| ψ (deg) | crank disk (deg) | φx (″) | seed Table 7 φx (″) |")

@@ -1,6 +1,6 @@
 """Seed 001 on the simulated tumble station: the seed's AL-15 figures reproduced, the estimators' honesty, speed.
 
-(a) The seed's session (config/procedures/seed001_tumble.toml: 20, 80, -40 and back to 20 C, three cycles of
+(a) The seed's session (config/procedures/tumble.toml: 20, 80, -40 and back to 20 C, three cycles of
     forward and back strokes) through engine, drivers and emulators on config/stations/tumble-sim.toml at SPEED
     times real time (500: a loaded machine's pauses make the indexing head miss its 120 s settling at 1000x);
     the twin carries the seed's AL-15 estimates. Each figure the seed quotes, the estimate with its
@@ -47,7 +47,7 @@ HALF_DAY_S = 43200.0
 
 def station_session(seed: int, speed: float) -> None:
     config = load_station_config(ROOT / "config" / "stations/tumble-sim.toml")
-    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed001_tumble.toml")
+    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "tumble.toml")
     with tempfile.TemporaryDirectory() as tmp, SessionStore(Path(tmp) / "s.sqlite") as store:
         sim = simulated_station(config, default_twin(), seed=seed, speed=speed)
         try:

@@ -1,7 +1,7 @@
 """Seed 002's figures on the simulated station: Table 1's coefficients, the velocity-error decreases of
 Table 2, and the speed of the IMU recordings.
 
-session: `seed002.g_sensitive_misalignment` with config/procedures/seed002_g_sensitive.toml (the seed's
+session: `rlg_g_sensitivity` with config/procedures/rlg_g_sensitivity.toml (the seed's
     15-minute alignments, 10-minute vibrations at 1.5 g, 20 Hz in the nine poses, and its two
     verification runs) through the engine, the drivers and the emulators; the estimates against the
     simulated IMU's true coefficients (seed 002 Table 1), wall and station time.
@@ -69,7 +69,7 @@ def table1(values: np.ndarray, sigmas: np.ndarray) -> None:
 
 def session(seed: int) -> None:
     config = load_station_config(ROOT / "config" / "stations/shaker-sim.toml")
-    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "seed002_g_sensitive.toml")
+    spec, params = load_procedure_file(ROOT / "config" / "procedures" / "rlg_g_sensitivity.toml")
     with (
         tempfile.TemporaryDirectory() as tmp,
         simulated_station(config, default_twin(), seed=seed, speed=1000.0) as sim,

@@ -1,7 +1,7 @@
 """Seed 003's figures on simulated sessions: design (Figs. 4-7), harmonics by the orthogonal 4-pose method
 (Table 6), and PIGA A's coefficients before and after compensation (Tables 3-4 vs 7).
 
-Two sessions of `seed003.gravity_field` on config/stations/dual-sim.toml with config/twins/multiposition.toml (the
+Two sessions of `multiposition` on config/stations/dual-sim.toml with config/twins/multiposition.toml (the
 seed's PIGA, its head angle error and theta0): the seed's arrangement (setup 1 equal acceleration, setup 2
 equal angle) and the swapped one, each with both 22-position calibration sequences of A; and a Monte Carlo
 of noise draws on the pure functions (the fixture's physics, no station) for the honesty of the
@@ -131,7 +131,7 @@ def run_session(twin: TwinConfig, params: dict, seed: int, speed: float):
         try:
             controller = StationController(sim.devices, store, config.station_model(), reports_dir=out)
             t0 = time.perf_counter()
-            outcome = controller.run("seed003.gravity_field", params)
+            outcome = controller.run("multiposition", params)
             wall = time.perf_counter() - t0
             station_h = controller.engine.progress.elapsed_s / 3600
             session = store.load_session(outcome.session_uid, with_raw=False)

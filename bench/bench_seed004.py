@@ -1,6 +1,6 @@
 """Seed 004's suppression of the quadratic term on the simulated station, against the seed's section 6 figures.
 
-Runs config/procedures/seed004_suppression.toml (21 offsets, -5" .. 5" by 0.5", each calibrated by integral
+Runs config/procedures/nonlinear_suppression.toml (21 offsets, -5" .. 5" by 0.5", each calibrated by integral
 precession; the best offset; eqs. 21-22; the operator's mass removal; K2 once more) on
 config/stations/electronics-sim.toml for N station seeds at SPEED x real time (the CLI's 1000 by default; 500
 keeps a loaded machine's late readers within half a time-stamp wrap), through the same CLI path an operator
@@ -33,7 +33,7 @@ from station.fanout import ExecutorSpec, add_executor_options, run_cases, spec_f
 from station.store import SessionStore
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
-PROCEDURE = CONFIG / "procedures" / "seed004_suppression.toml"
+PROCEDURE = CONFIG / "procedures" / "nonlinear_suppression.toml"
 STATION = CONFIG / "stations/electronics-sim.toml"
 
 

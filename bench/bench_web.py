@@ -227,7 +227,7 @@ async def watch(panel: Panel, clients: int, run, silent: int = 0) -> Watched:
 
 async def run_session(panel: Panel, outcome: dict) -> None:
     """The default procedure (seed 000's 40 points), started through the panel; until the station is idle again."""
-    await asyncio.to_thread(panel.post, "/api/stations/sim/start", {"procedure": "seed000.integral_precession"})
+    await asyncio.to_thread(panel.post, "/api/stations/sim/start", {"procedure": "integral_precession"})
     while (status := await asyncio.to_thread(panel.status))["busy"]:
         await asyncio.sleep(0.5)
     outcome.update(state=status["state"], faults=status["faults"], done=status["done"], total=status["total"])

@@ -154,7 +154,7 @@ class PanelProcess:
         self.store.parent.mkdir()
         session = simulate_session(seed000_plan(), default_twin(), 5, raw=False, notes="fuzz")
         with SessionStore(self.store) as store:
-            uid = store.create_session(session.station, "seed000.integral_precession", config={"params": {}})
+            uid = store.create_session(session.station, "integral_precession", config={"params": {}})
             for p in session.points:
                 store.add_point(uid, p)
             store.set_status(uid, "finished")

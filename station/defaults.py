@@ -27,5 +27,5 @@ def config_dir() -> Path:
 
 
 def config_file(*parts: str) -> Path:
-    """A shipped default by its path under config/, e.g. config_file("procedures", "seed000_integral.toml")."""
+    """A shipped default by its path under config/, e.g. config_file("procedures", "integral_precession.toml")."""
     return config_dir().joinpath(*parts)

@@ -14,7 +14,7 @@ tests/test_simulation_paths.py and bench/bench_calibration_mc.py (tests/ on its 
 
 Seed 001 tumble sessions the same two ways (tests/test_simulation_paths_seed001.py):
 
-- `engine_tumble_session`: seed001_tumble.toml through the engine on config/stations/tumble-sim.toml (the voltmeter
+- `engine_tumble_session`: tumble.toml through the engine on config/stations/tumble-sim.toml (the voltmeter
   reading the world's TumbledAccelerometer at the head's angle and the chamber's product temperature), with the
   true eq. 1 coefficients of each temperature block: the accelerometer's model at the mean product temperature of
   the block's readings, its launch offset and drift at their mean time (what procedures.tumble.tumble_session
@@ -29,7 +29,7 @@ chamber's ramp and settling and the head's moves.
 
 Seed 002 calibration runs the same two ways (tests/test_simulation_paths_seed002.py):
 
-- `engine_vibration_runs`: seed002_g_sensitive.toml through the engine on config/stations/shaker-sim.toml (the
+- `engine_vibration_runs`: rlg_g_sensitivity.toml through the engine on config/stations/shaker-sim.toml (the
   simulated operator mounting each pose, the IMU's emulator streaming quantised increments over its line), the
   stored values of each calibration run (A, B of eqs. 17-22) with the IMU's twin and the site;
 - `shortcut_vibration_runs`: each pose's run made off line by procedures.rlg_g_sensitivity.vibration_run (not the
@@ -71,11 +71,11 @@ from station.twin.shaker_motion import sine_drive
 from station.twin.strapdown_imu import Site, StrapdownImuTwin
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
-PROCEDURE = CONFIG / "procedures" / "seed000_integral.toml"
+PROCEDURE = CONFIG / "procedures" / "integral_precession.toml"
 TUMBLE_STATION = CONFIG / "stations/tumble-sim.toml"
-TUMBLE_PROCEDURE = CONFIG / "procedures" / "seed001_tumble.toml"
+TUMBLE_PROCEDURE = CONFIG / "procedures" / "tumble.toml"
 SHAKER_STATION = CONFIG / "stations/shaker-sim.toml"
-SHAKER_PROCEDURE = CONFIG / "procedures" / "seed002_g_sensitive.toml"
+SHAKER_PROCEDURE = CONFIG / "procedures" / "rlg_g_sensitivity.toml"
 
 
 def chi2_ok(sum_sq: float, dof: int, level: float) -> bool:
@@ -128,7 +128,7 @@ def _engine_run(
 
 
 def engine_session(params: dict[str, Any], seed: int, twin: TwinConfig | None = None) -> Session:
-    """seed000_integral.toml with `params` over its own, through the engine on the deterministic station."""
+    """integral_precession.toml with `params` over its own, through the engine on the deterministic station."""
     return _engine_run(CONFIG / "stations/vibration-sim.toml", PROCEDURE, params, seed, twin)[0]
 
 
@@ -141,7 +141,7 @@ def shortcut_session(params: dict[str, Any], seed: int, twin: TwinConfig | None 
 
 
 def tumble_params(params: dict[str, Any]) -> dict[str, Any]:
-    """seed001_tumble.toml's parameters with `params` over them (validated)."""
+    """tumble.toml's parameters with `params` over them (validated)."""
     spec, base = load_procedure_file(TUMBLE_PROCEDURE)
     return spec.validate(dict(base) | params)
 
@@ -170,7 +170,7 @@ def _block_truths(session: Session, model: AccelerometerModel, temperature_c: An
 
 
 def engine_tumble_session(params: dict[str, Any], seed: int) -> tuple[Session, list[dict[str, float]]]:
-    """seed001_tumble.toml with `params` over its own through the engine on the deterministic tumble station, and
+    """tumble.toml with `params` over its own through the engine on the deterministic tumble station, and
     the true coefficients of each temperature block."""
 
     def truths(sim: Any, session: Session) -> list[dict[str, float]]:
@@ -190,7 +190,7 @@ def shortcut_tumble_session(params: dict[str, Any], seed: int) -> tuple[Session,
 
 
 def shaker_params(params: dict[str, Any]) -> dict[str, Any]:
-    """seed002_g_sensitive.toml's parameters with `params` over them (validated)."""
+    """rlg_g_sensitivity.toml's parameters with `params` over them (validated)."""
     spec, base = load_procedure_file(SHAKER_PROCEDURE)
     return spec.validate(dict(base) | params)
 
@@ -200,7 +200,7 @@ def _calibration_runs(session: Session) -> list[dict[str, Any]]:
 
 
 def engine_vibration_runs(params: dict[str, Any], seed: int) -> tuple[list[dict[str, Any]], StrapdownImuTwin, Site]:
-    """seed002_g_sensitive.toml with `params` over its own through the engine on the deterministic shaker station:
+    """rlg_g_sensitivity.toml with `params` over its own through the engine on the deterministic shaker station:
     the stored values of its calibration runs (A, B: eqs. 17-22), the IMU's twin and the site it navigated on."""
 
     def twin_and_site(sim: Any, session: Session) -> tuple[StrapdownImuTwin, Site]:

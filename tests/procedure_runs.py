@@ -17,27 +17,31 @@ from station.twin.config import TwinConfig, default_twin
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 # procedure file -> (station file, parameters that shorten it)
 RUNS = {
-    "seed000_baseline": ("vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10}),
-    "seed000_frequency_stability": ("vibration-sim", {"freqs_hz": [5, 10], "periods": 4, "settle_s": 1}),
-    "seed000_integral": ("vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10, "raw": True}),
-    "seed000_multi_frequency": ("vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [9, 10], "window_s": 10}),
-    "seed000_parasitic_rotation": (
+    "integral_precession.integer_periodic_vibration": (
+        "vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10}),
+    "integral_precession.frequency_stability": ("vibration-sim", {"freqs_hz": [5, 10], "periods": 4, "settle_s": 1}),
+    "integral_precession": (
+        "vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10, "raw": True}),
+    "integral_precession.multi_frequency": (
+        "vibration-sim", {"positions_deg": [0, 180], "freqs_hz": [9, 10], "window_s": 10}),
+    "integral_precession.parasitic_rotation": (
         "gradiometer-sim", {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 8, "settle_s": 1}
     ),
-    "seed000_parasitic_translation": ("vibration-sim", {"freqs_hz": [5, 10], "periods": 2, "settle_s": 1}),
-    "seed000_planning": ("vibration-sim", {"positions_deg": [0, 90, 180, 270], "freqs_hz": [10], "window_s": 10}),
-    "seed000_self_alignment": ("vibration-sim", {"window_s": 10}),
-    "seed001_tumble": ("tumble-sim", {"temperatures_c": [20, 25], "cycles": 1, "ramp_c_per_min": 5,
-                                              "soak_s": 60, "dwell_s": 1, "samples": 2}),
-    "seed002_g_sensitive": ("shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10,
-                                                   "verify_sine_poses": [5], "verify_random_poses": [10]}),
-    "seed002_quick": ("shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10, "remount_s": 10}),
-    "seed003_gravity_field": ("dual-sim", {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0,
-                                                   "setup1_n": 6, "setup2_n": 6, "calibration_schemes": "none"}),
-    "seed003_planning": ("dual-sim", {}),
-    "seed004_suppression": ("electronics-sim", {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0],
-                                                        "freqs_hz": [8.0, 10.0], "window_s": 10.0,
-                                                        "verify_window_s": 10.0}),
+    "integral_precession.parasitic_translation": ("vibration-sim", {"freqs_hz": [5, 10], "periods": 2, "settle_s": 1}),
+    "integral_precession.planning": (
+        "vibration-sim", {"positions_deg": [0, 90, 180, 270], "freqs_hz": [10], "window_s": 10}),
+    "integral_precession.self_alignment": ("vibration-sim", {"window_s": 10}),
+    "tumble": ("tumble-sim", {"temperatures_c": [20, 25], "cycles": 1, "ramp_c_per_min": 5,
+                              "soak_s": 60, "dwell_s": 1, "samples": 2}),
+    "rlg_g_sensitivity": ("shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10,
+                                         "verify_sine_poses": [5], "verify_random_poses": [10]}),
+    "rlg_g_sensitivity-quick": ("shaker-sim", {"poses": [1, 2], "align_s": 10, "vibrate_s": 10, "remount_s": 10}),
+    "multiposition": ("dual-sim", {"precession_rev": 1 / 64, "alignment_rev": 1 / 64, "settle_s": 0.0,
+                                   "setup1_n": 6, "setup2_n": 6, "calibration_schemes": "none"}),
+    "multiposition.planning": ("dual-sim", {}),
+    "nonlinear_suppression": ("electronics-sim", {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0],
+                                                  "freqs_hz": [8.0, 10.0], "window_s": 10.0,
+                                                  "verify_window_s": 10.0}),
 }  # fmt: skip
 
 

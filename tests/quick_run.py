@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-QUICK_TOML = ('procedure = "seed000.integral_precession"\ntitle = "quick"\n[params]\n'
+QUICK_TOML = ('procedure = "integral_precession"\ntitle = "quick"\n[params]\n'
               "positions_deg = [0, 72, 144, 216, 288]\nfreqs_hz = [8, 9, 10]\nwindow_s = 30\n")  # fmt: skip
 RUN_TIMEOUT_S = 240.0  # a loaded 2-core machine
 

@@ -34,7 +34,7 @@ def bad(tmp_path_factory) -> Path:
     (d / "afile").write_text("not a directory\n")
     (d / "broken.toml").write_text("this is = = not toml\n")
     (d / "unknown.toml").write_text('procedure = "no.such.procedure"\n[params]\n')
-    (d / "badparam.toml").write_text('procedure = "seed000.integral_precession"\n[params]\nwindow_s = -5\n')
+    (d / "badparam.toml").write_text('procedure = "integral_precession"\n[params]\nwindow_s = -5\n')
     return d
 
 

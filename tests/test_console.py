@@ -86,7 +86,7 @@ def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():
 
     temperatures = [20, 80, -40, 20]
     session, _ = tumble_session(AccelerometerModel(), temperatures, 3, 1e-5, np.random.default_rng(1))
-    results = get_procedure("seed001.tumble").analyse(session).results
+    results = get_procedure("tumble").analyse(session).results
     rows = coefficient_rows(results)
     k1 = [r for r in rows if r.name == "K1"]
     budget_k = [t["coefficients"]["K1"]["coverage_factor"] for t in results["eight_point"]["temperatures"]]

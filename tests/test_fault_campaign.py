@@ -42,7 +42,7 @@ from station.store import SessionStore
 from station.twin.config import default_twin
 
 CONFIG = load_station_config(Path(__file__).parents[1] / "config" / "stations/vibration-sim.toml")
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 PARAMS = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 30, "settle_s": 2}  # 4 points, all short
 N_POINTS = 4
 SPEED = 200.0

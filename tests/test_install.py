@@ -107,7 +107,8 @@ def test_a_plain_install_runs_the_main_job_from_an_empty_folder(tmp_path):
     ).stdout  # fmt: skip
     config_dir, uplot, app_file = (Path(p) for p in json.loads(where))
     assert (
-        config_dir == site / "piga_station_config" and (config_dir / "procedures" / "seed000_integral.toml").is_file()
+        config_dir == site / "piga_station_config"
+        and (config_dir / "procedures" / "integral_precession.toml").is_file()
     )
     assert (config_dir / "eds" / "vibration_table_servo.eds").is_file()
     assert uplot == site / "web" / "vendor" / "uplot" and (uplot / "uPlot.iife.min.js").stat().st_size > 10_000

@@ -95,7 +95,7 @@ def test_a_session_whose_table_ran_3e_4_off_frequency_exports_and_imports_again(
     digits), so the import's Np check passes them, and still refuses an Np one period off."""
     eps_f = 3e-4
     twin = default_twin().with_effect("frequency_error", eps_f=eps_f)
-    uid = record("seed000_integral", tmp_path / "station.sqlite", twin=twin)
+    uid = record("integral_precession", tmp_path / "station.sqlite", twin=twin)
     with SessionStore(tmp_path / "station.sqlite") as store:
         before = store.load_session(uid)
     shown = frequency_error(before.points)
@@ -120,7 +120,7 @@ def test_a_session_whose_table_ran_3e_4_off_frequency_exports_and_imports_again(
 
 
 def test_an_export_states_the_default_stability_when_the_points_need_less(tmp_path):
-    uid = record("seed000_baseline", tmp_path / "station.sqlite")
+    uid = record("integral_precession.integer_periodic_vibration", tmp_path / "station.sqlite")
     with SessionStore(tmp_path / "station.sqlite") as store:
         session = store.load_session(uid)
     assert frequency_error(session.points) < TIMING_DEFAULTS["frequency_stability"]

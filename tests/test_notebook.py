@@ -140,8 +140,8 @@ def test_session_takes_the_latest_finished_one_and_says_which(tmp_path, capsys):
     info = simulate_session(multiposition_plan([0.0], [10.0], window_s=20.0), TwinConfig(), seed=1).station
     db = tmp_path / "db.sqlite"
     with SessionStore(db) as raw:
-        done = raw.create_session(info, "seed000.integral_precession", status="finished")
-        raw.create_session(info, "seed000.integral_precession", status="failed")  # the latest: a failed run
+        done = raw.create_session(info, "integral_precession", status="finished")
+        raw.create_session(info, "integral_precession", status="failed")  # the latest: a failed run
     with station.open_store(db) as store:
         assert store.session().uid == done
         said = capsys.readouterr().out

@@ -9,7 +9,7 @@ Measured on seed 000's full design (seeds 0-3): design fields identical; static 
 relative: rate noise), vibration Tm 0.15-0.18 s and Np up to 4 periods apart (phase). So this test checks what the
 shortcut is kept for, identification and uncertainty studies: that its sessions are statistically the engine's.
 
-Design: seed000_integral at its 10 positions, 8 and 10 Hz, 30 s windows (30 points, dof 16 a session), seeds 1-6:
+Design: integral_precession at its 10 positions, 8 and 10 Hz, 30 s windows (30 points, dof 16 a session), seeds 1-6:
 about 3 s of CPU per engine session. Tolerances, each from the noise model the twin states (rate noise 1e-6 rad/s
 over 560 s, white: sd of a window's mean rate 1e-6 sqrt(560 / Tm)):
 - every point's design fields (id, position, frequency, kind, preset pulses) identical: exact;

@@ -20,7 +20,7 @@ sigma at most 3.2
 and 2.9 (rms 1.03, 1.00), eq. 4's at most 2.5 and 2.3, the paths' errors at most 2.9 sigma apart (rms 0.91).
 It fails with the shortcut's reading noise 1.3x, its hysteresis 1.2x, or its k3 off by 10 ug/g^3.
 
-Design: DESIGN over seed001_tumble.toml (the seed's 20, 80, -40, 20 C and three cycles: 216 readings; the chamber
+Design: DESIGN over tumble.toml (the seed's 20, 80, -40, 20 C and three cycles: 216 readings; the chamber
 at 5 C/min and a shorter soak to keep station time down), seeds SEEDS. Tolerances, each from the noise the twin
 states: a reading is the mean of 10 conversions, each with the accelerometer's 16 ug/sqrt(Hz) over the 0.2 s
 aperture (25.3 ug) and the voltmeter's 0.15 ppm of the 2 V range (0.07 ug): sigma_g = 8.0 ug a reading

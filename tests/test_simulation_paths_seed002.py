@@ -14,7 +14,7 @@ z^2 of B - A tau 0.88 (engine) and 0.99 (shortcut) over 90 components, (tau_hat 
 2.2, rms 0.87 and 0.98. It fails with all the shortcut's sensor noise 1.5x (mean z^2 2.2), tau 1.5x, or the
 mount error 5x; 90 components do not resolve 1.3x (variance 1.7x) from sampling.
 
-Design: DESIGN over seed002_g_sensitive.toml (the nine calibration poses, sine 1.5 g at 20 Hz, alignments and
+Design: DESIGN over rlg_g_sensitivity.toml (the nine calibration poses, sine 1.5 g at 20 Hz, alignments and
 vibrations shortened to ALIGN_S and VIBRATE_S, no verification runs: the engine's seed 002 station costs about
 11 ms of CPU a station second), seeds SEEDS. Tolerances, each from the noise the twin states
 (tests/methods/test_seed002_analysis.py a_priori_sigmas: the gyros' angle random walk over the vibration, the

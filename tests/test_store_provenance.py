@@ -47,7 +47,7 @@ def test_a_real_station_needs_the_instrument_serial():
 
 def test_the_console_refuses_a_real_station_without_a_serial_before_opening_anything(tmp_path, capsys):
     out = tmp_path / "out"
-    code = main(["run", str(CONFIG / "procedures" / "seed000_integral.toml"), "--station", str(CONFIG / "stations" /
+    code = main(["run", str(CONFIG / "procedures" / "integral_precession.toml"), "--station", str(CONFIG / "stations" /
     "vibration.toml"),
                  "--out", str(out)])  # fmt: skip
     assert code == 2
@@ -96,7 +96,7 @@ def test_a_real_station_refuses_a_start_from_the_panel_without_a_serial(tmp_path
     sim, db, controller, server, client = _control_rig(tmp_path, seed=1)
     try:
         sim.devices.config = dataclasses.replace(sim.devices.config, simulated=False, station_id="lab-2")
-        reply = client.request("start", {"procedure": "seed000.integral_precession", "params": QUICK}, user="bob")
+        reply = client.request("start", {"procedure": "integral_precession", "params": QUICK}, user="bob")
         assert not reply["ok"] and reply["error"]["type"] == "ProvenanceError"
         assert "'lab-2' is a real station" in reply["error"]["message"]
         assert db.sessions() == [] and not controller.busy  # nothing started, nothing stored
@@ -111,7 +111,7 @@ def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
     id, the simulated station's seed and the serial given go with it."""
     sim, db, controller, server, client = _control_rig(tmp_path, seed=23)
     try:
-        args = {"procedure": "seed000.integral_precession", "params": QUICK, "instrument_serial": "PIGA-7"}
+        args = {"procedure": "integral_precession", "params": QUICK, "instrument_serial": "PIGA-7"}
         uid = client.request("start", args, user="alice")["result"]["session_uid"]
         controller.wait(120)
         prov = db.provenance(uid)
@@ -126,7 +126,7 @@ def test_the_panels_user_is_the_operator_of_the_session_it_starts(tmp_path):
 def test_the_procedure_files_instrument_serial_is_recorded(tmp_path):
     """`instrument_serial` in a procedure file names the instrument of the session (no silent default)."""
     proc = tmp_path / "quick.toml"
-    proc.write_text('procedure = "seed000.integral_precession"\ninstrument_serial = "PIGA-FILE-9"\n[params]\n'
+    proc.write_text('procedure = "integral_precession"\ninstrument_serial = "PIGA-FILE-9"\n[params]\n'
                     'positions_deg = [0, 180]\nfreqs_hz = [10]\nwindow_s = 5\nsettle_s = 0\n')  # fmt: skip
     out = tmp_path / "out"
     main(["run", str(proc), "--out", str(out), "--seed", "4"])  # the analysis may refuse so short a session

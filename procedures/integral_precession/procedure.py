@@ -1,15 +1,15 @@
 """Seed 000: integral precession calibration of a PIGA on the linear vibration table.
 
-- `seed000.planning`: det(Q) and RES(n) versus n, uncertainties pre-estimated by
+- `integral_precession.planning`: det(Q) and RES(n) versus n, uncertainties pre-estimated by
   eqs. 22 and 24, the test time per point and in total (5.1.2-5.1.4). Nothing moves.
-- `seed000.self_alignment`: the misalignment angle from static windows (eqs. 25-27).
-- `seed000.integral_precession`: at each indexing position the vibration tests at
+- `integral_precession.self_alignment`: the misalignment angle from static windows (eqs. 25-27).
+- `integral_precession`: at each indexing position the vibration tests at
   every frequency, then the static test (5.2); identified by the integral method
   (exact window means, eqs. 19-22) and by the integer periodic vibration baseline
   (eq. 35) on the same data; with the measured Zs1(w) (eq. 32) and axs1 (eq. 34)
   compensated when given.
-- `seed000.integer_periodic_vibration`: the classical baseline, its results first.
-- `seed000.multi_frequency`: the multi-frequency method at 0, 45 and 180 deg (6.2.3).
+- `integral_precession.integer_periodic_vibration`: the classical baseline, its results first.
+- `integral_precession.multi_frequency`: the multi-frequency method at 0, 45 and 180 deg (6.2.3).
 
 The error-source experiments (Tables 5-7) are in procedures/integral_precession/procedure_error_sources.py.
 """
@@ -142,7 +142,7 @@ def _multiposition(p: dict):
 
 
 @procedure(
-    "seed000.integral_precession",
+    "integral_precession",
     "Integral precession calibration on the vibration table (seed 000)",
     (
         _positions(equal_angle_positions_deg(10), "indexing positions (seed 000: 10 equal angles)"),
@@ -157,7 +157,7 @@ def integral_precession(p: dict):
 
 
 @procedure(
-    "seed000.integer_periodic_vibration",
+    "integral_precession.integer_periodic_vibration",
     "Integer periodic vibration method, the classical baseline (seed 000 eq. 35, Ref. 22)",
     (_positions(equal_angle_positions_deg(9), "indexing positions (Ref. 22: 9 equal angles)"), *COMMON),
     analyse=analyse_baseline,
@@ -167,7 +167,7 @@ def integer_periodic_vibration(p: dict):
 
 
 @procedure(
-    "seed000.multi_frequency",
+    "integral_precession.multi_frequency",
     "Multi-frequency method: up, down and 45 deg (seed 000 6.2.3, Ref. 21)",
     (_positions([0.0, 45.0, 180.0], "indexing positions (0, 45 and 180 deg)"), *COMMON),
     analyse=analyse_multi_frequency,
@@ -236,7 +236,7 @@ def analyse_planning(session: Session) -> Analysis:
 
 
 @procedure(
-    "seed000.planning",
+    "integral_precession.planning",
     "Planning: det(Q), RES(n), uncertainty pre-estimation and test time (seed 000 5.1); nothing moves",
     (
         _positions(equal_angle_positions_deg(10), "indexing positions of the design to evaluate"),
@@ -290,7 +290,7 @@ def analyse_alignment(session: Session) -> Analysis:
 
 
 @procedure(
-    "seed000.self_alignment",
+    "integral_precession.self_alignment",
     "Self-alignment: the PIGA's misalignment angle from static windows (seed 000 eqs. 25-27)",
     (
         _positions([0.0, 60.0, 180.0, 300.0], "static positions: 0 and 180 for eq. 26, or three or more for eq. 25"),

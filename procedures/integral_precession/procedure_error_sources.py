@@ -1,16 +1,16 @@
 """Seed 000's error-source experiments (6.1.1-6.1.3), each a procedure of its own with its report.
 
-- `seed000.parasitic_translation`: the grating record at each frequency, its harmonics
+- `integral_precession.parasitic_translation`: the grating record at each frequency, its harmonics
   relative to the crank phase (eq. 30, Table 5), the sampling-delay error (eq. 31) and
   the fit Zs1(w) = z0 + z1 w (eq. 32).
-- `seed000.frequency_stability`: consecutive periods timed at each frequency (Table 6,
+- `integral_precession.frequency_stability`: consecutive periods timed at each frequency (Table 6,
   eq. 33), judged against Table 4's stability < 5e-4.
-- `seed000.parasitic_rotation`: an electronic gradiometer on the table top read at the
+- `integral_precession.parasitic_rotation`: an electronic gradiometer on the table top read at the
   crank phases 2 pi i / N over whole turns (eq. 34, Table 7).
 
 The results' "compensation" blocks hold what the integral identification compensates
 (seed 000 6.1: "the error calibration model should be compensated"), named as the
-parameters of seed000.integral_precession that take them: zs1_z0_m (m) and zs1_z1_m_s
+parameters of integral_precession that take them: zs1_z0_m (m) and zs1_z1_m_s
 (m s/rad) of Zs1(w) = z0 + z1 w, and axs1_rad (rad); that procedure builds
 procedures.integral_precession.identify.Compensation(zs1_m=lambda w: z0 + z1 w, axs1_rad=axs1) from them.
 """
@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
 TABLE5_FREQS_HZ = [1.0, 3.0, 5.0, 7.0, 9.0, 10.0]
 TABLE6_FREQS_HZ = [0.1, *map(float, range(1, 11))]
-INTEGRAL = "seed000.integral_precession"  # the procedure whose identification the results compensate
+INTEGRAL = "integral_precession"  # the procedure whose identification the results compensate
 
 TRANSLATION_PARAMS = (
     Param("freqs_hz", list, default=TABLE5_FREQS_HZ, min=0.1, max=10.0, unit="Hz",
@@ -133,8 +133,9 @@ def analyse_translation(session: Session) -> Analysis:
     return Analysis({"parasitic_translation": result}, html, summary)
 
 
-@procedure("seed000.parasitic_translation", "Parasitic translation of the vibration table (seed 000 Table 5)",
-           TRANSLATION_PARAMS, analyse=analyse_translation)  # fmt: skip
+@procedure("integral_precession.parasitic_translation",
+           "Parasitic translation of the vibration table (seed 000 Table 5)", TRANSLATION_PARAMS,
+           analyse=analyse_translation)  # fmt: skip
 def parasitic_translation(p: dict):
     yield Note(f"grating records of {p['periods']} turns at {p['freqs_hz']} Hz")
     for f in p["freqs_hz"]:
@@ -177,8 +178,8 @@ def analyse_stability(session: Session) -> Analysis:
     return Analysis({"frequency_stability": result}, html, summary)
 
 
-@procedure("seed000.frequency_stability", "Vibration frequency stability (seed 000 Table 6)", STABILITY_PARAMS,
-           analyse=analyse_stability)  # fmt: skip
+@procedure("integral_precession.frequency_stability", "Vibration frequency stability (seed 000 Table 6)",
+           STABILITY_PARAMS, analyse=analyse_stability)  # fmt: skip
 def frequency_stability(p: dict):
     yield Note(f"{p['periods']} periods timed at {p['freqs_hz']} Hz")
     for f in p["freqs_hz"]:
@@ -303,8 +304,9 @@ def analyse_rotation(session: Session) -> Analysis:
     return Analysis({"parasitic_rotation": result}, html, summary)
 
 
-@procedure("seed000.parasitic_rotation", "Parasitic rotation of the table top by gradiometer (seed 000 Table 7)",
-           ROTATION_PARAMS, analyse=analyse_rotation)  # fmt: skip
+@procedure("integral_precession.parasitic_rotation",
+           "Parasitic rotation of the table top by gradiometer (seed 000 Table 7)", ROTATION_PARAMS,
+           analyse=analyse_rotation)  # fmt: skip
 def parasitic_rotation(p: dict):
     yield Note(f"gradiometer at {p['readings_per_turn']} crank phases over {p['turns']} turns at {p['freq_hz']:g} Hz")
     yield SetVibration(p["freq_hz"], p["settle_s"])

@@ -103,7 +103,7 @@ def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float
 CARD = MethodCard(
     title="Calibration certificate: PIGA nonlinear error coefficients",
     method="integral precession on the linear vibration table (seed 000 eqs. 19-22, exact window means)",
-    procedure="seed000.integral_precession",
+    procedure="integral_precession",
     procedure_title="",
     references=SEED000_REFERENCES,
 )

@@ -29,7 +29,7 @@ CARD = MethodCard(
     "without and with the head's angle-error harmonics compensated; the harmonics and mounting offsets by the "
     "orthogonal four-pose method with PIGA B on the same fixture (eqs. 16-42, one least squares); head zero by "
     "the self-alignment (eqs. 52-56)",
-    procedure="seed003.gravity_field",
+    procedure="multiposition",
     procedure_title="gravity field on the indexing head (seed 003)",
     references=("index_harmonic_rad", "latitude_deg", "timer_resolution_s"),
 )

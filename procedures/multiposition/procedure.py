@@ -1,9 +1,9 @@
 """Seed 003: PIGA calibration in the gravity field on the indexing head, with two PIGAs on one fixture.
 
-- `seed003.planning`: the position sequence before anything moves: uncertainty factors
+- `multiposition.planning`: the position sequence before anything moves: uncertainty factors
   d_ii (Fig. 4), ES(n) (Fig. 5), the test time per position and in total versus n for
   equal-angle and equal-acceleration sequences (Figs. 6-7). Nothing moves.
-- `seed003.gravity_field`: the optimised process of seed 003 5.3. Setup 1 (A in pose 1, B
+- `multiposition`: the optimised process of seed 003 5.3. Setup 1 (A in pose 1, B
   in pose 2): self-alignment of A with its input axis horizontal (eqs. 52-56, repeated
   until within tolerance; the head's zero follows), the four-pose sequence counting both
   PIGAs at each position, then A's calibration sequences. The operator re-installs the
@@ -308,7 +308,7 @@ def analyse_gravity_field(session: Session) -> Analysis:
 
 
 @procedure(
-    "seed003.gravity_field",
+    "multiposition",
     "Gravity-field calibration on the indexing head with two PIGAs: self-alignment, orthogonal 4-pose "
     "angle-error harmonics, calibration with them compensated (seed 003)",
     GRAVITY_FIELD_PARAMS,
@@ -340,7 +340,7 @@ def analyse_planning(session: Session) -> Analysis:
 
 
 @procedure(
-    "seed003.planning",
+    "multiposition.planning",
     "Position sequence design on the indexing head: d_ii, ES(n), test time per position and in total (seed 003 "
     "5.1-5.2); nothing moves",
     (

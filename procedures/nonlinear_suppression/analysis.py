@@ -1,6 +1,6 @@
 """Seed 004's suppression of the quadratic term: the offset sweep, its spline and minimum, eqs. 21-22, the report.
 
-A session of `seed004.nonlinear_suppression` holds calibrations: groups of integral precession points (seed 000,
+A session of `nonlinear_suppression` holds calibrations: groups of integral precession points (seed 000,
 identified by `procedures.integral_precession.identify`) whose ids start with a group prefix, each after a
 `servo_offset`
 measurement that names the prefix, the digital offset in force and the stage (sweep, best offset, after the mass

@@ -26,7 +26,7 @@ CARD = MethodCard(
     "of each offset by integral precession (seed 000 eqs. 19-22), a cubic spline and line search for the best "
     "offset (section 5.1), the inertia-product correction by mass removal (eqs. 21-22, section 5.2) and the "
     "calibration after it",
-    procedure="seed004.nonlinear_suppression",
+    procedure="nonlinear_suppression",
     procedure_title="suppression of the quadratic term (seed 004)",
     references=(*SEED000_REFERENCES, "angular_momentum_kgm2ps", "end_radius_mm", "removal_angle_deg"),
     instrument_file=config_file("instruments", "piga-suppressed-sim.toml"),

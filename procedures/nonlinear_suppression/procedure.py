@@ -1,6 +1,6 @@
 """Seed 004: suppression of the PIGA's quadratic term by the angle servo's digital offset and a mass removal.
 
-`seed004.nonlinear_suppression` (seed 004 section 5): the digital offset of the angle servo in the PIGA's
+`nonlinear_suppression` (seed 004 section 5): the digital offset of the angle servo in the PIGA's
 electronics (drivers.piga_electronics.driver) is stepped over the sweep (-5" to 5" in 0.5" steps by default), and at
 each step the quadratic term is calibrated by integral precession on the vibration table (seed 000: a few
 positions at three frequencies and a static test each, short windows). A cubic spline through K2(offset) and a
@@ -281,7 +281,7 @@ def analyse_suppression(session: Session) -> Analysis:
 
 
 @procedure(
-    "seed004.nonlinear_suppression",
+    "nonlinear_suppression",
     "Suppression of the quadratic term: servo offset sweep, inertia-product correction (seed 004)",
     PARAMS,
     analyse=analyse_suppression,

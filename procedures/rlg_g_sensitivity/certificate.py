@@ -26,7 +26,7 @@ CARD = MethodCard(
     method="g-sensitive misalignment of the gyro triad in linear vibration (seed 002 eqs. 15-22): per fixture pose "
     "a static alignment, sine vibration in inertial navigation and a static realignment, reduced to the "
     "attitude-error observation; eq. 21 by least squares weighted by the reduction's noise",
-    procedure="seed002.g_sensitive_misalignment",
+    procedure="rlg_g_sensitivity",
     procedure_title="g-sensitive misalignment (seed 002)",
     references=("imu_accel_scale", "imu_gyro_bias_radps", "imu_clock_rel", "latitude_deg", "imu_gyro_scale"),
     instrument_file=config_file("instruments", "imu-sim.toml"),

@@ -1,6 +1,6 @@
 """Seed 002: g-sensitive misalignment calibration of a strapdown IMU's RLG triad in linear vibration.
 
-`seed002.g_sensitive_misalignment`: the IMU on its L fixture on rubber dampers on the
+`rlg_g_sensitivity`: the IMU on its L fixture on rubber dampers on the
 electrodynamic shaker's slip table; for each fixture pose (the nine vibration directions of
 Fig. 3, `station.twin.fixture_poses`) the operator mounts the fixture, then one run: static
 alignment, sine vibration in inertial navigation, static realignment (seed 002 Steps 1-3),
@@ -285,7 +285,7 @@ PARAMS = (
 
 
 @procedure(
-    "seed002.g_sensitive_misalignment",
+    "rlg_g_sensitivity",
     "RLG g-sensitive misalignment calibration of a strapdown IMU in linear vibration (seed 002)",
     PARAMS,
     analyse=analyse_session,

@@ -24,7 +24,7 @@ CARD = MethodCard(
     method="eight-point tumble in the gravity field on the optical index head (seed 001 eqs. 1, 5, 6): at each "
     "temperature a least-squares stroke fit (position levels, hysteresis branch, bias drift) and eq. 6; "
     "accelerations in units of local g",
-    procedure="seed001.tumble",
+    procedure="tumble",
     procedure_title="eight-point tumble (seed 001)",
     references=("tumble_head_angle_rad", "voltmeter_gain", "voltmeter_offset_v", "chamber_temperature_c"),
     instrument_file=config_file("instruments", "accelerometer-sim.toml"),

@@ -1,6 +1,6 @@
 """Seed 001: eight-point tumble calibration of a pendulous accelerometer in the gravity field, with temperature models.
 
-`seed001.tumble`: at each temperature (the seed's normal, maximum and minimum; the default then
+`tumble`: at each temperature (the seed's normal, maximum and minimum; the default then
 returns to normal, which separates the bias drift from the temperature coefficients) the chamber
 is brought to it and soaked; then, in each of three cycles, the indexing head turns the
 instrument through the nine test positions of Fig. 2 (0, 45, ..., 360 deg) on the forward stroke
@@ -269,7 +269,7 @@ def analyse(session: Session) -> Analysis:
 
 
 @procedure(
-    "seed001.tumble",
+    "tumble",
     "Eight-point tumble of a pendulous accelerometer at several temperatures (seed 001)",
     PARAMS,
     analyse=analyse,

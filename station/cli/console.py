@@ -34,7 +34,7 @@ from station.twin.config import TwinConfig
 
 CONFIG_DIR = config_dir()  # the shipped defaults (station.defaults): package data, or config/ in a source tree
 DEFAULT_SIM_STATION = CONFIG_DIR / "stations/vibration-sim.toml"
-DEFAULT_PROCEDURE = CONFIG_DIR / "procedures" / "seed000_integral.toml"
+DEFAULT_PROCEDURE = CONFIG_DIR / "procedures" / "integral_precession.toml"
 
 
 @contextmanager

@@ -2,7 +2,7 @@
 
 A procedure file names a registered procedure and its parameters:
 
-    procedure = "seed000.integral_precession"
+    procedure = "integral_precession"
     [params]
     positions_deg = [0, 36, 72]
     freqs_hz = [8, 9, 10]
@@ -59,6 +59,24 @@ class ProcedureSpec:
 
 _REGISTRY: dict[str, ProcedureSpec] = {}
 
+# The names earlier versions registered (before issue 29 named procedures after their packages): sessions stored
+# and procedure files written under them still resolve to the procedure they named.
+FORMER_NAMES: dict[str, str] = {
+    "seed000.integral_precession": "integral_precession",
+    "seed000.integer_periodic_vibration": "integral_precession.integer_periodic_vibration",
+    "seed000.multi_frequency": "integral_precession.multi_frequency",
+    "seed000.planning": "integral_precession.planning",
+    "seed000.self_alignment": "integral_precession.self_alignment",
+    "seed000.parasitic_translation": "integral_precession.parasitic_translation",
+    "seed000.frequency_stability": "integral_precession.frequency_stability",
+    "seed000.parasitic_rotation": "integral_precession.parasitic_rotation",
+    "seed001.tumble": "tumble",
+    "seed002.g_sensitive_misalignment": "rlg_g_sensitivity",
+    "seed003.gravity_field": "multiposition",
+    "seed003.planning": "multiposition.planning",
+    "seed004.nonlinear_suppression": "nonlinear_suppression",
+}
+
 
 def procedure(name: str, title: str, params: Sequence[Param], analyse: Analyser | None = None):
     """Register a generator function as a library procedure."""
@@ -85,10 +103,12 @@ def load_library() -> dict[str, ProcedureSpec]:
 
 
 def get_procedure(name: str) -> ProcedureSpec:
+    """The registered procedure of that name, or of the name it had in an earlier version (FORMER_NAMES)."""
     library = load_library()
-    if name not in library:
+    spec = library.get(FORMER_NAMES.get(name, name))
+    if spec is None:
         raise ProcedureError(f"unknown procedure {name!r}; the library has: {', '.join(sorted(library))}")
-    return library[name]
+    return spec
 
 
 def load_procedure_file(path: str | Path) -> tuple[ProcedureSpec, dict[str, Any]]:

@@ -93,8 +93,8 @@ def fill_store(
     uids = []
     for k, status in enumerate(statuses, start=first):
         s = simulate_session(seed000_plan()[:n_points], default_twin(), seed=k)
-        uid = store.create_session(s.station, "seed000.integral_precession", instrument_serial=serial.format(k=k),
-                                   config={"procedure": "seed000.integral_precession", "params": {"k": k}})  # fmt: skip
+        uid = store.create_session(s.station, "integral_precession", instrument_serial=serial.format(k=k),
+                                   config={"procedure": "integral_precession", "params": {"k": k}})  # fmt: skip
         for i, p in enumerate(s.points):
             store.add_point(uid, p, small_raw(10 * k + i) if i < 2 else None)
         add_measurement(store, uid, Measurement(f"stretch-{k}", "grating_stretch", {"freq_hz": 8.0, "n": 3},

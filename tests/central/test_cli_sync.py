@@ -72,7 +72,7 @@ def test_a_station_under_control_pushes_each_session_once_it_ended(tmp_path, cen
         hook = SyncAfterRun(store, central_url, arrays_dir, "sim-1")
         stack.callback(hook.close)
         controller.after_run.append(hook)
-        outcome = controller.run("seed000.integral_precession", QUICK)
+        outcome = controller.run("integral_precession", QUICK)
         assert outcome.state.name == "FINISHED", outcome.faults
         assert hook.last is not None and hook.last.added == [outcome.session_uid]
         with CentralStore(central_url, arrays_dir) as central:

@@ -35,7 +35,7 @@ def two_histories(tmp_path_factory, database, fill):
     with sqlite3.connect(db) as conn:  # sessions of several days, as a station's history has
         for k, (uid, day) in enumerate(zip(uids, DAYS, strict=True)):
             conn.execute("UPDATE sessions SET created_utc = ? WHERE uid = ?", (f"{day}T10:0{k}:00.000+00:00", uid))
-        conn.execute("UPDATE sessions SET procedure = 'seed000.self_alignment' WHERE uid = ?", (uids[1],))
+        conn.execute("UPDATE sessions SET procedure = 'integral_precession.self_alignment' WHERE uid = ?", (uids[1],))
     with SessionStore(db) as store:
         engine = open_central(central_url)
         sync_store(store, engine, arrays_dir, "sim")
@@ -59,7 +59,7 @@ FILTERS = [
     SessionFilter(),
     SessionFilter(serial="iga-3"),
     SessionFilter(serial="%"),  # a LIKE wildcard is a character like any other
-    SessionFilter(procedure="seed000.self_alignment"),
+    SessionFilter(procedure="integral_precession.self_alignment"),
     SessionFilter(outcome="finished"),
     SessionFilter(since=date(2026, 3, 2), until=date(2026, 4, 10)),
     SessionFilter(until=date(2026, 3, 1)),

@@ -19,7 +19,7 @@ CONFIG = load_station_config(Path(__file__).parents[2] / "config" / "stations/vi
 # Five positions at 10 Hz with 30 s windows: every coefficient identifiable, about 0.2 h of
 # station time, a few seconds of wall time at 1000x.
 QUICK = {"positions_deg": [0, 72, 144, 216, 288], "freqs_hz": [10], "window_s": 30, "settle_s": 2}
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 
 
 @dataclass

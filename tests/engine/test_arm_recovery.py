@@ -76,7 +76,7 @@ def test_a_lost_arm_reply_leaves_the_board_armed_and_measure_aborts_it() -> None
 
 
 def test_a_lost_arm_reply_is_aborted_and_the_point_measured_again(tmp_path: Path) -> None:
-    name = "seed000_baseline"
+    name = "integral_precession.integer_periodic_vibration"
     cfg = load_station_config(CONFIG / "stations/vibration-sim.toml")
     spec = procedure_spec(name)
     shorter = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 10}
@@ -118,9 +118,9 @@ def test_a_lost_arm_reply_on_the_second_instrument_is_aborted_and_the_point_meas
         seen = _spy(board)
         board.inject(Fault.LOST_REPLY)  # its first command is the first B window's ARM
         controller = StationController(sim.devices, store, config.station_model(), reports_dir=tmp_path)
-        outcome = controller.run("seed003.gravity_field", quick)
+        outcome = controller.run("multiposition", quick)
         assert outcome.state == State.FINISHED, outcome.faults
-        spec = get_procedure("seed003.gravity_field")
+        spec = get_procedure("multiposition")
         plan = plan_procedure(spec, spec.validate(quick), config.station_model())
         points = store.load_session(outcome.session_uid, with_raw=False).points
         assert [p.sequence for p in points] == list(range(_planned_points(plan))), points

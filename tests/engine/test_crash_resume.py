@@ -15,7 +15,7 @@ import pytest
 pytestmark = pytest.mark.timeout(180)
 
 PROCEDURE = """\
-procedure = "seed000.integral_precession"
+procedure = "integral_precession"
 [params]
 positions_deg = [0, 72, 144, 216, 288]
 freqs_hz = [10]

@@ -18,9 +18,9 @@ pytestmark = pytest.mark.timeout(180)
 # of the pulse record kept (4 points, 90 s of station time; 4 points cannot identify its 6 parameters, so its
 # analysis reports that instead of results). The self-alignment: 2 static points and the eq. 26 result.
 SESSIONS = {
-    "integral": ("seed000.integral_precession",
+    "integral": ("integral_precession",
                  {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 5, "settle_s": 1, "raw": True}),
-    "alignment": ("seed000.self_alignment", {"positions_deg": [0, 180], "window_s": 10}),
+    "alignment": ("integral_precession.self_alignment", {"positions_deg": [0, 180], "window_s": 10}),
 }  # fmt: skip
 
 

@@ -50,7 +50,7 @@ def test_every_shipped_procedure_file_plans() -> None:
 
 
 def test_seed000_dry_run_estimates_the_session() -> None:
-    spec, params = load_procedure_file(PROCEDURES / "seed000_integral.toml")
+    spec, params = load_procedure_file(PROCEDURES / "integral_precession.toml")
     plan = plan_procedure(spec, params, MODEL)
     est = plan.key_estimates_s()
     assert len(est) == 40
@@ -74,20 +74,20 @@ def test_seed000_dry_run_estimates_the_session() -> None:
 )
 def test_bad_parameters_name_the_field_the_value_and_what_is_allowed(params, named) -> None:
     with pytest.raises(ParameterError) as info:
-        get_procedure("seed000.integral_precession").validate(params)
+        get_procedure("integral_precession").validate(params)
     assert named in str(info.value)
 
 
 def test_malformed_procedure_file_is_refused(tmp_path) -> None:
     bad = tmp_path / "bad.toml"
-    bad.write_text('procedure = "seed000.integral_precession"\n[params]\nfreqs_hz = [8, 11]\n')
+    bad.write_text('procedure = "integral_precession"\n[params]\nfreqs_hz = [8, 11]\n')
     with pytest.raises(ProcedureError, match=r"bad.toml.*freqs_hz.*11.*\[0.1, 10\]"):
         load_procedure_file(bad)
     bad.write_text("procedure = [\n")
     with pytest.raises(ProcedureError, match="not valid TOML"):
         load_procedure_file(bad)
     bad.write_text('procedure = "no.such"\n')
-    with pytest.raises(ProcedureError, match=r"unknown procedure 'no\.such'.*seed000\.integral_precession"):
+    with pytest.raises(ProcedureError, match=r"unknown procedure 'no\.such'.*integral_precession"):
         load_procedure_file(bad)
 
 

@@ -83,7 +83,7 @@ def test_control_channel_validates_runs_and_logs_who_asked(make_rig) -> None:
         rig.controller.wait(30)
         log = [e["message"] for e in rig.store.events(uid) if e["kind"] == "control"]
         # who acted: the user a delegate (the panel's identity, authenticated by the token) relays
-        assert log[0].startswith("start by alice via panel {'procedure': 'seed000.integral_precession'")
+        assert log[0].startswith("start by alice via panel {'procedure': 'integral_precession'")
         assert log[1:4] == ["pause by bob via panel", "resume by bob via panel", "abort by carol via panel"]
         assert client.request("status")["result"]["state"] == "aborted"
     finally:

@@ -59,7 +59,7 @@ def test_instrument_file_is_checked(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def analysis():
     s = simulate_session(seed000_plan(), default_twin(), seed=3)
-    s.meta.update({"store_uid": "t15-int", "params": {}, "procedure": "seed000.integral_precession",
+    s.meta.update({"store_uid": "t15-int", "params": {}, "procedure": "integral_precession",
                    "provenance": PROVENANCE})  # fmt: skip
     return s, analyse_integral(s)
 

@@ -56,7 +56,7 @@ def seed001_analysis() -> Analysis:
     from station.twin.pendulous_accelerometer import AccelerometerModel
 
     session, _ = tumble_session(AccelerometerModel(), [20.0, 80.0, -40.0, 20.0], 1, 8e-6, np.random.default_rng(4))
-    return analyse(_stamp(session, "c001", "SIM-ACC-0001", "seed001.tumble"))
+    return analyse(_stamp(session, "c001", "SIM-ACC-0001", "tumble"))
 
 
 def seed002_analysis() -> Analysis:
@@ -84,7 +84,7 @@ def seed002_analysis() -> Analysis:
         values |= observation_values(observe_run(rec, site))
         runs.append(Measurement(f"cal{k:02d}-pose{k}", "seed002_run", values))
     session = Session(st, [], measurements=runs)
-    return analyse_session(_stamp(session, "c002", "SIM-IMU-0001", "seed002.g_sensitive_misalignment"))
+    return analyse_session(_stamp(session, "c002", "SIM-IMU-0001", "rlg_g_sensitivity"))
 
 
 def seed003_session():
@@ -123,7 +123,7 @@ def seed003_analysis() -> Analysis:
     from procedures.multiposition.procedure import analyse_gravity_field
 
     params = {"model": "seed003", "harmonics": 3}
-    return analyse_gravity_field(_stamp(seed003_session(), "c003", "SIM-PIGA-0001", "seed003.gravity_field", params))
+    return analyse_gravity_field(_stamp(seed003_session(), "c003", "SIM-PIGA-0001", "multiposition", params))
 
 
 def seed004_analysis() -> Analysis:
@@ -150,7 +150,7 @@ def seed004_analysis() -> Analysis:
         measurements.append(servo_offset_measurement(f"offset-{j}", prefix, stage, offset))
         points += [replace(p, point_id=f"{prefix}-{p.point_id}") for p in s.points]
     session = Session(s.station, points, measurements=measurements)
-    return analyse_suppression(_stamp(session, "c004", "SIM-PIGA-0001", "seed004.nonlinear_suppression"))
+    return analyse_suppression(_stamp(session, "c004", "SIM-PIGA-0001", "nonlinear_suppression"))
 
 
 # ---------------------------------------------------------------- what the results JSON says

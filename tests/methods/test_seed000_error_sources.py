@@ -123,7 +123,9 @@ def test_parasitic_translation_reproduces_table5_and_eq32(run) -> None:
         .with_effect("frequency_error", eps_f=EPS_F)
     )
     freqs = list(SEED_TABLE5_M)
-    outcome, _ = run("seed000.parasitic_translation", {"freqs_hz": freqs, "periods": 2, "settle_s": 1.0}, twin)
+    outcome, _ = run(
+        "integral_precession.parasitic_translation", {"freqs_hz": freqs, "periods": 2, "settle_s": 1.0}, twin
+    )
     result = outcome.analysis.results["parasitic_translation"]
     fit = result["zs1_fit"]
     # Zs1 of the twin follows the true w = 2 pi f (1 + eps_f): the fit sees it only through the measured f.
@@ -146,7 +148,9 @@ def test_parasitic_translation_reproduces_table5_and_eq32(run) -> None:
 
 def test_frequency_stability_recovers_the_frequency_error(run) -> None:
     twin = default_twin().with_effect("frequency_error", eps_f=EPS_F)
-    outcome, store = run("seed000.frequency_stability", {"freqs_hz": [1.0, 5.0, 10.0], "settle_s": 1.0}, twin)
+    outcome, store = run(
+        "integral_precession.frequency_stability", {"freqs_hz": [1.0, 5.0, 10.0], "settle_s": 1.0}, twin
+    )
     result = outcome.analysis.results["frequency_stability"]
     assert result["passed"]
     for row in result["table6"]:
@@ -168,7 +172,7 @@ def test_parasitic_rotation_reproduces_table7(run) -> None:
     )
     # one turn at 0.5 Hz with 36 readings: 33 residual degrees of freedom, seconds of CPU on the deterministic station
     params = {"freq_hz": 0.5, "turns": 1, "readings_per_turn": 36, "settle_s": 1.0}
-    outcome, _ = run("seed000.parasitic_rotation", params, twin)
+    outcome, _ = run("integral_precession.parasitic_rotation", params, twin)
     result = outcome.analysis.results["parasitic_rotation"]
     h = result["harmonics"]
     for key, truth in (("ax0", x0), ("axs1", xs1), ("axc1", xc1), ("ay0", 0.0), ("ays1", 0.0), ("azc1", 0.0)):
@@ -203,10 +207,10 @@ def test_bad_input_is_refused_before_anything_moves() -> None:
     model = STATION.station_model()
     bare = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml").station_model()
     with pytest.raises(ParameterError, match=r"'freq_hz' = 2\.0: out of range, allowed float in \[0\.1, 1\] Hz"):
-        _plan("seed000.parasitic_rotation", {"freq_hz": 2.0}, model)
+        _plan("integral_precession.parasitic_rotation", {"freq_hz": 2.0}, model)
     with pytest.raises(ValidationError, match=r"CaptureGrating.*duration_s = 1010\.0.*0 \.\. 600 s"):
-        _plan("seed000.parasitic_translation", {"freqs_hz": [0.1], "periods": 100}, model)
+        _plan("integral_precession.parasitic_translation", {"freqs_hz": [0.1], "periods": 100}, model)
     with pytest.raises(ValidationError, match=r"RecordTilt \(tilt\): device = 'gradiometer'"):
-        _plan("seed000.parasitic_rotation", {}, bare)
-    plan = _plan("seed000.parasitic_rotation", {}, model)
+        _plan("integral_precession.parasitic_rotation", {}, bare)
+    plan = _plan("integral_precession.parasitic_rotation", {}, model)
     assert [s.step.key for s in plan.measurements] == ["tilt"] and plan.total_s > 4 / 0.1

@@ -34,7 +34,7 @@ TUMBLE = load_station_config(CONFIG_DIR / "stations/tumble-sim.toml")
 CONFIG = dataclasses.replace(
     TUMBLE, extras=TUMBLE.extras | {"temperature_chamber": dataclasses.replace(
         TUMBLE.extras["temperature_chamber"], time_constant_s=60.0)})  # fmt: skip
-PROCEDURE = "seed001.tumble"
+PROCEDURE = "tumble"
 # Three temperatures and the return to T0, one forward and one back stroke: every coefficient of eqs. 4 and 6 (and
 # the drift between temperatures) identifiable; about 1 h of station time.
 QUICK = {"temperatures_c": [20, 45, -5, 20], "cycles": 1, "ramp_c_per_min": 5, "soak_s": 300, "dwell_s": 2,

@@ -36,7 +36,7 @@ pytestmark = pytest.mark.timeout(180)
 CONFIG_DIR = Path(__file__).parents[2] / "config"
 STATION = load_station_config(CONFIG_DIR / "stations/shaker-sim.toml")
 CORE = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml")
-PROCEDURE = "seed002.g_sensitive_misalignment"
+PROCEDURE = "rlg_g_sensitivity"
 ALIGN_S = 20.0
 # The seed's calibration runs, shortened; the sine verification at 2.5 g and 16 Hz, nearer the dampers'
 # 14.8 Hz, where the drift is eight times that of 1 g at 20 Hz and stands above the noise of 20-s runs.
@@ -81,7 +81,7 @@ def make_rig(tmp_path) -> Iterator[Callable[..., Rig]]:
 
 
 def test_the_dry_run_times_the_session_and_bad_input_is_refused_before_anything_moves() -> None:
-    spec, params = load_procedure_file(CONFIG_DIR / "procedures" / "seed002_quick.toml")
+    spec, params = load_procedure_file(CONFIG_DIR / "procedures" / "rlg_g_sensitivity-quick.toml")
     plan = plan_procedure(spec, params, STATION.station_model())
     per_run = 60 + 2 * 60 + 2 * 2 + 60 + 1  # remount, two alignments, ramps, vibration, ring-down
     assert plan.total_s == pytest.approx(11 * per_run) and len(plan.measurements) == 11

@@ -213,7 +213,7 @@ def dual_station(tmp_path):
 def test_a_dead_second_channel_fails_the_session_naming_it(dual_station) -> None:
     sim, controller = dual_station
     sim.emulators["second_instrument"].inject(Fault.NO_ANSWER, count=None)
-    outcome = controller.run("seed003.gravity_field", QUICK)
+    outcome = controller.run("multiposition", QUICK)
     assert outcome.state == State.FAILED
     (fault,) = outcome.faults
     # ReplyLost is the DeviceTimeout of a lost reply, tried again (issue 13) before the session fails on it
@@ -223,7 +223,7 @@ def test_a_dead_second_channel_fails_the_session_naming_it(dual_station) -> None
 
 def test_abort_during_a_second_instrument_window_leaves_its_board_idle(dual_station) -> None:
     sim, controller = dual_station
-    uid, _ = controller.start("seed003.gravity_field", QUICK | {"precession_rev": 1 / 4})  # B: hours of station time
+    uid, _ = controller.start("multiposition", QUICK | {"precession_rev": 1 / 4})  # B: hours of station time
     deadline = time.monotonic() + 60
     while not controller.status()["key"].endswith("-B"):  # the first B window: 0 deg, its axis horizontal
         assert time.monotonic() < deadline
@@ -250,12 +250,12 @@ def test_abort_during_a_second_instrument_window_leaves_its_board_idle(dual_stat
 )
 def test_bad_parameters_name_the_field_value_and_allowed(params, named) -> None:
     with pytest.raises(ParameterError) as info:
-        get_procedure("seed003.gravity_field").validate(params)
+        get_procedure("multiposition").validate(params)
     assert named in str(info.value)
 
 
 def test_a_station_without_the_second_instrument_is_refused_in_planning() -> None:
-    spec = get_procedure("seed003.gravity_field")
+    spec = get_procedure("multiposition")
     model = load_station_config(CONFIG_DIR / "stations/vibration-sim.toml").station_model()
     with pytest.raises(ValidationError, match="device = 'second_instrument' is not allowed: a device of this"):
         plan_procedure(spec, spec.validate({}), model)
@@ -264,7 +264,7 @@ def test_a_station_without_the_second_instrument_is_refused_in_planning() -> Non
 def test_dry_run_shows_the_hours_where_an_input_axis_is_horizontal() -> None:
     """With B 90 deg from A, the four-pose positions at 0 and 180 deg put B's input axis horizontal: its
     rate is about k0, so a 10 pi window takes 2 pi 5 / (k0 + kz cos 90.0) of the planning model, days."""
-    spec = get_procedure("seed003.gravity_field")
+    spec = get_procedure("multiposition")
     model = load_station_config(CONFIG_DIR / "stations/dual-sim.toml").station_model()
     est = plan_procedure(spec, spec.validate({}), model).key_estimates_s()
     slow = 2 * math.pi * 5 / abs(model.nominal_rate_radps(90.0))

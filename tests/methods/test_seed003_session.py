@@ -68,7 +68,7 @@ def run(tmp_path_factory):
     store = SessionStore(out / "station.sqlite")
     try:
         controller = StationController(sim.devices, store, CONFIG.station_model(), reports_dir=out)
-        outcome = controller.run("seed003.gravity_field", PARAMS)
+        outcome = controller.run("multiposition", PARAMS)
         session = store.load_session(outcome.session_uid, with_raw=False)
     finally:
         sim.close()

@@ -28,7 +28,7 @@ from station.twin.nonlinear_error import ARCSEC_RAD, FloatModel, removal_inertia
 
 CONFIG = Path(__file__).parents[2] / "config"
 STATION = CONFIG / "stations/electronics-sim.toml"
-PROCEDURE = CONFIG / "procedures" / "seed004_suppression.toml"
+PROCEDURE = CONFIG / "procedures" / "nonlinear_suppression.toml"
 KZ = 0.56  # the simulated PIGA's scale factor (default twin)
 
 
@@ -62,7 +62,7 @@ def test_bad_input_is_refused_before_anything_moves() -> None:
     with pytest.raises(ValidationError, match=r"offsets_arcsec .* at least 4 offsets"):
         _plan(offsets_arcsec=[-1.0, 0.0, 1.0])
     with pytest.raises(ParameterError, match=r"'offsets_arcsec'\[1\] = 75.0: out of range"):
-        get_procedure("seed004.nonlinear_suppression").validate({"offsets_arcsec": [0.0, 75.0]})
+        get_procedure("nonlinear_suppression").validate({"offsets_arcsec": [0.0, 75.0]})
 
 
 @pytest.mark.timeout(240)
@@ -144,7 +144,7 @@ def test_a_resumed_session_sets_the_offset_again_and_never_removes_mass_twice(tm
         controller = StationController(sim.devices, db, config.station_model(), reports_dir=tmp_path)
         emu = sim.emulators["piga_electronics"]
         j0 = emu.float_model.inertia_product_kgm2
-        uid, _ = controller.start("seed004.nonlinear_suppression", params)
+        uid, _ = controller.start("nonlinear_suppression", params)
         _abort_when(controller, 13)  # S01: record + 9 points; S02: record + 2 points
         sim.devices.device("piga_electronics").set_offset_arcsec(4.0)  # someone used the board meanwhile
         n = len(emu.commands)

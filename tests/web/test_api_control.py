@@ -9,7 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 ACTIONS = ("pause", "resume", "abort", "estop", "reset")
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 STATE_TIMEOUT_S = 30.0
 FINAL = ("finished", "aborted", "estopped", "failed")
 
@@ -79,7 +79,7 @@ def test_a_viewer_may_dry_run(victor, quick):
         ({"params": {"positions_deg": []}}, ["positions_deg", "non-empty"]),
         ({"params": {"window": 30}}, ["unknown parameter", "'window'", "allowed: positions_deg"]),
         ({"params": {"raw": "yes"}}, ["raw", "'yes'", "true or false"]),
-        ({"procedure": "seed000.nosuch"}, ["unknown procedure", "seed000.nosuch", "seed000.integral_precession"]),
+        ({"procedure": "seed000.nosuch"}, ["unknown procedure", "seed000.nosuch", "integral_precession"]),
         ({"params": {"window_s": {"a": 1}}}, ["body.params.window_s"]),
         ({"params": {"window_s": 10**30}}, ["body.params.window_s"]),
         ({"instrument_serial": "bad\nserial"}, ["body.instrument_serial", "pattern"]),

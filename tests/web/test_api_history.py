@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from station.control_channel import TOKEN_FILE, ControlClient, ensure_token
 from web.archive import unpack
 
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 UNKNOWN = "20260101T000000-abcdef12"
 
 
@@ -70,7 +70,7 @@ def test_sessions_are_listed_newest_first_with_their_station(victor, recorded):
         ("?serial=nobody", []),
         ("?outcome=aborted", ["aborted"]),
         (f"?procedure={PROCEDURE}", ["aborted", "finished"]),
-        ("?procedure=seed001.tumble", []),
+        ("?procedure=tumble", []),
         ("?station=sim&limit=1", ["aborted"]),
         ("?station=other", []),
     ],

@@ -45,7 +45,7 @@ def test_status_and_library_come_from_the_station(as_user):
     status = client.get("/api/stations/sim/status").json()
     assert status["busy"] is False and status["state"] in ("idle", "finished", "aborted")
     library = {p["name"]: p for p in client.get("/api/stations/sim/library").json()}
-    params = {p["name"]: p for p in library["seed000.integral_precession"]["params"]}
+    params = {p["name"]: p for p in library["integral_precession"]["params"]}
     assert params["window_s"]["min"] == 1.0 and params["window_s"]["unit"] == "s"
 
 

@@ -123,7 +123,7 @@ def test_a_session_watched_on_a_phone(browser, site, passwords, quick):
     page.on("pageerror", lambda e: errors.append(str(e)))
     card = page.locator("article.station[data-station=sim]")
     expect(card.locator(".link")).to_have_text("live")
-    status = post(page, "/api/stations/sim/start", {"procedure": "seed000.integral_precession", "params": quick,
+    status = post(page, "/api/stations/sim/start", {"procedure": "integral_precession", "params": quick,
                                                     "instrument_serial": "LIVE-360"})  # fmt: skip
     assert status == 200
     expect(card).to_have_attribute("data-state", "running")
@@ -225,7 +225,7 @@ def test_a_paused_vibrating_table_is_brought_to_rest_from_the_pause_card(browser
     expect(card.locator(".link")).to_have_text("live")
     site["station"].wait_until_idle()
     params = quick | {"window_s": 60}  # vibration windows long enough to pause in
-    assert post(page, "/api/stations/sim/start", {"procedure": "seed000.integral_precession", "params": params,
+    assert post(page, "/api/stations/sim/start", {"procedure": "integral_precession", "params": params,
                                                   "instrument_serial": "LIVE-REST"}) == 200  # fmt: skip
     box = card.locator(".pause-box")
     for _ in range(6):  # a pause lands at the next safe point: vibrating, or at rest before a static window
@@ -260,7 +260,7 @@ def test_the_panel_reads_results_as_the_console_does(tmp_path):
     from station.twin.pendulous_accelerometer import AccelerometerModel
 
     session, _ = tumble_session(AccelerometerModel(), [20, 80], 3, 1e-5, np.random.default_rng(3))
-    seed001 = json_safe(get_procedure("seed001.tumble").analyse(session).results)
+    seed001 = json_safe(get_procedure("tumble").analyse(session).results)
     seed000 = {"integral": {"coefficients": {"kz": {"value": 0.56, "sigma": 3e-4}, "ky": {"value": None,
                "sigma": None, "note": "not identifiable"}}, "units": {"kz": "rad/s/g", "ky": "rad/s/g^2"}}}  # fmt: skip
     module = tmp_path / "common.mjs"

@@ -271,7 +271,7 @@ def test_a_session_left_running_by_a_dead_process_is_interrupted_reportable_and_
     client, config = panel
     session = simulate_session(seed000_plan(), default_twin(), 5, raw=False, notes="crashed")
     with SessionStore(config.stations[0].store) as store:  # as a killed station leaves it: running, no lock
-        uid = store.create_session(session.station, "seed000.integral_precession", config={"params": {}})
+        uid = store.create_session(session.station, "integral_precession", config={"params": {}})
         for p in session.points:
             store.add_point(uid, p)
     olga = log_in(client, "olga")

@@ -107,7 +107,7 @@ def test_the_actor_is_the_authenticated_identity(server) -> None:
     client = ControlClient(server.endpoint, token=TOKEN, timeout_s=10)
     ctl = server.controller
     try:
-        started = client.request("start", {"procedure": "seed000.integral_precession",
+        started = client.request("start", {"procedure": "integral_precession",
                                            "params": {"positions_deg": [0, 90], "freqs_hz": [10], "window_s": 30}},
                                  user="alice")  # fmt: skip
         assert started["ok"], started
