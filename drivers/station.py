@@ -35,6 +35,7 @@ from drivers.counter_timer.driver import CounterTimer
 from drivers.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError, LostSamples
 from drivers.grating.driver import GratingReadHead
 from drivers.indexing_head.driver import IndexingHead
+from drivers.pty_link import Fault
 from drivers.reference_marks.driver import ReferenceMarks
 from drivers.registry import device_kinds
 from drivers.servo.driver import ServoLimits, VibrationTableServo
@@ -74,6 +75,7 @@ class StationDevices:
     extra: dict[str, Any] = field(default_factory=dict)  # further devices (drivers.registry), by name
     operator: Any = None  # who performs OperatorAction steps; None: a person, through the panel or console
     seed: int | None = None  # a simulated station's random seed (recorded in every session's provenance)
+    inject_fault: Callable[[str, str], None] | None = None  # a simulated station's test hook (SimulatedStation.inject)
     _closers: list[Callable[[], None]] = field(default_factory=list, repr=False)
     _freq_hz: float = 0.0
 
@@ -380,6 +382,15 @@ class SimulatedStation:
     can_channel: str = ""
     pacemaker: Pacemaker | None = None  # a paced station's time flows on whoever waits (station.event_clock)
 
+    def inject(self, device: str, fault: str) -> None:
+        """Arm one occurrence of `fault` (a Fault value: crc_error, garble, ...) in the emulator of `device`, for
+        tests from outside the process (the control channel's `inject`); ValueError names what it cannot take."""
+        emulator = self.emulators.get(device)
+        if emulator is None or not hasattr(emulator, "inject"):
+            takers = ", ".join(name for name, emu in self.emulators.items() if hasattr(emu, "inject"))
+            raise ValueError(f"device {device!r} takes no injected faults; these do: {takers}")
+        emulator.inject(Fault(fault))
+
     def close(self) -> None:
         self.devices.close()
         _stop_emulators(self.emulators)
@@ -452,4 +463,6 @@ def simulated_station(
         sim_can.bind_clock(channel, None)
         raise
     pacemaker = Pacemaker(clock) if isinstance(clock, EventClock) and clock.ceiling is not None else None
-    return SimulatedStation(world, emulators, devices, channel, pacemaker)
+    sim = SimulatedStation(world, emulators, devices, channel, pacemaker)
+    devices.inject_fault = sim.inject
+    return sim

@@ -38,7 +38,7 @@ class ControlError(StationFault):
     """A control request that the station's state does not allow (a run already under way, ...)."""
 
 
-CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge", "reset")
+CONTROL_ACTIONS = ("start", "resume_session", "pause", "resume", "abort", "estop", "acknowledge", "reset", "inject")
 MAX_REQUEST_BYTES = 64 * 1024  # a start with a few hundred positions is under 10 kB
 MAX_DEPTH = 5  # {"args": {"params": {"positions_deg": [...]}}} is 4 deep
 DEFAULT_IDENTITY = "panel"

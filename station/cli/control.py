@@ -253,6 +253,7 @@ class ControlServer:
             "acknowledge": lambda a: controller.engine.acknowledge(),
             "reset": lambda a: controller.reset(),
             "estop": lambda a: controller.emergency_stop(),
+            "inject": self._inject,
         }
 
     def start(self) -> ControlServer:
@@ -280,6 +281,18 @@ class ControlServer:
             stops_seen=stops,
         )  # fmt: skip
         return {"session_uid": uid, "plan": plan.to_json()}
+
+    def _inject(self, a: dict) -> dict:
+        """A test hook: one fault armed in an emulator of a simulated station (drivers.station.SimulatedStation
+        .inject); a real station refuses it."""
+        inject = getattr(self.controller.hw, "inject_fault", None)
+        if inject is None:
+            raise ControlError("inject: a real station takes no injected faults")
+        try:
+            inject(str(a["device"]), str(a["fault"]))
+        except ValueError as exc:
+            raise ControlError(f"inject: {exc}") from exc
+        return {"device": a["device"], "fault": a["fault"]}
 
     def _resume_session(self, a: dict, stops: StopCount | None = None) -> dict:
         return {"session_uid": self.controller.resume_session(a["uid"], stops_seen=stops)[0]}

@@ -18,6 +18,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
@@ -59,10 +60,14 @@ class StationProcess:
         return StationEntry(name=self.name, title=f"Test station {self.name}", control=self.control,
                             telemetry=self.telemetry, store=self.out / "station.sqlite", reports=self.out)  # fmt: skip
 
+    def client(self) -> ControlClient:
+        """A client of the station's control channel with its token and keys (close it after use)."""
+        return ControlClient(self.control, token=ensure_token(self.out / TOKEN_FILE), timeout_s=10.0,
+                             keys_dir=self.entry.telemetry_keys_dir())  # fmt: skip
+
     def wait_until_idle(self, timeout_s: float = 120.0) -> dict:
         """Poll the control channel until no run is under way; the last status."""
-        client = ControlClient(self.control, token=ensure_token(self.out / TOKEN_FILE), timeout_s=10.0,
-                               keys_dir=self.entry.telemetry_keys_dir())  # fmt: skip
+        client = self.client()
         try:
             deadline = time.monotonic() + timeout_s
             while time.monotonic() < deadline:
@@ -198,3 +203,20 @@ def browser():
         b = pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         yield b
         b.close()
+
+
+@pytest.fixture(scope="module")
+def logged_in_page(browser, passwords) -> Callable[..., Any]:
+    """A new browser context's page on the panel at `url`, logged in as `name` (close its context after use)."""
+
+    def open_page(url: str, name: str, viewport: dict | None = None, timeout_ms: float = 30_000) -> Any:
+        page = browser.new_context(viewport=viewport or {"width": 1400, "height": 1000}).new_page()
+        page.set_default_timeout(timeout_ms)
+        page.goto(f"{url}/login")
+        page.fill("input[name=username]", name)
+        page.fill("input[name=password]", passwords[name])
+        page.click("button[type=submit]")
+        page.wait_for_url(f"{url}/")
+        return page
+
+    return open_page
