@@ -29,6 +29,7 @@ from web.config import StationEntry
 
 QUEUE_SIZE = 256  # messages per browser: about 5 s of a station's telemetry
 LASTING_TOPICS = ("state", "progress", "status", "window", "motion", "point", "analysis")
+SESSION_TOPICS = ("window", "point", "analysis")  # lasting messages of one session: a new session drops them
 HISTORY_POINTS = 2000  # points and window closes of the session kept for a browser that joins late
 HISTORY_NOTICES = 500  # events and faults of the session
 HISTORY_WINDOW = 1000  # progress messages of the open window
@@ -133,9 +134,13 @@ class StationFeed:
         self.last_heard = time.time()
         self.received += 1
         text = body.decode()
+        session_uid = self.history.session_uid
+        self.history.add(doc)
+        if self.history.session_uid != session_uid:  # a new session: the last one's window and results go
+            for old in SESSION_TOPICS:
+                self.latest.pop(old, None)
         if topic in LASTING_TOPICS:
             self.latest[topic] = text
-        self.history.add(doc)
         return text
 
     def replay(self) -> list[str]:

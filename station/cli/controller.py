@@ -86,6 +86,7 @@ class StationController:
         self.interrupted = recover_interrupted(store)
         self._analyst: subprocess.Popen[str] | None = None  # started once a session that needs one is open
         self._analyst_lock = threading.Lock()
+        self.analysing = False  # a finished run's analysis is under way (the panel shows 'analysing')
 
     def close(self, timeout_s: float = 30.0) -> None:
         """End any run (abort, wait at most timeout_s), then stop supervising: what every exit path calls."""
@@ -205,7 +206,7 @@ class StationController:
     def status(self) -> dict:
         p = self.engine.progress.to_json()
         return p | self.hw.status() | {"busy": self.busy, "freq_hz": self.engine.freq_hz,
-                                       "index_deg": self.engine.position_deg}  # fmt: skip
+                                       "index_deg": self.engine.position_deg, "analysing": self.analysing}  # fmt: skip
 
     def beacon(self, period_s: float = 0.2) -> ClockEvent:
         """Publish `status` every period_s of link (wall) time (the panel's heartbeat) until the returned event is
@@ -276,6 +277,8 @@ class StationController:
         faults = list(engine.progress.faults)
         try:
             if state == State.FINISHED and spec.analyse is not None:
+                self.analysing = True
+                self.publish("status", self.status())
                 try:
                     analysis, report = self._analyse(spec, uid)
                 except (ValueError, subprocess.TimeoutExpired) as exc:  # the data cannot give what the analysis asks
@@ -286,6 +289,7 @@ class StationController:
             log.exception("analysis of %s failed", uid)
             faults.append(f"analysis: {type(exc).__name__}: {exc}")
         finally:
+            self.analysing = False
             self._dismiss_analyst()  # a run that ended without its analysis leaves none idle
             outcome = RunOutcome(uid, state, analysis, report, faults)
             for hook in self.after_run:  # `station serve --sync-to`: the session to the central history

@@ -19,8 +19,9 @@ def entry(name: str, telemetry: str = "tcp://127.0.0.1:1") -> StationEntry:
                         reports=Path("."))  # fmt: skip
 
 
-def doc(seq: int, topic: str = "status", station: str = "a") -> bytes:
-    return json.dumps({"station": station, "topic": topic, "seq": seq, "t_s": 0.0, "wall_s": 0.0, "data": {}}).encode()
+def doc(seq: int, topic: str = "status", station: str = "a", data: dict | None = None) -> bytes:
+    return json.dumps({"station": station, "topic": topic, "seq": seq, "t_s": 0.0, "wall_s": 0.0,
+                       "data": data or {}}).encode()  # fmt: skip
 
 
 def test_a_full_queue_drops_its_oldest_and_counts():
@@ -54,6 +55,22 @@ def test_a_feed_replays_the_session_history_then_the_latest_of_each_lasting_topi
     assert topics_seqs == [("history", None), ("state", 0), ("status", 4), ("progress", 6)]
     history = replay[0]["data"]
     assert [d["seq"] for d in history["notices"]] == [3, 5] and [d["seq"] for d in history["traces"]] == [2]
+
+
+def test_a_new_session_drops_the_last_sessions_window_point_and_results_from_the_replay():
+    """A browser that joins once a new session has started is not shown the last one's open window, point or
+    analysis (window and point messages name no session: only the change of session can clear them)."""
+
+    feed = StationFeed(entry("a"))
+    first = [("state", {"state": "running", "session_uid": "s1"}), ("window", {"key": "P1", "event": "close"}),
+             ("point", {"key": "P1"}), ("analysis", {"session_uid": "s1", "summary": "", "results": {}})]  # fmt: skip
+    for seq, (topic, data) in enumerate(first):
+        feed.accept(doc(seq, topic, data=data))
+    assert {json.loads(t)["topic"] for t in feed.replay()[1:]} == {"state", "window", "point", "analysis"}
+    feed.accept(doc(4, "state", data={"state": "running", "session_uid": "s2"}))
+    replay = [json.loads(t) for t in feed.replay()]
+    assert [(d["topic"], d["data"].get("session_uid")) for d in replay] == [("history", "s2"), ("state", "s2")]
+    assert not replay[0]["data"]["closes"] and not replay[0]["data"]["points"]
 
 
 async def drain(queue: BrowserQueue, traces: int) -> list[dict]:

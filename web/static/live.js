@@ -9,6 +9,7 @@ const RATES_KEEP = 8;
 const NOTICES_KEEP = 200;
 const RENDER_MS = 100;
 const FINAL = ["finished", "aborted", "estopped", "failed"];
+const UNDER_WAY = ["running", "waiting_operator", "pausing", "paused"]; // the states with a time left
 const IN_HISTORY = ["window", "trace", "point", "event", "fault"]; // topics the history holds
 
 // Station seconds per wall second over the last few wall seconds of status messages (a simulated station runs
@@ -221,6 +222,12 @@ class RatesPlot {
   }
 }
 
+// The run's state as the operator needs it: a finished run whose analysis is still under way is 'analysing'.
+function runState(p) {
+  if (!p || !p.state) return "—";
+  return p.state === "finished" && p.analysing ? "analysing" : p.state;
+}
+
 function stamp(doc) {
   const utc = Number.isFinite(doc.wall_s) ? new Date(doc.wall_s * 1000).toISOString().slice(11, 19) + " UTC" : "";
   const st = Number.isFinite(doc.t_s) ? `t = ${num(doc.t_s, 7)} s` : "";
@@ -367,8 +374,13 @@ class StationView {
     this.points = 0;
     this.window.clear();
     this.ratesPlot.clear();
+    this.trace.clear("no motion in this session yet");
+    this.noticeList.replaceChildren();
+    this.faultList.replaceChildren();
+    this.seenFaults = new Set();
     this.results.hidden = true;
     this.results.replaceChildren();
+    this.last.progress = {};
     delete this.last.analysis;
   }
 
@@ -422,7 +434,7 @@ class StationView {
 
   render() {
     const p = this.last.progress; // status (5/s beacon), progress (every step) and state, merged
-    const state = (p && p.state) || "—";
+    const state = runState(p);
     this.f.state.textContent = state;
     this.card.dataset.state = state;
     if (p) {
@@ -432,10 +444,7 @@ class StationView {
       this.f.procedure.textContent = p.procedure || "—";
       this.f.key.textContent = p.key || "—";
       this.f.counts.textContent = `${p.done} of ${p.total}`;
-      const speed = this.speed.speed;
-      const wall = speed && speed > 0 ? `, about ${duration(p.eta_s / speed)} at ${num(speed, 3)}x` : "";
-      this.f.eta.textContent = `${pct.toFixed(1)} %; ETA ${duration(p.eta_s)} of station time${wall} ` +
-        `(dry-run estimate ${duration(p.estimate_total_s)})`;
+      this.f.eta.textContent = this.etaText(state, p, pct);
       this.renderSessionLink(p.session_uid);
       this.f.head.textContent = p.index_deg === null || p.index_deg === undefined ? "—" : `${num(p.index_deg, 6)}°`;
       this.f.drive.textContent = p.busy === undefined ? "—" : this.driveText(state, p);
@@ -456,6 +465,16 @@ class StationView {
     this.renderLink();
     this.renderPause(state, fHz);
     this.renderControls(state, p);
+  }
+
+  // The time left only while a run is under way; otherwise what the run came to.
+  etaText(state, p, pct) {
+    const done = `${pct.toFixed(1)} % (${p.done} of ${p.total} measurements)`;
+    if (state === "analysing") return `${done}; measurements done, analysing the session: the results follow`;
+    if (!UNDER_WAY.includes(state)) return state === "idle" || state === "—" ? "no run under way" : `${state}: ${done}`;
+    const speed = this.speed.speed;
+    const wall = speed && speed > 0 ? `, about ${duration(p.eta_s / speed)} at ${num(speed, 3)}x` : "";
+    return `${done}; ETA ${duration(p.eta_s)} of station time${wall} (dry-run estimate ${duration(p.estimate_total_s)})`;
   }
 
   // The table's frequency, Hz: at rest once the engine says so (status: it sets 0 when the table has stopped,
@@ -551,7 +570,7 @@ class StationView {
     set("plan", true);
     set("pause", state === "running");
     set("resume", state === "paused" || state === "pausing");
-    set("abort", busy && !FINAL.includes(state));
+    set("abort", busy && !FINAL.includes(state) && state !== "analysing");
     set("reset", !busy && (state === "estopped" || state === "failed" || Boolean(p && (p.head_held || p.drive_fault))));
   }
 }
