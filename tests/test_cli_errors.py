@@ -191,9 +191,10 @@ def test_a_missing_station_file_is_named_as_typed(bad, capsys):
     for command in ("calibrate", "serve"):
         code, err = run_main([command, "--station", f"{bad}/nope.toml", "--out", f"{bad}/o"], capsys)
         assert code == 2
-        assert err.strip().splitlines()[-1] == (f"station {command}: error: --station {bad}/nope.toml: does not exist"
-                                                " (a station configuration TOML, e.g. vibration-sim.toml in "
-                                                f"{CONFIG_DIR / 'stations'})")  # fmt: skip
+        stations = ", ".join(sorted(p.stem for p in (CONFIG_DIR / "stations").glob("*.toml")))
+        assert err.strip().splitlines()[-1] == (f"station {command}: error: --station {bad}/nope.toml: no such file, "
+                                                "and no shipped station configuration of that name (a path, or one "
+                                                f"of: {stations})")  # fmt: skip
         assert "not allowed" not in err and "readable file" not in err
 
 

@@ -38,6 +38,7 @@ from station.cli.controller import RESUMABLE
 from station.cli.panel import add_commands as add_panel_commands
 from station.cli.signals import RunSignals
 from station.control_channel import TOKEN_FILE, ControlError, ensure_token
+from station.defaults import shipped_file
 from station.engine.context import ValidationError
 from station.engine.params import ParameterError
 from station.engine.planning import plan_procedure
@@ -99,8 +100,9 @@ def existing_store(path: str | Path) -> Path:
     return path
 
 
-def _load_twin(path: str | None) -> TwinConfig:
-    return TwinConfig.from_toml(path) if path else default_twin()
+def _load_twin(value: str | None) -> TwinConfig:
+    """The twin of --twin, a path or a shipped twin's name (the embedded default twin without one)."""
+    return TwinConfig.from_toml(shipped_file(value, "twins", "--twin")) if value else default_twin()
 
 
 def _run(
@@ -149,11 +151,13 @@ def resume_command(args: argparse.Namespace, uid: str) -> str:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """The main job: seed 000's session through engine, drivers and emulators; stored, identified, reported."""
-    return _run(args, *load_procedure_file(args.procedure), serial=procedure_file_serial(args.procedure))
+    path = shipped_file(args.procedure, "procedures", "--procedure")
+    return _run(args, *load_procedure_file(path), serial=procedure_file_serial(path))
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    return _run(args, *load_procedure_file(args.procedure_file), serial=procedure_file_serial(args.procedure_file))
+    path = shipped_file(args.procedure_file, "procedures", "procedure_file")
+    return _run(args, *load_procedure_file(path), serial=procedure_file_serial(path))
 
 
 def cmd_resume(args: argparse.Namespace) -> int:
@@ -309,10 +313,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def station_options(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--station", help="station configuration TOML (default: config/stations/vibration-sim.toml)")
+        p.add_argument("--station", help="station configuration TOML, or a shipped station's name (tumble-sim: "
+                       "config/stations/tumble-sim.toml) (default: vibration-sim)")  # fmt: skip
         p.add_argument("--out", default="out", help="directory for the store, reports and exports (default: out)")
         p.add_argument("--db", help="SQLite session store (default: OUT/station.sqlite)")
-        p.add_argument("--twin", help="twin configuration TOML of a simulated station (default: embedded)")
+        p.add_argument("--twin", help="twin configuration TOML of a simulated station, or a shipped twin's name "
+                       "(multiposition: config/twins/multiposition.toml) (default: embedded)")  # fmt: skip
         p.add_argument("--seed", type=int, default=0, help="random seed of a simulated station")
         p.add_argument(
             "--speed",
@@ -331,11 +337,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
     station_options(p)
-    p.add_argument("--procedure", default=str(DEFAULT_PROCEDURE), help="procedure file (default: seed 000)")
+    p.add_argument("--procedure", default=str(DEFAULT_PROCEDURE),
+                   help="procedure file, or a shipped one's name (default: integral_precession, seed 000)")  # fmt: skip
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("run", help="run a procedure file on a station")
-    p.add_argument("procedure_file", help="procedure TOML: `procedure = NAME` and [params] (config/procedures/)")
+    p.add_argument("procedure_file", help="procedure TOML (`procedure = NAME` and [params]), or a shipped one's "
+                   "name: its file name under config/procedures without .toml (every procedure has one of its own "
+                   "name, e.g. integral_precession; others too, e.g. rlg_g_sensitivity-quick)")  # fmt: skip
     station_options(p)
     p.set_defaults(func=cmd_run)
 
@@ -365,7 +374,8 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate", help="write a seed-000 session by the session_sim shortcut (not the engine) as piga-session/1"
     )
     p.add_argument("out_dir", help="the piga-session/1 directory to write")
-    p.add_argument("--twin", help="twin configuration TOML (default: embedded, station/twin/data/default_twin.toml)")
+    p.add_argument("--twin", help="twin configuration TOML, or a shipped twin's name (default: embedded, "
+                   "station/twin/data/default_twin.toml)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same session (default 0)")
     p.add_argument("--raw", action="store_true", help="also write the raw streams (grating, pulse edges, references)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT_DIR if it exists")

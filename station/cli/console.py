@@ -22,7 +22,7 @@ from drivers.config import StationConfig, load_station_config
 from drivers.station import StationDevices, simulated_station
 from station.cli.controller import RunOutcome, StationController
 from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, conclusion, format_rows
-from station.defaults import config_dir
+from station.defaults import config_dir, shipped_file
 from station.engine.planning import Plan
 from station.engine.protocols import StationHardware
 from station.engine.registry import get_procedure
@@ -59,14 +59,10 @@ def open_station(
             devices.close()
 
 
-def load_station(path: str | Path | None) -> StationConfig:
-    """The station configuration of --station (the simulated station's by default); a missing file is named as
-    the operator typed it."""
-    if path is not None and not Path(path).is_file():
-        why = "is a directory" if Path(path).is_dir() else "does not exist"
-        raise FileNotFoundError(f"--station {path}: {why} (a station configuration TOML, e.g. "
-                                f"{DEFAULT_SIM_STATION.name} in {DEFAULT_SIM_STATION.parent})")  # fmt: skip
-    return load_station_config(path or DEFAULT_SIM_STATION)
+def load_station(value: str | Path | None) -> StationConfig:
+    """The station configuration of --station, a path or a shipped station's name (the simulated station's by
+    default); a value that is neither is named as the operator typed it."""
+    return load_station_config(shipped_file(value, "stations", "--station") if value else DEFAULT_SIM_STATION)
 
 
 def describe_plan(plan: Plan, out: TextIO) -> None:
