@@ -19,7 +19,7 @@ from web.config import PanelConfig
 SPEED = 100.0
 UI_TIMEOUT_MS = 30_000
 UNDER_WAY = ("running", "waiting_operator", "pausing", "paused")
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 
 # Every (state, ETA line) pair the card shows, recorded in the page as it changes.
 RECORD_ETA = """(card) => {

@@ -24,7 +24,7 @@ SPEED = 200.0  # station seconds per wall second: a 10-point session takes a few
 DESIGN = {"positions_deg": "0, 72, 144, 216, 288", "freqs_hz": "10", "window_s": "30", "settle_s": "2"}  # 10 points
 LONG_DESIGN = DESIGN | {"positions_deg": "0, 36, 72, 108, 144, 180, 216, 252, 288, 324"}  # ended by the e-stop
 N_POINTS = 10
-PROCEDURE = "seed000.integral_precession"
+PROCEDURE = "integral_precession"
 SESSION_S = 120.0  # wall-time bound of one short session, a busy machine included
 CONTROL = ("start", "plan", "pause", "resume", "abort", "estop", "reset")
 
@@ -100,7 +100,7 @@ def viewer_refused(viewer: Page) -> dict[str, int]:
             const out = {};
             for (const cmd of cmds) {
               const body = cmd === 'start' || cmd === 'plan'
-                ? JSON.stringify({procedure: 'seed000.integral_precession', params: {}}) : undefined;
+                ? JSON.stringify({procedure: 'integral_precession', params: {}}) : undefined;
               const r = await fetch(`/api/stations/sim/${cmd}`, {method: 'POST', body,
                 headers: {'X-CSRF-Token': me.csrf, 'Content-Type': 'application/json'}});
               out[cmd] = r.status;
