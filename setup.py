@@ -1,7 +1,8 @@
 """Build steps that pyproject.toml cannot state: ship the defaults and the panel's uPlot inside the package.
 
-- config/ (station files, procedure files, EDS, instrument files, panel.toml) is copied into the wheel as the
-  package `piga_station_config` (found through importlib.resources by station.defaults);
+- config/ (station files, procedure files, EDS, instrument files, twins, panel.toml) is copied into the wheel as
+  station/_config, data of the station package (found by station.defaults): a plain install has the import names
+  station, drivers, procedures and web, nothing else;
 - uPlot (the panel's plots) is copied from the npm package (web/node_modules/uplot, installed by web/setup.sh
   or, when missing, by `npm ci` here) into web/vendor/uplot: minified assets are never committed.
 """
@@ -16,7 +17,7 @@ from setuptools import setup
 from setuptools.command.build_py import build_py
 
 ROOT = Path(__file__).resolve().parent
-CONFIG_PACKAGE = "piga_station_config"
+CONFIG_DATA = Path("station") / "_config"  # under the build directory
 CONFIG_SUFFIXES = {".toml", ".eds"}
 UPLOT_FILES = ("uPlot.iife.min.js", "uPlot.min.css", "uPlot.esm.js")
 UPLOT_DIST = ROOT / "web" / "node_modules" / "uplot" / "dist"
@@ -34,14 +35,14 @@ def _uplot_dist() -> Path:
 
 
 class BuildWithAssets(build_py):
-    """build_py, then the defaults package and uPlot into the build directory."""
+    """build_py, then the shipped defaults and uPlot into the build directory."""
 
     def run(self) -> None:
         super().run()
         if getattr(self, "editable_mode", False):
             return  # an editable install reads config/ and web/node_modules from the source tree
         target = Path(self.build_lib)
-        config = target / CONFIG_PACKAGE
+        config = target / CONFIG_DATA
         if config.exists():
             shutil.rmtree(config)
         for path in sorted((ROOT / "config").rglob("*")):
@@ -49,9 +50,6 @@ class BuildWithAssets(build_py):
                 dest = config / path.relative_to(ROOT / "config")
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(path, dest)
-        (config / "__init__.py").write_text(
-            '"""The station software\'s shipped defaults (the source tree\'s config/)."""\n'
-        )
         vendor = target / "web" / "vendor" / "uplot"
         vendor.mkdir(parents=True, exist_ok=True)
         dist = _uplot_dist()

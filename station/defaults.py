@@ -1,8 +1,8 @@
 """Where the shipped defaults are: station files, procedure files, the drive's EDS, instrument files, the panel's
 configuration (the source tree's config/ directory).
 
-An installed package carries them as the package `piga_station_config` (setup.py copies config/ into the wheel
-at build time) and finds them through importlib.resources; a source checkout (the tests, an editable install)
+An installed package carries them as station/_config, data of the station package (setup.py copies config/ into
+the wheel at build time), found through importlib.resources; a source checkout (the tests, an editable install)
 uses config/ itself.
 
 A station, procedure or twin file is taken by path or by the name of a shipped one (`shipped_file`): `--station
@@ -18,18 +18,15 @@ from pathlib import Path
 
 from station.errors import InputError
 
-PACKAGE = "piga_station_config"
+SHIPPED = "_config"  # under the installed station package
 SOURCE_CONFIG = Path(__file__).resolve().parents[1] / "config"
 
 
 @cache
 def config_dir() -> Path:
     """The directory of the shipped defaults: the installed package's data, else the source tree's config/."""
-    try:
-        shipped = importlib.resources.files(PACKAGE)
-    except ModuleNotFoundError:
-        return SOURCE_CONFIG
-    return Path(str(shipped))
+    shipped = importlib.resources.files("station") / SHIPPED
+    return Path(str(shipped)) if shipped.is_dir() else SOURCE_CONFIG
 
 
 def config_file(*parts: str) -> Path:

@@ -1,5 +1,7 @@
-"""A plain install works: `pip install .` (not editable) into a fresh venv, then `station calibrate` from an empty
-folder runs the main job with the defaults shipped as package data and the panel's uPlot inside the package. That
+"""A plain install works: `pip install .` (not editable) into a fresh venv puts four import names in site-packages
+(station, drivers, procedures, web) and nothing else of ours; from an empty folder shipped files are taken by name
+and `station calibrate` runs the main job with the defaults shipped as data of the station package (station/_config)
+and the panel's uPlot inside the package. That
 run is also the README's main job checked end to end (a full simulated seed-000 session, stored, identified,
 reported, certified): one run of the 6.5 h session serves both.
 
@@ -100,22 +102,33 @@ def test_a_plain_install_runs_the_main_job_from_an_empty_folder(tmp_path):
                     str(src)], check=True, env=env, cwd=tmp_path)  # fmt: skip
     shutil.rmtree(src)  # nothing may come from the source tree from here on
 
+    files = subprocess.run([str(py), "-c", "import importlib.metadata as m; "
+                            "print('\\n'.join(str(f) for f in m.files('piga-station')))"],
+                           capture_output=True, text=True, check=True, env=env, cwd=tmp_path).stdout  # fmt: skip
+    installed = {Path(f).parts[0] for f in files.split()} - {".."}  # ../../bin/station: the console script
+    assert {name for name in installed if not name.endswith(".dist-info")} == set(PACKAGES)
+
     where = subprocess.run(
         [str(py), "-c", "import station.defaults as d, web.app as w, station.cli as app, json; "
          "print(json.dumps([str(d.config_dir()), str(w.UPLOT), app.__file__]))"],
         capture_output=True, text=True, check=True, env=env, cwd=tmp_path,
     ).stdout  # fmt: skip
     config_dir, uplot, app_file = (Path(p) for p in json.loads(where))
-    assert (
-        config_dir == site / "piga_station_config"
-        and (config_dir / "procedures" / "integral_precession.toml").is_file()
-    )
+    assert config_dir == site / "station" / "_config"
+    assert (config_dir / "procedures" / "integral_precession.toml").is_file()
     assert (config_dir / "eds" / "vibration_table_servo.eds").is_file()
     assert uplot == site / "web" / "vendor" / "uplot" and (uplot / "uPlot.iife.min.js").stat().st_size > 10_000
     assert app_file.is_relative_to(site)
 
     empty = tmp_path / "empty"
     empty.mkdir()
+    for words, planned in (
+        (["integral_precession"], "integral_precession"),
+        (["multiposition", "--station", "dual-sim", "--twin", "multiposition"], "multiposition"),
+    ):
+        dry = subprocess.run([str(venv / "bin" / "station"), "run", *words, "--out", "dry", "--dry-run"], cwd=empty,
+                             env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert dry.returncode == 0 and dry.stdout.startswith(f"dry run of {planned}:"), dry.stdout + dry.stderr
     run = subprocess.run([str(venv / "bin" / "station"), "calibrate", "--out", "out"], cwd=empty, env=env,
                          capture_output=True, text=True, timeout=800)  # fmt: skip
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
