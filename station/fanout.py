@@ -30,6 +30,7 @@ from typing import Any, Literal
 from threadpoolctl import threadpool_limits
 
 from station.errors import InputError
+from station.extras import needs_extra
 from station.jsonsafe import json_safe
 
 EXECUTORS = ("local", "dask")
@@ -153,7 +154,8 @@ def open_executor(spec: ExecutorSpec) -> Iterator[cf.Executor]:
         with cf.ProcessPoolExecutor(spec.n_workers, mp_context=get_context("fork")) as ex:
             yield ex
         return
-    from distributed import Client, LocalCluster
+    with needs_extra("the dask executor"):
+        from distributed import Client, LocalCluster
 
     with contextlib.ExitStack() as stack:
         if spec.scheduler:

@@ -21,12 +21,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
-
 from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, CoefficientRow, coefficient_rows, conclusion
 from station.errors import InputError
+from station.extras import needs_extra
 from station.session import Session
 from station.store import SessionStore
+
+with needs_extra("station.open_store (the notebook API)"):
+    import pandas as pd
 
 POINT_COLUMNS = ("point_id", "sequence", "start_s", "position_deg", "freq_hz", "kind", "pulses", "Tm_s", "t1_s",
                  "t2_s", "Np")  # fmt: skip

@@ -16,16 +16,19 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from datetime import date
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fastapi import HTTPException
 
 from procedures.integral_precession.identify import METHODS, identify
-from station.central.reader import CentralStore, HistoryQuery
 from station.engine.registry import ProcedureError, get_procedure
 from station.session import Session
 from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
 from web.config import CentralEntry, StationEntry
+
+if TYPE_CHECKING:  # the central history needs the [fleet] extra: imported only when configured
+    from station.central.reader import CentralStore
 
 OUTCOMES = ("running", "finished", "aborted", "failed", "imported", "interrupted")
 LONG_LIST = 20  # measurement values longer than this are shown by their length
@@ -66,8 +69,11 @@ class History:
         stations = list(stations)
         self._stores: dict[Path, _Store] = {}
         self._entries = {e.name: e for e in stations}
-        self._central = CentralStore(central.url, central.arrays) if central is not None else None
-        if self._central is not None:
+        self._central: CentralStore | None = None
+        if central is not None:
+            from station.central.reader import CentralStore
+
+            self._central = CentralStore(central.url, central.arrays)
             stations = []  # the stations' own stores are their journals; the central history is what is read
         for entry in stations:
             key = entry.store.resolve()
@@ -90,6 +96,8 @@ class History:
     def sessions(self, where: SessionFilter, limit: int) -> list[dict]:
         """Matching sessions, newest first."""
         if self._central is not None:
+            from station.central.reader import HistoryQuery
+
             q = HistoryQuery(where.serial, where.procedure, where.outcome, where.station, where.since, where.until)
             return [self._central_row(r) for r in self._central.history(q, limit)]
         rows = []
@@ -120,8 +128,8 @@ class History:
 
     def row(self, uid: str) -> dict:
         s = self._find(uid)
-        if isinstance(s.store, CentralStore):
-            return self._central_row(s.store.row(uid))
+        if self._central is not None:  # the central history is then the only store
+            return self._central_row(self._central.row(uid))
         row = next(r for r in s.store.sessions() if r["uid"] == uid)
         if row["status"] == "running" and uid in recover_interrupted(s.store):  # crashed since the panel started
             row = next(r for r in s.store.sessions() if r["uid"] == uid)

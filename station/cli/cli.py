@@ -50,6 +50,7 @@ from station.engine.registry import (
     procedure_file_serial,
 )
 from station.errors import StationError
+from station.extras import MissingExtra, needs_extra
 from station.interchange import SessionFormatError, SessionWriter, content_hash, read_session, write_session
 from station.least_squares import FitError
 from station.provenance import make_provenance
@@ -415,7 +416,11 @@ def main(argv: list[str] | None = None) -> int:
         argv = [argv[0], "--", *argv[1:]]  # argparse.REMAINDER alone would refuse a leading option
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        with needs_extra(f"station {args.command}"):
+            return args.func(args)
+    except MissingExtra as exc:  # the [fleet], [web] or [notebook] part of the install is not there
+        print(exc, file=sys.stderr)
+        return 2
     except (
         SessionFormatError, TwinConfigError, FitError, StoreError, FileExistsError, ConfigError, ProcedureError,
         ParameterError, ValidationError, ControlError, DriverError, StationError, ValueError,
