@@ -22,6 +22,7 @@ from fastapi import HTTPException
 
 from procedures.integral_precession.identify import METHODS, identify
 from station.engine.registry import ProcedureError, get_procedure
+from station.procedure_names import current_name
 from station.session import Session
 from station.session_lock import recover_interrupted
 from station.store import SessionStore, StoreError
@@ -48,7 +49,7 @@ class SessionFilter:
         day = date.fromisoformat(row["created_utc"][:10])
         return (
             self.serial.lower() in row["instrument_serial"].lower()
-            and (not self.procedure or row["procedure"] == self.procedure)
+            and (not self.procedure or current_name(row["procedure"]) == current_name(self.procedure))
             and (not self.outcome or row["status"] == self.outcome)
             and (self.since is None or day >= self.since)
             and (self.until is None or day <= self.until)

@@ -19,6 +19,7 @@ import numpy as np
 import sqlalchemy as sa
 
 from station.central.sync import open_central
+from station.procedure_names import stored_names
 from station.raw_limits import DEFAULT_LIMITS, Budget, RawInputError
 from station.safe_arrays import NUMERIC_KINDS, load_npy
 from station.safe_files import open_regular
@@ -93,7 +94,11 @@ class CentralStore:
         if q.serial:
             where.append("lower(instrument_serial) LIKE :serial")
             args["serial"] = _like_part(q.serial)
-        for name in ("procedure", "status", "station"):
+        if q.procedure:  # a session stored under a former name is the same procedure's
+            names = stored_names(q.procedure)
+            where.append("procedure IN (" + ", ".join(f":procedure{i}" for i in range(len(names))) + ")")
+            args |= {f"procedure{i}": name for i, name in enumerate(names)}
+        for name in ("status", "station"):
             if getattr(q, name):
                 where.append(f"{name} = :{name}")
                 args[name] = getattr(q, name)

@@ -19,6 +19,7 @@ from typing import Any
 
 from station.engine.params import Param, ParameterError, params_model, validate_params
 from station.errors import InputError
+from station.procedure_names import current_name
 from station.session import Session
 from station.tomlfile import read_toml
 
@@ -59,24 +60,6 @@ class ProcedureSpec:
 
 _REGISTRY: dict[str, ProcedureSpec] = {}
 
-# The names earlier versions registered (before issue 29 named procedures after their packages): sessions stored
-# and procedure files written under them still resolve to the procedure they named.
-FORMER_NAMES: dict[str, str] = {
-    "seed000.integral_precession": "integral_precession",
-    "seed000.integer_periodic_vibration": "integral_precession.integer_periodic_vibration",
-    "seed000.multi_frequency": "integral_precession.multi_frequency",
-    "seed000.planning": "integral_precession.planning",
-    "seed000.self_alignment": "integral_precession.self_alignment",
-    "seed000.parasitic_translation": "integral_precession.parasitic_translation",
-    "seed000.frequency_stability": "integral_precession.frequency_stability",
-    "seed000.parasitic_rotation": "integral_precession.parasitic_rotation",
-    "seed001.tumble": "tumble",
-    "seed002.g_sensitive_misalignment": "rlg_g_sensitivity",
-    "seed003.gravity_field": "multiposition",
-    "seed003.planning": "multiposition.planning",
-    "seed004.nonlinear_suppression": "nonlinear_suppression",
-}
-
 
 def procedure(name: str, title: str, params: Sequence[Param], analyse: Analyser | None = None):
     """Register a generator function as a library procedure."""
@@ -103,9 +86,9 @@ def load_library() -> dict[str, ProcedureSpec]:
 
 
 def get_procedure(name: str) -> ProcedureSpec:
-    """The registered procedure of that name, or of the name it had in an earlier version (FORMER_NAMES)."""
+    """The registered procedure of that name, or of the name it had in an earlier version (station.procedure_names)."""
     library = load_library()
-    spec = library.get(FORMER_NAMES.get(name, name))
+    spec = library.get(current_name(name))
     if spec is None:
         raise ProcedureError(f"unknown procedure {name!r}; the library has: {', '.join(sorted(library))}")
     return spec

@@ -36,6 +36,8 @@ def two_histories(tmp_path_factory, database, fill):
         for k, (uid, day) in enumerate(zip(uids, DAYS, strict=True)):
             conn.execute("UPDATE sessions SET created_utc = ? WHERE uid = ?", (f"{day}T10:0{k}:00.000+00:00", uid))
         conn.execute("UPDATE sessions SET procedure = 'integral_precession.self_alignment' WHERE uid = ?", (uids[1],))
+        # stored by an earlier version, under the procedure's former name (station.procedure_names)
+        conn.execute("UPDATE sessions SET procedure = 'seed000.self_alignment' WHERE uid = ?", (uids[3],))
     with SessionStore(db) as store:
         engine = open_central(central_url)
         sync_store(store, engine, arrays_dir, "sim")
@@ -60,6 +62,7 @@ FILTERS = [
     SessionFilter(serial="iga-3"),
     SessionFilter(serial="%"),  # a LIKE wildcard is a character like any other
     SessionFilter(procedure="integral_precession.self_alignment"),
+    SessionFilter(procedure="seed000.self_alignment"),
     SessionFilter(outcome="finished"),
     SessionFilter(since=date(2026, 3, 2), until=date(2026, 4, 10)),
     SessionFilter(until=date(2026, 3, 1)),
@@ -75,6 +78,13 @@ def test_the_listing_is_the_same_from_either(two_histories, where):
     expected = [r for r in local.sessions(where, 100) if r["uid"] in ended]
     assert central.sessions(where, 100) == expected
     assert central.sessions(where, 2) == expected[:2]
+
+
+@pytest.mark.parametrize("name", ["integral_precession.self_alignment", "seed000.self_alignment"])
+def test_a_procedure_lists_its_sessions_stored_under_either_name(two_histories, name):
+    local, central, uids, _ = two_histories
+    for history in (local, central):
+        assert [r["uid"] for r in history.sessions(SessionFilter(procedure=name), 100)] == [uids[3], uids[1]]
 
 
 def test_session_page_report_and_gap_inputs_are_the_same_from_either(two_histories):

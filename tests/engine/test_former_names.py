@@ -9,8 +9,9 @@ import time
 import pytest
 
 from station.cli import analysis_job
-from station.engine.registry import FORMER_NAMES, get_procedure, load_library, load_procedure_file
+from station.engine.registry import get_procedure, load_library, load_procedure_file
 from station.engine.runner import State
+from station.procedure_names import FORMER_NAMES
 
 from .conftest import PROCEDURE, QUICK
 
