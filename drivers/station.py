@@ -335,6 +335,22 @@ class StationDevices:
         return [getattr(d, name) for d in self.extra.values() if isinstance(d, Stoppable)]
 
 
+def display_divider(pace: float | None, max_divider: int) -> int:
+    """The grating's divider for the display trace: about TRACE_SAMPLES_PER_WALL_S samples per wall second at
+    `pace` (None: as fast as the CPU allows, the largest divider), up to a quarter more, prime to 10 (so that
+    5 kHz / divider is a submultiple of no table frequency on the 0.1 Hz grid) and among those the one whose samples
+    walk fastest through the phase of every whole-hertz motion, 1 to 10 Hz: an equivalent-time sample of the motion
+    rather than a strobe (2000 at 100x is 2.5 Hz, and every sample of a 10 Hz motion read the same z)."""
+    target = max_divider if pace is None else math.ceil(GRATING_RATE_HZ * pace / TRACE_SAMPLES_PER_WALL_S)
+    hi = min(max(target, 11), max_divider)
+    candidates = [d for d in range(max(11, int(0.8 * hi)), hi + 1) if math.gcd(d, 10) == 1]
+
+    def slowest_walk(d: int) -> float:  # cycles of the motion between two samples, from the nearest whole cycle
+        return min(abs(f_hz * d / GRATING_RATE_HZ - round(f_hz * d / GRATING_RATE_HZ)) for f_hz in range(1, 11))
+
+    return max(candidates, key=slowest_walk)
+
+
 class _DisplayTrace:
     """The grating streaming at a display rate during a window; samples handed over as they come.
 
@@ -342,9 +358,7 @@ class _DisplayTrace:
     """
 
     def __init__(self, grating: GratingReadHead, clock: Clock, sink: Callable[[np.ndarray, np.ndarray], None]) -> None:
-        pace = clock.pace  # None: as fast as the CPU allows, the sparsest trace
-        divider = grating.max_divider if pace is None else math.ceil(GRATING_RATE_HZ * pace / TRACE_SAMPLES_PER_WALL_S)
-        divider = min(max(divider, 10), grating.max_divider)
+        divider = display_divider(clock.pace, grating.max_divider)
         self.grating = grating
         self.sink = sink
         self._link = clock.link  # the drain's pace is the line's

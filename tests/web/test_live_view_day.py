@@ -7,12 +7,18 @@ faults and results). The page's values are checked against the station's store, 
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
+import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page, expect
 
+from drivers.station import GRATING_RATE_HZ, TRACE_SAMPLES_PER_WALL_S, display_divider
 from station.store import SessionStore
 from web.config import PanelConfig
 
@@ -20,6 +26,8 @@ SPEED = 100.0
 UI_TIMEOUT_MS = 30_000
 UNDER_WAY = ("running", "waiting_operator", "pausing", "paused")
 PROCEDURE = "integral_precession"
+A0_MM = 30.0  # the crank's amplitude (physics.md: A0 = 0.03 m)
+NODE = shutil.which("node")
 
 # Every (state, ETA line) pair the card shows, recorded in the page as it changes.
 RECORD_ETA = """(card) => {
@@ -29,6 +37,39 @@ RECORD_ETA = """(card) => {
   new MutationObserver(note).observe(card, {attributes: true, attributeFilter: ['data-state'], subtree: false});
   new MutationObserver(note).observe(eta, {childList: true, characterData: true, subtree: true});
 }"""
+
+
+@pytest.mark.parametrize("pace", [None, 10.0, 20.0, 50.0, 100.0, 1000.0])
+def test_the_display_trace_walks_through_the_motion_instead_of_strobing_it(pace):
+    """A wall second of display samples of every whole-hertz motion spans its whole swing: with a divider of 2000
+    (100x) every sample of a 10 Hz motion fell at one phase (the flat line at +24 mm)."""
+    d = display_divider(pace, 5000)
+    n = int(TRACE_SAMPLES_PER_WALL_S)
+    if pace is not None:  # about the display's rate (or the slowest the grating streams), not a flood
+        assert GRATING_RATE_HZ * pace / d <= 1.25 * max(n, GRATING_RATE_HZ * pace / 5000)
+    t_s = np.arange(n) * d / GRATING_RATE_HZ
+    for f_hz in range(1, 11):
+        assert np.ptp(np.sin(2 * np.pi * f_hz * t_s + 0.93)) > 1.9, (pace, d, f_hz)
+    strobe_t_s = np.arange(n) * 2000 / GRATING_RATE_HZ
+    assert np.ptp(np.sin(2 * np.pi * 10 * strobe_t_s + 0.93)) < 1e-9  # the old divider at 100x
+
+
+@pytest.mark.skipif(NODE is None, reason="node is not installed")
+def test_axis_labels_tell_neighbouring_ticks_apart(tmp_path):
+    """The mean-rate axis: ticks 1e-7 rad/s apart around 0.5612 rad/s read apart (3 digits made every one 0.561);
+    round numbers keep their zeros (num(100, 3) read '1')."""
+    module = tmp_path / "common.mjs"
+    shutil.copy(Path(__file__).resolve().parents[2] / "web" / "static" / "common.js", module)
+    ticks = [0.5612341, 0.5612342, 0.5612343, 0.5612344]
+    script = (f"import {{ num, tickLabels }} from {json.dumps(module.as_uri())};\n"
+              f"console.log(JSON.stringify([tickLabels(null, {ticks}), tickLabels(null, [-30, -15, 0, 15, 30]), "
+              "num(100, 3), num(10, 6), num(0.5, 3), num(2.5e-5, 3)]));")  # fmt: skip
+    done = subprocess.run([NODE, "--input-type=module", "-e", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    rates, mm, *nums = json.loads(done.stdout)
+    assert [float(x) for x in rates] == pytest.approx(ticks, abs=1e-12) and len(set(rates)) == len(ticks)
+    assert mm == ["-30", "-15", "0", "15", "30"]
+    assert nums == ["100", "10", "0.5", "2.50e-5"]
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +94,13 @@ def operator_page(browser: Browser, url: str, password: str) -> Page:
     page.click("button[type=submit]")
     expect(page).to_have_url(f"{url}/")
     return page
+
+
+def wait_until(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f"{what} not seen within {timeout_s} s"
+        time.sleep(0.05)
 
 
 def post(page: Page, path: str, body: dict | None = None) -> dict:
@@ -82,6 +130,10 @@ def test_eta_only_while_running_analysing_until_results_and_a_new_start_clears_t
                                                    "instrument_serial": "DAY-1"})  # fmt: skip
     assert first["status"] == 200, first
     uid1 = first["body"]["result"]["session_uid"]
+    trace = card.locator(".trace")  # at 100x too sparse to draw 8-10 Hz: dots that span the swing, said so
+    wait_until(lambda: float(trace.get_attribute("data-z-spread-mm") or 0) > A0_MM, 30, "the table's swing")
+    assert trace.get_attribute("data-resolved") == "false"
+    expect(trace.locator(".plot-title")).to_contain_text("each dot is where the table was")
     expect(card.locator(".results")).to_be_visible(timeout=120_000)
     expect(card).to_have_attribute("data-state", "finished", timeout=UI_TIMEOUT_MS)
     seen = page.evaluate("window.etaSeen")

@@ -52,7 +52,19 @@ export function facts(rows) {
 export function num(x, digits = 4) {
   if (x === null || x === undefined || Number.isNaN(x)) return "—";
   const a = Math.abs(x);
-  return a !== 0 && (a < 1e-3 || a >= 1e6) ? x.toExponential(digits - 1) : x.toPrecision(digits).replace(/\.?0+$/, "");
+  if (a !== 0 && (a < 1e-3 || a >= 1e6)) return x.toExponential(digits - 1);
+  const text = x.toPrecision(digits);
+  return text.includes(".") ? text.replace(/\.?0+$/, "") : text; // trailing zeros of the fraction only
+}
+
+// uPlot axis labels (its `values` option) with as many significant digits as the ticks' spacing needs, so that
+// neighbouring ticks read apart (0.5612341 and 0.5612342 rad/s, where 3 digits made every tick 0.561).
+export function tickLabels(u, ticks) {
+  const steps = ticks.slice(1).map((v, i) => Math.abs(v - ticks[i])).filter((d) => d > 0);
+  if (!steps.length) return ticks.map((v) => num(v, 3));
+  const top = Math.max(...ticks.map(Math.abs));
+  const digits = Math.min(15, Math.max(3, Math.ceil(Math.log10(top / Math.min(...steps))) + 1));
+  return ticks.map((v) => num(v, digits));
 }
 
 export function duration(s) {

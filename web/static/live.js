@@ -1,5 +1,5 @@
 // Live view: one card per station, fed by the panel's WebSocket relay; operators also get the controls.
-import { api, chart, coefficientRows, duration, el, num, session, showError, start, UNCERTAINTY_NOTE } from "/static/common.js";
+import { api, chart, coefficientRows, duration, el, num, session, showError, start, tickLabels, UNCERTAINTY_NOTE } from "/static/common.js";
 
 const STALE_S = 2; // no telemetry for this long: the station is shown as silent
 const NOT_SERVED_S = 5; // ... and for this long (or never heard): not served, with the command that serves it
@@ -53,10 +53,10 @@ export function minMaxPerPixel(t, z, columns) {
   return [xs, ys];
 }
 
-// The table's displacement over station time: upper and lower envelope per pixel column. Where the samples
-// resolve the motion (spacing under a quarter period) the two coincide and draw the trace itself; where they do
-// not (a simulated station at 100x sends a few samples per many periods) the band between the extremes of
-// neighbouring samples is drawn: the motion's envelope, not an alias. Gaps in the record are left open.
+// The table's displacement over station time. Where the samples resolve the motion (spacing under a quarter
+// period) the upper and lower envelope per pixel column (they coincide: the trace itself); where they do not (a
+// simulated station at 100x sends a few samples per many periods) each sample as a dot, no line: a line through
+// them would draw an alias of the motion. Gaps in the record are left open.
 export function envelopeSeries(t, z, freqHz, columns) {
   const [xs, ys] = minMaxPerPixel(t, z, columns);
   const n = xs.length;
@@ -65,14 +65,15 @@ export function envelopeSeries(t, z, freqHz, columns) {
   const median = dts.length ? [...dts].sort((a, b) => a - b)[Math.floor(dts.length / 2)] : 0;
   const resolved = !(freqHz > 0) || median < 0.25 / freqHz;
   const x = [];
-  const hi = [];
-  const lo = [];
+  const line = [];
+  const dots = [];
   for (let i = 0; i < n; i++) {
-    if (i && median > 0 && xs[i] - xs[i - 1] > 5 * median) { x.push((xs[i] + xs[i - 1]) / 2); hi.push(null); lo.push(null); }
-    const near = resolved ? [ys[i]] : ys.slice(Math.max(0, i - 1), i + 2);
-    x.push(xs[i]); hi.push(Math.max(...near)); lo.push(Math.min(...near));
+    if (resolved && i && median > 0 && xs[i] - xs[i - 1] > 5 * median) {
+      x.push((xs[i] + xs[i - 1]) / 2); line.push(null); dots.push(null);
+    }
+    x.push(xs[i]); line.push(resolved ? ys[i] : null); dots.push(resolved ? null : ys[i]);
   }
-  return { x, hi, lo, resolved };
+  return { x, line, dots, resolved, spacing: median };
 }
 
 // The table's displacement from the grating as a continuous trace over station time (s): the last couple of
@@ -109,22 +110,23 @@ class TracePlot {
     if (!this.plot) {
       this.plot = chart(this.box, {
         scales: { x: { time: false } },
-        axes: [{ label: "station time (s)" }, { label: "z (mm)" }],
+        axes: [{ label: "station time (s)", values: tickLabels }, { label: "z (mm)", values: tickLabels }],
         series: [{ label: "station time (s)" },
-          { label: "z max (mm)", stroke: "#1565c0", width: 1, points: { show: false } },
-          { label: "z min (mm)", stroke: "#1565c0", width: 1, points: { show: false } }],
-        bands: [{ series: [1, 2], fill: "rgba(21, 101, 192, 0.3)" }],
+          { label: "z (mm)", stroke: "#1565c0", width: 1, points: { show: false } },
+          { label: "z at one instant (mm)", stroke: "#1565c0", paths: () => null, points: { show: true, size: 4, fill: "#1565c0" } }],
         legend: { show: false },
       }, [[], [], []]);
     }
     const freq = this.messages.at(-1).freq_hz;
     const columns = Math.max(Math.round(this.plot.bbox.width / devicePixelRatio), 100);
     const e = envelopeSeries(t, z, freq, columns);
-    this.plot.setData([e.x, e.hi, e.lo]);
+    this.plot.setData([e.x, e.line, e.dots]);
     const span = t[t.length - 1] - t[0];
     this.title.textContent = `Table displacement (grating): the last ${num(span, 3)} s of station time, ${t.length} ` +
       (e.resolved ? "samples (min and max of each pixel column)"
-        : `samples, too few for ${num(freq, 3)} Hz at this speed: the band is the motion's envelope`);
+        : `samples ${num(e.spacing, 3)} s apart, ${num(e.spacing * freq, 3)} periods of its ${num(freq, 3)} Hz: too ` +
+          "sparse at this speed to draw the motion; each dot is where the table was, their spread its amplitude");
+    this.box.dataset.zSpreadMm = (Math.max(...z) - Math.min(...z)).toFixed(3);
     this.updates += 1;
     this.box.dataset.updates = String(this.updates);
     this.box.dataset.points = String(e.x.length);
@@ -212,7 +214,7 @@ class RatesPlot {
         title: "Mean rate of each closed window",
         scales: { x: { time: false } },
         axes: [{ label: "window", incrs: [1, 2, 5, 10, 20, 50, 100, 200, 500] },
-          { label: "rate (rad/s)", size: 70, values: (u, ticks) => ticks.map((v) => num(v, 3)) }],
+          { label: "rate (rad/s)", size: 90, values: tickLabels }],
         series: [{ label: "window" }, { label: "rate (rad/s)", stroke: "#2e7d32", paths: () => null, points: { show: true, size: 6, fill: "#2e7d32" } }],
         legend: { show: false },
       }, [[], []]);
