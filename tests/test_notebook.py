@@ -127,7 +127,7 @@ def test_the_example_notebook_runs_on_a_simulated_session(run_dir):
     written = json.loads(next(run_dir.glob("result-*.json")).read_text())
     kz = written["integral"]["coefficients"]["kz"]
     assert f"kz = {kz['value']:.6e} rad/s/g" in text
-    assert "U = k u" in html and "verdict: " in html
+    assert "U = k u" in html and "fit check: " in html and "conformity against the instrument" in html
     assert "Verdict:" in html  # the gap report's rich display
 
 
