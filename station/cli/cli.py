@@ -177,6 +177,8 @@ DEFAULT_TELEMETRY = "tcp://127.0.0.1:5561"
 def cmd_serve(args: argparse.Namespace) -> int:
     """Keep a station under remote control (the web panel): control channel and telemetry until SIGINT/SIGTERM."""
     config = load_station(args.station)
+    if args.sync_to:  # a missing [fleet] extra is refused before anything is opened or made
+        import station.central.sync  # noqa: F401
     token = os.environ.get(args.token_env) if args.token_env else None
     if args.token_env and not token:
         raise ControlError(f"--token-env {args.token_env}: that environment variable is not set")
