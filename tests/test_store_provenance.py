@@ -127,7 +127,7 @@ def test_the_procedure_files_instrument_serial_is_recorded(tmp_path):
     """`instrument_serial` in a procedure file names the instrument of the session (no silent default)."""
     proc = tmp_path / "quick.toml"
     proc.write_text('procedure = "integral_precession"\ninstrument_serial = "PIGA-FILE-9"\n[params]\n'
-                    'positions_deg = [0, 180]\nfreqs_hz = [10]\nwindow_s = 5\nsettle_s = 0\n')  # fmt: skip
+                    'positions_deg = [0, 120, 240]\nfreqs_hz = [9, 10]\nwindow_s = 5\nsettle_s = 0\n')  # fmt: skip
     out = tmp_path / "out"
     main(["run", str(proc), "--out", str(out), "--seed", "4"])  # the analysis may refuse so short a session
     with SessionStore(out / "station.sqlite") as store:

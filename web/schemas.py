@@ -46,6 +46,7 @@ class PlanRequest(BaseModel):
 
 class StartRequest(PlanRequest):
     instrument_serial: str = Field("", pattern=SERIAL_PATTERN, description="instrument under test")
+    confirm: bool = Field(False, description="start a design that the dry run warns about (the operator confirmed)")
 
 
 class ResumeSessionRequest(BaseModel):

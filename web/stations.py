@@ -15,6 +15,7 @@ from web.config import PanelConfigError, StationEntry
 HTTP_STATUS = {
     "ParameterError": 422,  # the message names the parameter, the value and what is allowed
     "ValidationError": 422,
+    "RefusedDesignError": 422,  # a design that cannot work, one line per problem (station/engine/design_checks.py)
     "ProcedureError": 422,
     "KeyError": 422,
     "TypeError": 422,

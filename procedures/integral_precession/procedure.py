@@ -24,6 +24,7 @@ import numpy as np
 from procedures.common.session_certificate import certificate_files, result_provenance
 from procedures.integral_precession.alignment import multi_position, two_position
 from procedures.integral_precession.budget import seed000_budget
+from procedures.integral_precession.design_check import check_design
 from procedures.integral_precession.identify import METHODS, Compensation, Identification, identify
 from procedures.integral_precession.planning import design_quality, relative_sensitivity
 from procedures.integral_precession.report import certificate, render_report
@@ -151,6 +152,7 @@ def _multiposition(p: dict):
         *UNCERTAINTIES,
     ),
     analyse=analyse_integral,
+    check_design=check_design,
 )
 def integral_precession(p: dict):
     return (yield from _multiposition(p))
@@ -161,6 +163,7 @@ def integral_precession(p: dict):
     "Integer periodic vibration method, the classical baseline (seed 000 eq. 35, Ref. 22)",
     (_positions(equal_angle_positions_deg(9), "indexing positions (Ref. 22: 9 equal angles)"), *COMMON),
     analyse=analyse_baseline,
+    check_design=check_design,
 )
 def integer_periodic_vibration(p: dict):
     return (yield from _multiposition(p))
@@ -171,6 +174,7 @@ def integer_periodic_vibration(p: dict):
     "Multi-frequency method: up, down and 45 deg (seed 000 6.2.3, Ref. 21)",
     (_positions([0.0, 45.0, 180.0], "indexing positions (0, 45 and 180 deg)"), *COMMON),
     analyse=analyse_multi_frequency,
+    check_design=check_design,
 )
 def multi_frequency(p: dict):
     return (yield from _multiposition(p))
@@ -247,6 +251,7 @@ def analyse_planning(session: Session) -> Analysis:
         Param("n_max", int, default=40, min=4, max=100, help="largest n of the det(Q), RES(n) curves"),
     ),
     analyse=analyse_planning,
+    check_design=check_design,
 )
 def planning(p: dict):
     yield Note(f"planning {len(p['positions_deg'])} positions at {p['freqs_hz']} Hz; nothing moves")

@@ -25,6 +25,7 @@ from procedures.integral_precession.identify import METHODS, identify
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.cli.console import (
     DEFAULT_PROCEDURE,
+    confirmed,
     controller_for,
     describe_plan,
     exit_code,
@@ -41,7 +42,7 @@ from station.control_channel import TOKEN_FILE, ControlError, ensure_token
 from station.defaults import shipped_file
 from station.engine.context import ValidationError
 from station.engine.params import ParameterError
-from station.engine.planning import plan_procedure
+from station.engine.planning import checked_plan, plan_procedure
 from station.engine.registry import (
     ProcedureError,
     ProcedureSpec,
@@ -115,10 +116,13 @@ def _run(
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     twin = _load_twin(args.twin)  # a bad --twin is refused by the dry run too
-    plan = plan_procedure(spec, params, config.station_model())
+    planner = checked_plan if resume_uid is None else plan_procedure  # a new design is checked before anything opens
+    plan = planner(spec, params, config.station_model())
     if args.dry_run:
         describe_plan(plan, sys.stdout)
         return 0
+    if not confirmed(plan, args.yes, sys.stderr):
+        return 2
     if resume_uid is None:  # before anything opens: a real station does not start without the instrument's serial
         given = args.serial or serial
         make_provenance(station_id=config.station_id, simulated=config.simulated, instrument_serial=given)
@@ -337,6 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--telemetry", metavar="ENDPOINT", type=zmq_endpoint,
                        help="publish telemetry on this zmq endpoint (tcp://HOST:PORT)")  # fmt: skip
         p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
+        p.add_argument("--yes", action="store_true", help="run a design that the dry run warns about")
 
     p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
     station_options(p)

@@ -73,6 +73,22 @@ def describe_plan(plan: Plan, out: TextIO) -> None:
     )
     for key, s in est.items():
         print(f"  {key:28s} {s:9.1f} s", file=out)
+    describe_warnings(plan, out)
+
+
+def describe_warnings(plan: Plan, out: TextIO) -> None:
+    """The design's warnings, each with its field, value, reason and fix."""
+    for w in plan.warnings:
+        print(w.line(), file=out)
+
+
+def confirmed(plan: Plan, yes: bool, out: TextIO) -> bool:
+    """Whether the run may start: a design with warnings needs `--yes` (the warnings are printed either way)."""
+    describe_warnings(plan, out)
+    if plan.warnings and not yes:
+        print(f"{len(plan.warnings)} warning(s) about the design of {plan.procedure}: nothing moved; "
+              "pass --yes to run it anyway", file=out)  # fmt: skip
+    return yes or not plan.warnings
 
 
 PLAIN_STEP = 0.1  # a log (stderr not a terminal) gets one progress line per tenth of the plan

@@ -244,7 +244,7 @@ class ControlServer:
         self._handlers: dict[str, Callable[..., Any]] = {
             "status": lambda a: controller.status(),
             "library": lambda a: controller.library(),
-            "plan": lambda a: controller.plan(a["procedure"], a.get("params", {}))[1].to_json(),
+            "plan": lambda a: controller.plan(a["procedure"], a.get("params", {}), checked=True)[1].to_json(),
             "start": self._start,
             "resume_session": self._resume_session,
             "pause": lambda a: controller.pause(),

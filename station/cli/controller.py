@@ -31,7 +31,7 @@ from station.cli import analysis_job
 from station.clock import ClockEvent, host_clock, spawn_party
 from station.control_channel import ControlError
 from station.engine.context import StationModel
-from station.engine.planning import Plan, plan_procedure
+from station.engine.planning import Plan, checked_plan, plan_procedure
 from station.engine.protocols import StationHardware
 from station.engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from station.engine.runner import Engine, State, StopCount
@@ -102,10 +102,11 @@ class StationController:
     def library() -> list[dict]:
         return [spec.describe() for spec in load_library().values()]
 
-    def plan(self, procedure: str, params: dict[str, Any]) -> tuple[ProcedureSpec, Plan]:
-        """Validate parameters and every step (ProcedureError, ParameterError, ValidationError); nothing moves."""
+    def plan(self, procedure: str, params: dict[str, Any], checked: bool = False) -> tuple[ProcedureSpec, Plan]:
+        """Validate parameters and every step (ProcedureError, ParameterError, ValidationError); nothing moves.
+        checked: the operator's dry run, which checks the design first (RefusedDesignError) and carries its warnings."""
         spec = get_procedure(procedure)
-        return spec, plan_procedure(spec, spec.validate(params), self.model)
+        return spec, (checked_plan if checked else plan_procedure)(spec, spec.validate(params), self.model)
 
     # ---- runs ---------------------------------------------------------------------------------
 

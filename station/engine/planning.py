@@ -4,15 +4,21 @@ The procedure runs against a nominal model of the station: each step checks
 itself (`Step.plan`), is given an estimated duration, and returns a nominal
 result so that the procedure can go on. Nothing moves. The first defect
 stops the plan with a ValidationError that names the step, the field, the
-value and what is allowed.
+value and what is allowed. The operator's dry run (`checked_plan`: the
+console's run and the panel's dry run and Start) first checks the design itself
+(station/engine/design_checks.py): a refusal stops it with every problem of the
+design; the warnings travel with the plan for the operator to confirm. The
+engine's own plan does not check designs (a test or a script may run a short
+design that identifies nothing).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from station.engine.context import NominalState, PlanContext, StationModel, ValidationError
+from station.engine.design_checks import Finding, RefusedDesignError, check_params, long_plan
 from station.engine.registry import ProcedureSpec
 from station.engine.steps import Step
 from station.records import RecordError
@@ -33,6 +39,7 @@ class Plan:
     procedure: str
     params: dict[str, Any]
     steps: list[PlannedStep]
+    warnings: list[Finding] = field(default_factory=list)  # of the design, for the operator to confirm
 
     @property
     def total_s(self) -> float:
@@ -60,6 +67,7 @@ class Plan:
             "total_s": self.total_s,
             "n_measurements": len(est),
             "measurements": [{"key": k, "estimate_s": v} for k, v in est.items()],
+            "warnings": [w.to_json() for w in self.warnings],
         }
 
 
@@ -91,3 +99,14 @@ def plan_procedure(spec: ProcedureSpec, params: dict[str, Any], model: StationMo
     finally:
         gen.close()
     return Plan(spec.name, params, steps)
+
+
+def checked_plan(spec: ProcedureSpec, params: dict[str, Any], model: StationModel) -> Plan:
+    """The operator's dry run: the design checked first (RefusedDesignError with every problem that makes it unable
+    to work), then planned; the warnings go with the plan, for the operator to confirm before a start."""
+    findings = check_params(spec.params, params, spec.check_design)
+    if any(f.refusal for f in findings):
+        raise RefusedDesignError(spec.name, findings)
+    plan = plan_procedure(spec, params, model)
+    plan.warnings = findings + long_plan(plan.key_estimates_s())
+    return plan

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from station.engine.design_checks import MethodCheck
 from station.engine.params import Param, ParameterError, params_model, validate_params
 from station.errors import InputError
 from station.procedure_names import current_name
@@ -48,6 +49,7 @@ class ProcedureSpec:
     params: tuple[Param, ...]
     func: Callable[[dict[str, Any]], Generator]
     analyse: Analyser | None = None  # run on the finished session, if any
+    check_design: MethodCheck | None = None  # the method's own checks of a design (a singular one, ...)
 
     def validate(self, given: dict[str, Any]) -> dict[str, Any]:
         return validate_params(self.name, self.params, given)
@@ -61,11 +63,17 @@ class ProcedureSpec:
 _REGISTRY: dict[str, ProcedureSpec] = {}
 
 
-def procedure(name: str, title: str, params: Sequence[Param], analyse: Analyser | None = None):
-    """Register a generator function as a library procedure."""
+def procedure(
+    name: str,
+    title: str,
+    params: Sequence[Param],
+    analyse: Analyser | None = None,
+    check_design: MethodCheck | None = None,
+):
+    """Register a generator function as a library procedure (check_design: the method's checks of a design)."""
 
     def register(func):
-        _REGISTRY[name] = ProcedureSpec(name, title, tuple(params), func, analyse)
+        _REGISTRY[name] = ProcedureSpec(name, title, tuple(params), func, analyse, check_design)
         return func
 
     return register

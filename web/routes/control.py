@@ -42,8 +42,14 @@ async def plan(body: PlanRequest, link: Link, who: ViewerAction) -> dict:
 
 @router.post("/api/stations/{name}/start", responses=STATION_ERRORS)
 async def start(request: Request, body: StartRequest, link: Link, who: Operator) -> ActionReply:
-    """Start a procedure of the library (validated by the station before anything moves)."""
-    return ActionReply(result=await _act(request, link, who, "start", body.model_dump()))
+    """Start a procedure of the library after the station's dry run of its design: a design that cannot work is
+    refused (422, one line per problem); one with warnings is 409 with the list until the request has confirm."""
+    design = {"procedure": body.procedure, "params": body.params}
+    warnings = (await _act(request, link, who, "plan", design))["warnings"]
+    if warnings and not body.confirm:
+        lines = "; ".join(w["line"] for w in warnings)
+        raise HTTPException(409, {"message": f"confirm to start this design: {lines}", "warnings": warnings})
+    return ActionReply(result=await _act(request, link, who, "start", body.model_dump(exclude={"confirm"})))
 
 
 @router.post("/api/stations/{name}/resume-session", responses=STATION_ERRORS)

@@ -4,6 +4,7 @@ export class ApiError extends Error {
   constructor(status, message) {
     super(message);
     this.status = status;
+    this.detail = message; // as the API sent it: text, or an object (a start's design warnings)
   }
 }
 

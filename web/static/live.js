@@ -590,6 +590,7 @@ class StartForm {
     this.params = el("div", { class: "params" });
     this.result = el("p", { class: "result", role: "status" });
     this.error = el("p", { class: "error", role: "alert", hidden: true });
+    this.warnings = el("div", { class: "design-warnings", role: "alert" });
   }
 
   spec() {
@@ -633,23 +634,34 @@ class StartForm {
     return ok ? params : null;
   }
 
-  async send(kind) {
+  async send(kind, confirm = false) {
     this.error.hidden = true;
+    this.warn([]);
     const params = this.read();
     if (params === null) {
       showError(this.error, "fix the marked parameters first");
       return;
     }
     const body = { procedure: this.procedure.value, params };
-    if (kind === "start") body.instrument_serial = this.serial.value;
+    if (kind === "start") Object.assign(body, { instrument_serial: this.serial.value, confirm });
     try {
       const r = await api(`/api/stations/${this.view.name}/${kind}`, { method: "POST", body });
       const plan = kind === "start" ? r.result.plan : r;
       const what = kind === "start" ? `started session ${r.result.session_uid}: ` : "dry run: ";
       this.result.textContent = `${what}${plan.n_measurements} measurements, ${duration(plan.total_s)} of station time`;
+      this.warn(plan.warnings);
     } catch (err) {
-      showError(this.error, err);
+      if (err.status === 409 && err.detail?.warnings) this.warn(err.detail.warnings, true);
+      else showError(this.error, err);
     }
+  }
+
+  // The design's warnings, each with its reason and fix; after a start held back by them, a button to confirm it.
+  warn(warnings, confirmable = false) {
+    const confirm = el("button", { type: "button", class: "warn", dataset: { action: "confirm" },
+      onclick: () => this.send("start", true) }, "Confirm and start");
+    this.warnings.replaceChildren(...(warnings.length ? [el("p", {}, el("b", {}, "The design has warnings:")),
+      el("ul", {}, warnings.map((w) => el("li", {}, w.line)))] : []), ...(confirmable ? [confirm] : []));
   }
 }
 
@@ -704,7 +716,7 @@ function buildControls(view, library) {
       el("label", {}, el("span", {}, "instrument serial"), form.serial),
       form.params,
       el("div", {}, b.plan, b.start)),
-    form.result, form.error);
+    form.result, form.warnings, form.error);
   form.build();
   view.controls.hidden = false;
 }
