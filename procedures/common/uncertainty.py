@@ -345,13 +345,17 @@ def refit_sources(inputs: Sequence[Input], refit: Callable[[Mapping[str, float]]
     """One Type B row per input, c = dK/dx from the whole identification re-run with that input at x +- u and the
     others at their values (GUM 5.1.3 note 2); `refit` maps {key: value} to the coefficient vector."""
     base = {i.key: i.value for i in inputs}
+
+    def refit_at(key: str) -> Callable[[float], np.ndarray]:
+        return lambda x: refit({**base, key: x})
+
     return [
         type_b_source(
             i.label,
             i.value,
             i.u,
             i.unit,
-            lambda x, k=i.key: refit({**base, k: x}),
+            refit_at(i.key),
             note=i.note,
             dof=i.dof,
             shape=i.shape,
@@ -388,6 +392,7 @@ def transformed(budget: Budget, names: Sequence[str], values: np.ndarray, jacobi
     rows = []
     for s in budget.sources:
         if s.contribution_override is not None:  # the fit: its covariance is cov_a
+            assert cov_a is not None  # a fit row comes with its covariance (fit_budget, with_fit)
             rows.append(replace(s, sensitivity=np.ones(len(names)), contribution_override=np.sqrt(np.diag(cov_a))))
         elif s.block_cov is not None:  # a covariance row: carried whole, no sensitivity of its own
             rows.append(replace(s, sensitivity=np.ones(len(names)), block_cov=cov_of(s.block_cov)))
@@ -436,6 +441,7 @@ def stacked(first: Budget, second: Budget) -> Budget:
         return out
 
     cov_a = block(first.cov_a, second.cov_a)
+    assert cov_a is not None  # both have a fit row, which comes with its covariance
     rows = [type_a_source((*first.names, *second.names), cov_a, int(a1.dof), a1.note)]
     other = {s.source: s for s in second.sources if s.contribution_override is None}
     for s in first.sources:

@@ -62,11 +62,11 @@ def translation_report(title: str, commanded_hz: Sequence[float], waves: Sequenc
     axes[0].plot(grid, (line.z0_m + line.z1_m_s_per_rad * grid) * MM, label="fit, eq. 32")
     axes[0].plot(grid, (SEED_Z0_M + SEED_Z1_M_S_PER_RAD * grid) * MM, ls=":", label="seed 000 eq. 32")
     axes[0].set(title="Zs1(ω) (Table 5, eq. 32)", xlabel="ω (rad/s)", ylabel="Zs1 (mm)")
-    j = np.arange(1, n + 1)
+    harmonics = np.arange(1, n + 1)
     for w in waves:
         amp = np.hypot(w.zs_m, w.zc_m)
-        axes[1].semilogy(j, np.maximum(amp, 1e-12) * MM, marker="o", label=f"{w.freq_hz:.3g} Hz")
-    axes[1].set(title="Harmonics |Zj| beyond A0 (eq. 30)", xlabel="harmonic j", ylabel="mm", xticks=j)
+        axes[1].semilogy(harmonics, np.maximum(amp, 1e-12) * MM, marker="o", label=f"{w.freq_hz:.3g} Hz")
+    axes[1].set(title="Harmonics |Zj| beyond A0 (eq. 30)", xlabel="harmonic j", ylabel="mm", xticks=harmonics)
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
@@ -132,11 +132,11 @@ def rotation_report(title: str, fits: Mapping[str, RotationHarmonics], psi_rad: 
                     + [f"{r[f'phi_{a}_arcsec']:.3f}" for a in axes_] + seed)  # fmt: skip
     hrows = []
     for a, f in fits.items():
-        seed = SEED_HARMONICS_ARCSEC.get(a, (np.nan, np.nan))
+        seed_as1, seed_ac1 = SEED_HARMONICS_ARCSEC.get(a, (np.nan, np.nan))
         e = by_eq34[a]
         hrows.append([a, f"{f.a0:.3f} ± {f.sigma_a0:.3f}", f"{f.as1:+.3f} ± {f.sigma_as1:.3f}",
                       f"{f.ac1:+.3f} ± {f.sigma_ac1:.3f}", f"{e['as1']:+.3f}", f"{e['ac1']:+.3f}",
-                      f"{seed[0]:+.2f}, {seed[1]:+.2f}", f"{f.residual_rms:.4f}"])  # fmt: skip
+                      f"{seed_as1:+.2f}, {seed_ac1:+.2f}", f"{f.residual_rms:.4f}"])  # fmt: skip
     fig, ax = plt.subplots(1, len(axes_), figsize=(12, 3.4))
     deg = np.degrees(np.mod(psi_rad, 2 * np.pi))
     grid = np.linspace(0, 2 * np.pi, 200)

@@ -27,7 +27,7 @@ from station.twin.window_means import window_means
 
 Method = Literal["integral", "baseline"]
 COEFFICIENT_UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3"}
-METHODS: tuple[str, ...] = ("integral", "baseline")
+METHODS: tuple[Method, ...] = ("integral", "baseline")
 
 
 @dataclass(frozen=True)
@@ -65,8 +65,8 @@ def point_weights(session: Session, weighting: Weighting = "auto") -> tuple[np.n
         return np.ones(len(pts)), "equal weights (asked for)"
     if weighting != "auto":
         raise ValueError(f"weighting {weighting!r} is not one of auto, equal")
-    stated = [p.extra.get("repeatability_radps") for p in pts]
-    if all(v not in (None, "") for v in stated):
+    stated = [p.extra.get("repeatability_radps", "") for p in pts]
+    if all(stated):
         r = np.array([float(v) for v in stated])
         if not np.all(np.isfinite(r) & (r > 0)):
             bad = [p.point_id for p, v in zip(pts, r, strict=True) if not (np.isfinite(v) and v > 0)]
@@ -80,7 +80,7 @@ def point_weights(session: Session, weighting: Weighting = "auto") -> tuple[np.n
 
 @dataclass
 class Identification:
-    method: str
+    method: Method
     names: tuple[str, ...]
     values: np.ndarray
     sigmas: np.ndarray

@@ -33,7 +33,11 @@ PHASE_DRAWS = 64
 
 
 def window_rate_sigma_radps(
-    preset_pulses: np.ndarray, Tm_s: np.ndarray, sigma_p_pulses: float, sigma_T_s: float, pulses_per_rev: int
+    preset_pulses: np.ndarray | float,
+    Tm_s: np.ndarray | float,
+    sigma_p_pulses: float,
+    sigma_T_s: float,
+    pulses_per_rev: int,
 ) -> np.ndarray:
     """sigma of wbar = 2 pi P / (16384 Tm) from counting and timing (seed 000 eq. 24)."""
     P, Tm = np.asarray(preset_pulses, dtype=float), np.asarray(Tm_s, dtype=float)

@@ -25,7 +25,7 @@ from procedures.common.session_certificate import certificate_files, result_prov
 from procedures.integral_precession.alignment import multi_position, two_position
 from procedures.integral_precession.budget import seed000_budget
 from procedures.integral_precession.design_check import check_design
-from procedures.integral_precession.identify import METHODS, Compensation, Identification, identify
+from procedures.integral_precession.identify import METHODS, Compensation, Identification, Method, identify
 from procedures.integral_precession.planning import design_quality, relative_sensitivity
 from procedures.integral_precession.report import certificate, render_report
 from station import constants
@@ -101,10 +101,10 @@ def _summary(results: dict[str, Identification]) -> str:
     return "\n".join(lines)
 
 
-def _analyse(session: Session, order: tuple[str, ...], title: str) -> Analysis:
+def _analyse(session: Session, order: tuple[Method, ...], title: str) -> Analysis:
     """Identify, budget each identification (GUM), the report, and the certificate of the primary one."""
     params = session.meta.get("params", {})
-    results = {m: identify(session, m) for m in order}
+    results: dict[str, Identification] = {m: identify(session, m) for m in order}
     comp = _compensation(params)
     if comp is not None:
         results["integral_compensated"] = identify(session, "integral", comp)

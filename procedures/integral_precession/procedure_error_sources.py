@@ -37,8 +37,7 @@ from station.session import Measurement, Session
 from station.twin.table_tilt import ARCSEC_RAD
 
 if TYPE_CHECKING:
-    from station.engine.context import PlanContext
-    from station.engine.runner import RunContext
+    from station.engine.context import PlanContext, RunContext
 
 TABLE5_FREQS_HZ = [1.0, 3.0, 5.0, 7.0, 9.0, 10.0]
 TABLE6_FREQS_HZ = [0.1, *map(float, range(1, 11))]

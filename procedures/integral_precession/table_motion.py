@@ -17,6 +17,7 @@ fit residuals.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -221,7 +222,9 @@ class Zs1Line:
         return self.z0_m + self.z1_m_s_per_rad * w_radps
 
 
-def fit_zs1(w_radps: np.ndarray, zs1_m: np.ndarray, sigma_m: np.ndarray) -> Zs1Line:
+def fit_zs1(
+    w_radps: Sequence[float] | np.ndarray, zs1_m: Sequence[float] | np.ndarray, sigma_m: Sequence[float] | np.ndarray
+) -> Zs1Line:
     """Weighted straight line through Zs1(w) (seed 000 eq. 32).
 
     The covariance is that of the stated sigmas, inflated by chi2/dof (the Birge ratio

@@ -42,8 +42,7 @@ from station.twin.fixture import POSES_DEG, SETUPS
 from station.twin.plan import PULSES_PER_REV, preset_pulses
 
 if TYPE_CHECKING:
-    from station.engine.context import PlanContext
-    from station.engine.runner import RunContext
+    from station.engine.context import PlanContext, RunContext
 
 SECOND_INSTRUMENT = "second_instrument"  # the device (drivers/second_instrument/driver.py)
 SEED003_PRECESSION_REV = 5.0  # 10 pi rad per position (seed 003 5.2)

@@ -36,8 +36,7 @@ from station.twin.nonlinear_error import ANGULAR_MOMENTUM_KGM2PS, END_RADIUS_M, 
 from station.twin.plan import multiposition_plan, point_id
 
 if TYPE_CHECKING:
-    from station.engine.context import PlanContext
-    from station.engine.runner import Engine as RunContext
+    from station.engine.context import PlanContext, RunContext
 
 ELECTRONICS = "piga_electronics"  # drivers.piga_electronics.driver.DEVICE_KIND.name
 SWEEP_FIT_KIND = "offset_sweep_fit"

@@ -104,7 +104,7 @@ def _snippet_figure(run: Measurement) -> str:
     ax2.plot(t, rate, color="C3", label=f"ω_{'xyz'[j]} (deg/s)")
     ax2.set_ylabel("deg/s")
     lines = ax.get_lines() + ax2.get_lines()
-    ax.legend(lines, [line.get_label() for line in lines], loc="upper left", bbox_to_anchor=(1.1, 1.0))
+    ax.legend(handles=lines, loc="upper left", bbox_to_anchor=(1.1, 1.0))
     return svg(fig)
 
 

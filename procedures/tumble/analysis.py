@@ -215,12 +215,10 @@ class EightPoint:
     mu_c: float
     Y_sigma_v: np.ndarray
     residuals_v: np.ndarray  # of the stroke fit, reading by reading (y - Y_J + K1 h b - d t)
-    budget: Budget | None = None  # GUM budget of K0 .. Mip (procedures.tumble.budget)
+    budget: Budget  # GUM budget of K0 .. Mip (procedures.tumble.budget)
 
-    def error_budget(self) -> Budget | None:
+    def error_budget(self) -> Budget:
         """The budget of k0, k2, k3, delta_o, delta_ip = K / K1 (eq. 6, last line) from that of K0 .. Mip."""
-        if self.budget is None:
-            return None
         return transformed(self.budget, ERROR_NAMES, self.errors, ratio_jacobian(self.cf), ERROR_UNITS)
 
     def coefficient(self, name: str) -> tuple[float, float]:

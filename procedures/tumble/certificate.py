@@ -79,11 +79,9 @@ def certificate(session: Session, r: Readings, points: list[EightPoint], model: 
     """The certificate of the tumble session's eq. 6 results, block by block."""
     parts = []
     for p in points:
-        errors = p.error_budget()
-        if p.budget is not None and errors is not None:
-            where = f" at {block_name(p)}"
-            parts.append(Certified(p.budget, suffix=where, table=f"Eq. 6{where}: K0 .. Mip (contributions |c| u)"))
-            parts.append(Certified(errors, suffix=where, table=None))
+        where = f" at {block_name(p)}"
+        parts.append(Certified(p.budget, suffix=where, table=f"Eq. 6{where}: K0 .. Mip (contributions |c| u)"))
+        parts.append(Certified(p.error_budget(), suffix=where, table=None))
     remarks = [
         "k0, k2, k3, δo and δip are K0, K2, K3, Mo and Mip over K1 (eq. 6, last line): their budget is that of "
         "K0 .. Mip carried by the chain rule (GUM 5.1.2), so every input's correlation between them is kept.",

@@ -31,8 +31,7 @@ from station.session import Measurement, Session
 from station.twin.chamber_thermal import time_to_band_s
 
 if TYPE_CHECKING:
-    from station.engine.context import PlanContext
-    from station.engine.runner import RunContext
+    from station.engine.context import PlanContext, RunContext
 
 CHAMBER = "temperature_chamber"
 VOLTMETER = "voltmeter"

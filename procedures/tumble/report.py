@@ -115,7 +115,7 @@ def temperature_rows(model: TemperatureModel) -> list[list[str]]:
     """Eq. 4's laws and the hysteresis: label, unit, estimate ± sigma (or why there is none), the seed's figure."""
     rows = []
     for text, unit, scale, law, term, seed in LAW_ROWS:
-        pair = getattr(getattr(model, law), term)
+        pair: tuple[float, float] | None = getattr(getattr(model, law), term)
         estimate = "not separable by this session" if pair is None else pm(*pair, scale)
         quoted = seed if isinstance(seed, str) else "—" if seed is None else f"{seed * scale:g}"
         rows.append([text, unit, estimate, quoted])

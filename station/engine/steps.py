@@ -297,5 +297,7 @@ class OperatorAction(Step):
             raise ctx.fail("expected_s", self.expected_s, "0 .. 86400 s")
         return self.expected_s, None
 
-    def run(self, ctx: RunContext) -> None:
+    def run(self, ctx: RunContext) -> Measurement | None:
+        """None; a subclass may return the record of what was done (RemoveMass)."""
         ctx.ask_operator(self.message, dict(self.action))
+        return None

@@ -66,7 +66,7 @@ class NoiseModel:
 @functools.cache
 def _effect_model(effect: Effect) -> type[BaseModel]:
     """The declared parameters of one effect, each a finite number with its default."""
-    declared = {k: (float, d) for k, d in effect.defaults.items()}
+    declared: dict[str, Any] = {k: (float, d) for k, d in effect.defaults.items()}
     return create_model(f"Effect[{effect.name}]", __config__=SETTINGS, **declared)
 
 

@@ -48,6 +48,11 @@ class FixturePose:
         return f"pose {self.number} ({fig}): vibration along {self.vibration}{targets}"
 
 
+def _rows(c_bn: np.ndarray) -> tuple[tuple[float, float, float], ...]:
+    """The rows of a 3 x 3 attitude matrix as plain floats."""
+    return tuple((float(x), float(y), float(z)) for x, y, z in c_bn)
+
+
 def _pose(
     number: int, panel: str, vibration: str, targets: tuple[str, ...], axes_n: dict[str, np.ndarray]
 ) -> FixturePose:
@@ -57,8 +62,7 @@ def _pose(
     third = next(c for c in order if c not in (a, b))
     cyclic = (order.index(b) - order.index(a)) % 3 == 1
     cols = {a: va, b: vb, third: np.cross(va, vb) if cyclic else np.cross(vb, va)}
-    c_bn = np.column_stack([cols[c] for c in order])
-    return FixturePose(number, panel, vibration, targets, tuple(tuple(float(v) for v in row) for row in c_bn))
+    return FixturePose(number, panel, vibration, targets, _rows(np.column_stack([cols[c] for c in order])))
 
 
 _S = 1.0 / math.sqrt(2.0)
@@ -86,7 +90,7 @@ POSES[10] = FixturePose(
     "verification",
     "the SINS's diagonal",
     (),
-    tuple(tuple(float(v) for v in row) for row in (_BODY_DIAGONAL, _ACROSS, np.cross(_BODY_DIAGONAL, _ACROSS))),
+    _rows(np.array([_BODY_DIAGONAL, _ACROSS, np.cross(_BODY_DIAGONAL, _ACROSS)])),
 )
 CALIBRATION_POSES = tuple(range(1, 10))
 
