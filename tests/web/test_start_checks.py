@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from fastapi.testclient import TestClient
@@ -64,3 +65,25 @@ def test_a_design_with_warnings_starts_only_once_confirmed(olga, quick, station)
     assert olga.post("/api/stations/sim/abort").status_code == 200
     station.wait_until_idle()  # the aborted session keeps what it measured
     assert stored(olga) == before + 1
+
+
+def test_the_start_form_lists_the_warnings_and_starts_on_confirm(logged_in_page, served_panel, olga, quick, station):
+    from playwright.sync_api import expect
+
+    page = logged_in_page(served_panel, "olga")
+    try:
+        card = page.locator("article.station[data-station=sim]")
+        expect(card.locator("button[data-action=start]")).to_be_enabled()
+        for name, value in (quick | {"positions_deg": RADIANS}).items():
+            page.fill(f"input[name={name}]", ", ".join(map(str, value)) if isinstance(value, list) else str(value))
+        page.click("button[data-action=start]")
+        warnings = card.locator(".design-warnings")
+        expect(warnings.locator("li")).to_have_text([re.compile(r"^warning: positions_deg = .* look like radians")])
+        assert not olga.get("/api/stations/sim/status").json()["busy"]  # held back: nothing started
+        warnings.locator("button[data-action=confirm]").click()
+        expect(card.locator(".result")).to_contain_text("started session")
+        expect(warnings).to_be_empty()
+    finally:
+        page.context.close()
+        olga.post("/api/stations/sim/abort")
+        station.wait_until_idle()
