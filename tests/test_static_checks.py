@@ -1,4 +1,4 @@
-"""The code base is ruff clean, and mypy finds no error in the core, the engine and the devices (pyproject.toml)."""
+"""The code base is ruff clean, and mypy finds no error in station, drivers, procedures and web (pyproject.toml)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def test_ruff_finds_nothing() -> None:
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
 
 
-def test_mypy_finds_no_error_in_the_core_engine_and_devices() -> None:
+def test_mypy_finds_no_error_in_station_drivers_procedures_and_web() -> None:
     done = _run("mypy")  # files and options: [tool.mypy] in pyproject.toml
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
     assert "Success: no issues found" in done.stdout

@@ -73,7 +73,7 @@ class SecurityHeaders:
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
                 kept = [(k, v) for k, v in message.get("headers", []) if k.lower() not in names]
-                message = message | {"headers": kept + self.headers}
+                message = {**message, "headers": kept + self.headers}
             await send(message)
 
         await self.app(scope, receive, send_with_headers)
@@ -268,12 +268,12 @@ def create_app(config: PanelConfig) -> FastAPI:
         version="1",
         description="Live monitoring, history and authenticated control of PIGA calibration stations.",
         lifespan=lifespan,
+        exception_handlers={RequestValidationError: _clear_422},
         docs_url=None,  # the interactive docs load their scripts from the internet
         redoc_url=None,
         openapi_url=None,  # served below, to logged-in users only
     )
     app.state.panel = panel
-    app.add_exception_handler(RequestValidationError, _clear_422)
 
     @app.get("/openapi.json", include_in_schema=False, dependencies=[Depends(viewer)])
     def openapi() -> JSONResponse:

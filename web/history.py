@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from datetime import date
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from fastapi import HTTPException
 
@@ -79,8 +79,9 @@ class History:
         for entry in stations:
             key = entry.store.resolve()
             if key not in self._stores:
-                self._stores[key] = _Store(SessionStore(entry.store), [])
-                recover_interrupted(self._stores[key].store)  # running with no live process: interrupted
+                local = SessionStore(entry.store)
+                self._stores[key] = _Store(local, [])
+                recover_interrupted(local)  # running with no live process: interrupted
             self._stores[key].stations.append(entry)
         self._reports: OrderedDict[str, str] = OrderedDict()
         self._lock = threading.Lock()
@@ -131,6 +132,7 @@ class History:
         s = self._find(uid)
         if self._central is not None:  # the central history is then the only store
             return self._central_row(self._central.row(uid))
+        assert isinstance(s.store, SessionStore)  # no central history: one of the stations' own stores
         row = next(r for r in s.store.sessions() if r["uid"] == uid)
         if row["status"] == "running" and uid in recover_interrupted(s.store):  # crashed since the panel started
             row = next(r for r in s.store.sessions() if r["uid"] == uid)
@@ -156,7 +158,7 @@ class History:
     def residuals(self, uid: str) -> dict:
         """Residuals of each identification method by vibration point (the report's Figs. 10-11), or why not."""
         session = self.load(uid)
-        out = {}
+        out: dict[str, dict[str, Any]] = {}
         for method in METHODS:
             try:
                 r = identify(session, method)

@@ -38,10 +38,11 @@ async def diagnose_session(request: Request, uid: Uid) -> GapReply:
     if row["status"] == "running":
         raise HTTPException(409, f"session {uid} is still running: diagnose it once it ends")
     key = f"session-{uid}"
-    report = p.gaps.kept(key)
-    if report is None or report.session_info["n_points"] != row["n_points"]:
-        session = await run_in_threadpool(p.history.load, uid, with_raw=True)
-        key, report = await run_in_threadpool(p.gaps.run, session, key)
+    kept = p.gaps.kept(key)
+    if kept is not None and kept.session_info["n_points"] == row["n_points"]:
+        return _reply(key, kept)
+    session = await run_in_threadpool(p.history.load, uid, with_raw=True)
+    key, report = await run_in_threadpool(p.gaps.run, session, key)
     return _reply(key, report)
 
 

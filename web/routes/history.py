@@ -32,7 +32,7 @@ def _iso_day(value: object) -> object:
 Day = Annotated[date, BeforeValidator(_iso_day)]
 
 
-@router.get("", responses=errors(401, 422))
+@router.get("", responses=errors(401, 422), response_model=list[SessionRow])
 def sessions(
     request: Request,
     serial: Annotated[str, Query(max_length=64, description="part of the instrument serial (any case)")] = "",
@@ -42,7 +42,7 @@ def sessions(
     until: Annotated[Day | None, Query(description="created on or before (UTC date, YYYY-MM-DD)")] = None,
     station: Annotated[str, Query(max_length=40, description="station name")] = "",
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
-) -> list[SessionRow]:
+) -> list[dict]:
     """Sessions of every station's store, newest first."""
     where = SessionFilter(serial, procedure, outcome, since, until, station)
     return panel(request).history.sessions(where, limit)
