@@ -121,7 +121,7 @@ def _run(
     if args.dry_run:
         describe_plan(plan, sys.stdout)
         return 0
-    if not confirmed(plan, args.yes, sys.stderr):
+    if resume_uid is None and not confirmed(plan, args.yes, sys.stderr):  # a resumed session was started already
         return 2
     if resume_uid is None:  # before anything opens: a real station does not start without the instrument's serial
         given = args.serial or serial
@@ -341,10 +341,10 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--telemetry", metavar="ENDPOINT", type=zmq_endpoint,
                        help="publish telemetry on this zmq endpoint (tcp://HOST:PORT)")  # fmt: skip
         p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
-        p.add_argument("--yes", action="store_true", help="run a design that the dry run warns about")
 
     p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
     station_options(p)
+    p.add_argument("--yes", action="store_true", help="run a design that the dry run warns about")
     p.add_argument("--procedure", default=str(DEFAULT_PROCEDURE),
                    help="procedure file, or a shipped one's name (default: integral_precession, seed 000)")  # fmt: skip
     p.set_defaults(func=cmd_calibrate)
@@ -354,6 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "name: its file name under config/procedures without .toml (every procedure has one of its own "
                    "name, e.g. integral_precession; others too, e.g. rlg_g_sensitivity-quick)")  # fmt: skip
     station_options(p)
+    p.add_argument("--yes", action="store_true", help="run a design that the dry run warns about")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("resume", help="continue a crashed or aborted session")
