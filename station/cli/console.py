@@ -7,7 +7,6 @@ VirtualClock and opens the very same drivers on them).
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -20,14 +19,13 @@ from tqdm import tqdm
 
 from drivers.config import StationConfig, load_station_config
 from drivers.station import StationDevices, simulated_station
-from station.cli.controller import RunOutcome, StationController
+from station.cli.controller import RunOutcome, StationController, write_run_files
 from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, conclusion, format_rows
 from station.defaults import config_dir, shipped_file
 from station.engine.planning import Plan
 from station.engine.protocols import StationHardware
 from station.engine.registry import get_procedure
 from station.engine.runner import FINAL_STATES, State
-from station.interchange import write_session
 from station.store import SessionStore
 from station.telemetry import TelemetryPublisher
 from station.twin.config import TwinConfig
@@ -161,18 +159,17 @@ def run_with_progress(
 
 
 def write_outputs(store: SessionStore, outcome: RunOutcome, out_dir: Path, out: TextIO) -> None:
-    """Print the analysis, write its JSON, export the session as piga-session/1."""
+    """Print the analysis and where its JSON and the session's piga-session/1 export are (the controller wrote
+    them; written here for a run whose worker was lost)."""
+    if outcome.export_path is None:
+        write_run_files(store, outcome, out_dir)
     if outcome.analysis is not None:
         print(describe_results(outcome.analysis.results, outcome.analysis.summary), file=out)
-        result = out_dir / f"result-{outcome.session_uid}.json"
-        result.write_text(json.dumps(outcome.analysis.results, indent=2))
-        print(f"report: {outcome.report_path}\nresult: {result}", file=out)
+        print(f"report: {outcome.report_path}\nresult: {outcome.result_path}", file=out)
         if outcome.report_path is not None:  # the analysis job writes the certificate beside the report
             for path in sorted(Path(outcome.report_path).parent.glob(f"certificate-{outcome.session_uid}.*")):
                 print(f"certificate: {path}", file=out)
-    export = out_dir / f"session-{outcome.session_uid}"
-    write_session(store.load_session(outcome.session_uid), export, overwrite=True)
-    print(f"piga-session/1: {export}", file=out)
+    print(f"piga-session/1: {outcome.export_path}", file=out)
     results = outcome.analysis.results if outcome.analysis is not None else None
     for line in conclusion(str(outcome.state), results, outcome.faults, outcome.report_path is not None):
         print(line, file=out)

@@ -36,6 +36,7 @@ from station.engine.protocols import StationHardware
 from station.engine.registry import Analysis, ProcedureSpec, get_procedure, load_library
 from station.engine.runner import Engine, State, StopCount
 from station.engine.supervisor import QUICK_STOP_BOUND_S, MotionSupervisor, SafeState
+from station.interchange import write_session
 from station.session_lock import INTERRUPTED, recover_interrupted
 from station.store import SessionStore
 
@@ -54,6 +55,20 @@ class RunOutcome:
     analysis: Analysis | None
     report_path: Path | None
     faults: list[str]
+    result_path: Path | None = None  # the analysis's results as JSON (write_run_files)
+    export_path: Path | None = None  # the session as piga-session/1
+
+
+def write_run_files(store: SessionStore, outcome: RunOutcome, out_dir: Path) -> None:
+    """What every run writes beside its report, from the CLI or the panel alike: the analysis's results as
+    out_dir/result-UID.json (when there is an analysis) and the session as piga-session/1 in out_dir/session-UID;
+    their paths into the outcome."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if outcome.analysis is not None:
+        outcome.result_path = out_dir / f"result-{outcome.session_uid}.json"
+        outcome.result_path.write_text(json.dumps(outcome.analysis.results, indent=2))
+    outcome.export_path = out_dir / f"session-{outcome.session_uid}"
+    write_session(store.load_session(outcome.session_uid), outcome.export_path, overwrite=True)
 
 
 class StationController:
@@ -293,6 +308,11 @@ class StationController:
             self.analysing = False
             self._dismiss_analyst()  # a run that ended without its analysis leaves none idle
             outcome = RunOutcome(uid, state, analysis, report, faults)
+            try:
+                write_run_files(self.store, outcome, self.reports_dir)
+            except Exception as exc:  # the outcome still reaches whoever waits, with this fault
+                log.exception("could not write the result and export of %s", uid)
+                faults.append(f"export: {type(exc).__name__}: {exc}")
             for hook in self.after_run:  # `station serve --sync-to`: the session to the central history
                 try:
                     hook(outcome)

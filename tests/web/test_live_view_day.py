@@ -19,6 +19,7 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 
 from drivers.station import GRATING_RATE_HZ, TRACE_SAMPLES_PER_WALL_S, display_divider
+from station.interchange import read_session
 from station.store import SessionStore
 from web.config import PanelConfig
 
@@ -148,6 +149,27 @@ def test_eta_only_while_running_analysing_until_results_and_a_new_start_clears_t
     assert n == first["body"]["result"]["plan"]["n_measurements"]
     expect(card.locator("span.eta")).to_have_text(f"finished: 100.0 % ({n} of {n} measurements)")
     expect(card.locator(".notices li").filter(has_text="analysis")).not_to_have_count(0)
+
+    # A run from the panel writes what `station run` writes: the results as JSON and the piga-session/1 export.
+    out = site["station"].out
+    with SessionStore(out / "station.sqlite") as store:
+        stored = {r["method"]: r["result"] for r in store.results(uid1)}
+    assert json.loads((out / f"result-{uid1}.json").read_text()) == stored
+    exported = read_session(out / f"session-{uid1}")
+    assert len(exported.points) == n and exported.provenance["instrument_serial"] == "DAY-1"
+
+    # Its page links the report, the certificate (HTML, PDF) and the export, and draws its residuals.
+    session_page = page.context.new_page()
+    session_page.goto(f"{site['url']}/sessions/{uid1}")
+    links = session_page.locator("#links")
+    expect(links.locator("a.certificate-pdf")).to_be_visible()
+    for selector, starts in (("#report-link", b"<!DOCTYPE"), ("a.certificate-link", b"<!DOCTYPE"),
+                             ("a.certificate-pdf", b"%PDF-"), ("a.export-link", b"PK")):  # fmt: skip
+        href = links.locator(selector).get_attribute("href")
+        reply = session_page.request.get(f"{site['url']}{href}")
+        assert reply.status == 200 and reply.body()[:9].upper().startswith(starts.upper()), (selector, reply.status)
+    expect(session_page.locator("#residuals .chart[data-chart=residuals_radps]")).to_be_visible()
+    session_page.close()
 
     second = post(page, "/api/stations/sim/start", {"procedure": PROCEDURE, "params": quick | {"window_s": 120},
                                                     "instrument_serial": "DAY-2"})  # fmt: skip

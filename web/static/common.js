@@ -107,6 +107,16 @@ export function chart(container, opts, data) {
   return plot;
 }
 
+// Links to the session's certificate (HTML and PDF) appended to `box` once it is known that its analysis issued one.
+export function appendCertificateLinks(box, uid) {
+  const base = `/api/sessions/${encodeURIComponent(uid)}`;
+  return fetch(`${base}/certificate`, { credentials: "same-origin" }).then((r) => {
+    if (!r.ok) return; // the procedure issues no certificate
+    box.append(el("a", { href: `${base}/certificate`, target: "_blank", class: "certificate-link" }, "certificate"),
+      el("a", { href: `${base}/certificate.pdf`, class: "certificate-pdf" }, "certificate (PDF)"));
+  }).catch(() => {});
+}
+
 export const COVERAGE_K = 2; // expanded uncertainty U = k u where the method states no coverage factor
 export const UNCERTAINTY_NOTE = "u: standard uncertainty (k = 1, about 68 %), the GUM budget's (Type A and B) " +
   "where the method has one, else the least-squares fit's (seed 000 eq. 22); U = k u: expanded uncertainty with " +

@@ -1,5 +1,5 @@
 // Live view: one card per station, fed by the panel's WebSocket relay; operators also get the controls.
-import { api, chart, coefficientRows, duration, el, num, session, showError, start, tickLabels, UNCERTAINTY_NOTE } from "/static/common.js";
+import { api, appendCertificateLinks, chart, coefficientRows, duration, el, num, session, showError, start, tickLabels, UNCERTAINTY_NOTE } from "/static/common.js";
 
 const STALE_S = 2; // no telemetry for this long: the station is shown as silent
 const NOT_SERVED_S = 5; // ... and for this long (or never heard): not served, with the command that serves it
@@ -423,11 +423,7 @@ class StationView {
     const links = el("p", { class: "links" },
       el("a", { href: `${base}/report`, target: "_blank", class: "report-link" }, "HTML report"),
       el("a", { href: `/sessions/${encodeURIComponent(uid)}` }, "session page"));
-    fetch(`${base}/certificate`, { credentials: "same-origin" }).then((r) => {
-      if (!r.ok) return; // the procedure issues no certificate
-      links.append(el("a", { href: `${base}/certificate`, target: "_blank", class: "certificate-link" }, "certificate"),
-        el("a", { href: `${base}/certificate.pdf`, class: "certificate-pdf" }, "certificate (PDF)"));
-    }).catch(() => {});
+    appendCertificateLinks(links, uid);
     this.results.replaceChildren(el("h3", {}, `Results of session ${uid}`),
       ...(tables.length ? tables : [el("pre", {}, a.summary)]),
       el("p", {}, el("small", {}, UNCERTAINTY_NOTE)), links);

@@ -1,5 +1,5 @@
 // A session: summary, coefficients with uncertainties, residual plots, timing capture, events, report and download.
-import { api, chart, coefficientRows, el, facts, num, session as me, showError, start, table, UNCERTAINTY_NOTE } from "/static/common.js";
+import { api, appendCertificateLinks, chart, coefficientRows, el, facts, num, session as me, showError, start, table, UNCERTAINTY_NOTE } from "/static/common.js";
 
 const uid = decodeURIComponent(location.pathname.split("/").pop());
 const error = document.querySelector("#error");
@@ -27,7 +27,7 @@ function residualCharts(residuals) {
   const methods = Object.entries(residuals).filter(([, r]) => !r.error);
   const notes = Object.entries(residuals).filter(([, r]) => r.error).map(([m, r]) => el("p", {}, `${m}: ${r.error}`));
   box.replaceChildren(...notes);
-  if (!procedures.length) return;
+  if (!methods.length) return;
   const n = methods[0][1].residuals_radps.length;
   const x = Array.from({ length: n }, (_, i) => i + 1);
   const colours = ["#1565c0", "#c62828", "#2e7d32"];
@@ -37,13 +37,13 @@ function residualCharts(residuals) {
     ["Proportional residuals |e / (a cos θ)|", "proportional_residuals", "rad/s/g", true]]) {
     const holder = el("div", { class: "chart", dataset: { chart: key } });
     box.append(holder);
-    const series = procedures.map(([m], i) => ({ label: `${m} (${unit})`, scale: m, stroke: colours[i % colours.length],
+    const series = methods.map(([m], i) => ({ label: `${m} (${unit})`, scale: m, stroke: colours[i % colours.length],
       points: { show: true } }));
     const scales = { x: { time: false } };
     for (const [m] of methods) scales[m] = log ? { distr: 3 } : {};
     const axes = [{ label: "vibration point" }, ...methods.map(([m], i) => ({ scale: m, side: i ? 1 : 3, size: 80,
       label: `${m} (${unit})`, values, stroke: colours[i % colours.length], grid: { show: i === 0 } }))];
-    const ys = procedures.map(([, r]) => r[key].map((v) => (log ? Math.abs(v) : v)));
+    const ys = methods.map(([, r]) => r[key].map((v) => (log ? Math.abs(v) : v)));
     chart(holder, { title, scales, axes, series: [{ label: "vibration point" }, ...series] }, [x, ...ys]);
   }
 }
@@ -63,7 +63,7 @@ async function main() {
   $("#title").textContent = `Session ${uid}`;
   const base = `/api/sessions/${encodeURIComponent(uid)}`;
   const links = [el("a", { href: `${base}/report`, target: "_blank", id: "report-link" }, "HTML report"),
-    el("a", { href: `${base}/export`, download: `session-${uid}.zip` }, "piga-session/1 download"),
+    el("a", { href: `${base}/export`, download: `session-${uid}.zip`, class: "export-link" }, "piga-session/1 download"),
     el("a", { href: `/gap?uid=${encodeURIComponent(uid)}` }, "gap diagnosis")];
   if (me.role === "operator" && ["aborted", "failed"].includes(s.status)) {
     links.push(el("button", { type: "button", onclick: async () => {
@@ -74,6 +74,7 @@ async function main() {
     } }, "Resume this session"));
   }
   $("#links").replaceChildren(...links);
+  appendCertificateLinks($("#links"), uid);
   const params = rec.config.params ? Object.entries(rec.config.params).map(([k, v]) => `${k} = ${JSON.stringify(v)}`).join("; ") : "—";
   $("#summary").replaceChildren(facts([["procedure", s.procedure], ["instrument", s.instrument_serial || "—"],
     ["outcome", el("span", { class: `status ${s.status}` }, s.status)], ["created (UTC)", s.created_utc],
