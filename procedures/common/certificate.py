@@ -28,7 +28,7 @@ from reportlab.lib.units import mm
 from reportlab.pdfgen import canvas as rl_canvas
 from reportlab.platypus import Image, KeepTogether, Paragraph, SimpleDocTemplate, Spacer, Table, TableStyle
 
-from procedures.common.uncertainty import Budget
+from procedures.common.uncertainty import Budget, Source
 from station.defaults import config_file
 from station.htmlkit import esc, svg
 from station.tomlfile import read_toml
@@ -37,6 +37,7 @@ INSTRUMENTS_DIR = config_file("instruments")  # shipped defaults (station.defaul
 DEFAULT_INSTRUMENT_FILE = INSTRUMENTS_DIR / "piga-sim.toml"
 NOT_MEASURED = "not measured"
 NOT_RECORDED = "not recorded"
+UNBROKEN_CELL = 26  # characters: a PDF table cell this short is one line (no number broken across lines)
 Conformity = Literal["conforms", "does not conform", "not decided", "no limit"]
 
 
@@ -87,6 +88,10 @@ def load_instrument_spec(path: str | Path = DEFAULT_INSTRUMENT_FILE) -> Instrume
                           str(rule["text"]))  # fmt: skip
 
 
+CONFORMITY_TEXT: Mapping[Conformity, str] = {"not decided": "not decided (U straddles the limit)"}
+DIMENSIONLESS = "(dimensionless)"
+
+
 def conformity(value: float, expanded: float, limit: Limit | None) -> Conformity:
     """Guarded acceptance (ILAC-G8 4.2.2, guard band w = U): inside by U conforms, outside by U does not."""
     if limit is None:
@@ -96,6 +101,35 @@ def conformity(value: float, expanded: float, limit: Limit | None) -> Conformity
     if value < limit.min - expanded or value > limit.max + expanded:
         return "does not conform"
     return "not decided"
+
+
+def two_significant(x: float) -> tuple[str, int]:
+    """x to two significant digits in e-notation ("1.0e-06" for 9.96e-07) and the decimal place of its last digit."""
+    text = f"{x:.1e}"
+    return text, int(text.split("e")[1]) - 1
+
+
+def gum_round(value: float, expanded: float) -> tuple[str, str]:
+    """The value and its U as the certificate prints them (GUM 7.2.6): U to two significant digits, the value to
+    the same decimal place, in the larger of the two exponents; a U that is not positive leaves the value at 7
+    significant digits."""
+    if not (math.isfinite(expanded) and expanded > 0) or not math.isfinite(value):
+        return f"{value:.6e}", f"{expanded:.2g}"
+    u_text, place = two_significant(expanded)
+    rounded = round(value, -place)
+    exponent = max(int(f"{rounded:e}".split("e")[1]) if rounded else place + 1, place + 1)
+    digits = exponent - place
+    return f"{rounded / 10**exponent:.{digits}f}e{exponent:+03d}", u_text
+
+
+def unit_text(unit: str) -> str:
+    """A unit as the certificate prints it: a dimensionless quantity ("" or "1") says so, never "1"."""
+    return DIMENSIONLESS if unit.strip() in ("", "1") else unit
+
+
+def with_unit(number: str, unit: str) -> str:
+    """A number and its unit kept on one line (a no-break space); a dimensionless number stands alone."""
+    return number if unit_text(unit) == DIMENSIONLESS else f"{number}\u00a0{unit}"
 
 
 def load_laboratory(path: str | Path = INSTRUMENTS_DIR / "references.toml") -> dict[str, str]:
@@ -117,7 +151,15 @@ class ResultRow:
     conformity: Conformity
     limit: str
 
+    def cells(self) -> tuple[str, ...]:
+        """coefficient, value, unit, u, nu_eff, k, U, limits, conformity as printed (GUM 7.2.6 rounding)."""
+        value, big_u = gum_round(self.value, self.expanded_uncertainty)
+        return (self.name, value, unit_text(self.unit), two_significant(self.standard_uncertainty)[0],
+                fmt_dof(self.effective_dof), f"{self.coverage_factor:.2f}", big_u, self.limit,
+                CONFORMITY_TEXT.get(self.conformity, self.conformity))  # fmt: skip
 
+
+RESULT_HEADER = ("coefficient", "value", "unit", "u", "ν_eff", "k", "U", "limits", "conformity")
 TableText = tuple[str, Sequence[str], Sequence[Sequence[str]]]  # (title, header, rows)
 
 
@@ -153,12 +195,18 @@ def result_rows(coefficients: Mapping[str, Mapping[str, Any]], spec: InstrumentS
         rows.append(ResultRow(prefix + name + suffix, c["value"], c.get("unit", ""), c["standard_uncertainty"],
                               math.inf if nu is None else float(nu), c["coverage_factor"], c["coverage_probability"],
                               c["expanded_uncertainty"], conformity(c["value"], c["expanded_uncertainty"], lim),
-                              f"[{lim.min:.4g}, {lim.max:.4g}]" if lim else "none"))  # fmt: skip
+                              f"[{lim.min:.4g},\u00a0{lim.max:.4g}]" if lim else "none"))  # fmt: skip
     return rows
 
 
 def fmt_dof(nu: float) -> str:
     return "∞" if math.isinf(nu) else f"{nu:.1f}" if nu < 1000 else f"{nu:.2g}"
+
+
+def not_applicable(budget: Budget) -> list[Source]:
+    """The Type B inputs with u = 0 (a term this session does not have): left out of the budget table, stated in
+    the certificate's remarks with the reason their note gives."""
+    return [s for s in budget.sources if s.type == "B" and s.standard_uncertainty == 0]
 
 
 def budget_rows(budget: Budget, *, with_sensitivity: bool = False,
@@ -171,12 +219,14 @@ def budget_rows(budget: Budget, *, with_sensitivity: bool = False,
         n = budget.names[j]
         if with_sensitivity:
             header.append(f"c = ∂{n}/∂x")
-        header.append(f"u_i({n}) ({budget.units.get(n, '')})")
+        header.append(f"u_i({n}) ({unit_text(budget.units.get(n, ''))})")
     rows = []
     for s in budget.sources:
+        if s in not_applicable(budget):
+            continue
         label = s.source + ("" if s.in_combined else " [listed, not added]")
-        val = "—" if s.type == "A" else f"{s.value:.4g} {s.unit}".strip()
-        ux = "—" if s.type == "A" else f"{s.standard_uncertainty:.2e} {s.unit}".strip()
+        val = "—" if s.type == "A" else with_unit(f"{s.value:.4g}", s.unit)
+        ux = "—" if s.type == "A" else with_unit(f"{s.standard_uncertainty:.2e}", s.unit)
         row = [label, s.type, val, ux, fmt_dof(s.dof)]
         for j in cols:
             if with_sensitivity:
@@ -185,9 +235,9 @@ def budget_rows(budget: Budget, *, with_sensitivity: bool = False,
         rows.append(row)
     uc, nu, k = budget.standard_uncertainty(), budget.effective_dof(), budget.coverage_factors()
     totals = (
-        ("combined standard uncertainty u_c", [f"{uc[j]:.2e}" for j in cols]),
+        ("combined standard uncertainty u_c", [two_significant(uc[j])[0] for j in cols]),
         ("effective dof ν_eff (Welch-Satterthwaite)", [fmt_dof(nu[j]) for j in cols]),
-        ("expanded U = k u_c (k at 95 %)", [f"{k[j] * uc[j]:.2e} (k {k[j]:.2f})" for j in cols]),
+        ("expanded U = k u_c (k at 95 %)", [f"{two_significant(k[j] * uc[j])[0]} (k {k[j]:.2f})" for j in cols]),
     )
     for label, cells in totals:
         row = [label, "", "", "", ""]
@@ -207,7 +257,7 @@ _ENV = jinja2.Environment(
 def render_html(cert: Certificate) -> str:
     """The certificate as one self-contained HTML page (figures inline as SVG), print-ready (A4, page numbers)."""
     figures = [(caption, svg(make())) for caption, make in cert.figures]
-    return _ENV.get_template("certificate.html.j2").render(c=cert, figures=figures, fmt_dof=fmt_dof, esc=esc)
+    return _ENV.get_template("certificate.html.j2").render(c=cert, figures=figures, result_header=RESULT_HEADER)
 
 
 def _png(fig) -> tuple[bytes, float]:
@@ -286,9 +336,14 @@ _PDF_TEXT = str.maketrans(
 )
 
 
+def pdf_chars(x: object) -> str:
+    """Text in the PDF's standard fonts (WinAnsi): Greek letters and math signs spelled out."""
+    return str(x).translate(_PDF_TEXT)
+
+
 def pdf_text(x: object) -> str:
-    """Escaped text in the PDF's standard fonts (WinAnsi): Greek letters and math signs spelled out."""
-    return esc(str(x).translate(_PDF_TEXT))
+    """`pdf_chars` escaped for a reportlab paragraph."""
+    return esc(pdf_chars(x))
 
 
 def render_pdf(cert: Certificate) -> bytes:
@@ -305,10 +360,11 @@ def render_pdf(cert: Certificate) -> bytes:
 
     def tbl(header: Sequence[str] | None, rows: Sequence[Sequence[str]], widths=None) -> Table:
         data = ([[Paragraph(f"<b>{pdf_text(h)}</b>", cell) for h in header]] if header else []) + [
-            [Paragraph(pdf_text(str(x)), cell) for x in r] for r in rows
+            [_pdf_cell(str(x), cell) for x in r] for r in rows
         ]
         t = Table(data, colWidths=widths, repeatRows=1 if header else 0, hAlign="LEFT")
-        style = [("GRID", (0, 0), (-1, -1), 0.3, colors.grey), ("VALIGN", (0, 0), (-1, -1), "TOP")]
+        style = [("GRID", (0, 0), (-1, -1), 0.3, colors.grey), ("VALIGN", (0, 0), (-1, -1), "TOP"),
+                 ("FONT", (0, 0), (-1, -1), cell.fontName, cell.fontSize, cell.leading)]  # fmt: skip
         if header:
             style.append(("BACKGROUND", (0, 0), (-1, 0), colors.Color(0.92, 0.92, 0.92)))
         t.setStyle(TableStyle(style))
@@ -321,7 +377,7 @@ def render_pdf(cert: Certificate) -> bytes:
     story += [section("2. Dates"), tbl(None, cert.dates, [55 * mm, 125 * mm])]
     story += [section("3. Environmental conditions"), tbl(None, cert.environment, [55 * mm, 125 * mm])]
     story.append(section("4. Results (expanded uncertainty U = k u, coverage probability about 95 %)"))
-    story.append(tbl(_result_header(), [_result_cells(r) for r in cert.results]))
+    story.append(tbl(RESULT_HEADER, [r.cells() for r in cert.results]))
     story.append(Paragraph(f"<b>Decision rule.</b> {pdf_text(cert.decision_rule)}", small))
     for r in cert.remarks:
         story.append(Paragraph(pdf_text(r), small))
@@ -357,10 +413,7 @@ def render_pdf(cert: Certificate) -> bytes:
     return buf.getvalue()
 
 
-def _result_header() -> tuple[str, ...]:
-    return ("coefficient", "value", "unit", "u", "ν_eff", "k", "U", "limits", "conformity")
-
-
-def _result_cells(r: ResultRow) -> tuple[str, ...]:
-    return (r.name, f"{r.value:.6e}", r.unit, f"{r.standard_uncertainty:.2e}", fmt_dof(r.effective_dof),
-            f"{r.coverage_factor:.2f}", f"{r.expanded_uncertainty:.2e}", r.limit, r.conformity)  # fmt: skip
+def _pdf_cell(text: str, style: ParagraphStyle) -> Paragraph | str:
+    """A table cell of the PDF: a short one (a number, an interval, a number with its unit) as one unbroken line,
+    a longer text as a paragraph that wraps."""
+    return pdf_chars(text) if len(text) <= UNBROKEN_CELL else Paragraph(pdf_text(text), style)

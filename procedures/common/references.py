@@ -13,6 +13,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from procedures.common.certificate import with_unit
 from procedures.common.uncertainty import Input, Shape, UncertaintyError, check_uncertainty
 from station.defaults import config_file
 from station.tomlfile import read_toml
@@ -74,5 +75,5 @@ def traceability(keys: Iterable[str], references: Mapping[str, Reference] | None
     missing = [k for k in keys if k not in refs]
     if missing:
         raise UncertaintyError(f"references file: no [references.{missing[0]}] (the method's budget uses it)")
-    return [{"quantity": refs[k].quantity, "standard_uncertainty": f"{refs[k].standard_uncertainty:.3g} "
-             f"{refs[k].unit}".strip(), "traceability": refs[k].traceability} for k in keys]  # fmt: skip
+    return [{"quantity": refs[k].quantity, "standard_uncertainty": with_unit(f"{refs[k].standard_uncertainty:.3g}",
+             refs[k].unit), "traceability": refs[k].traceability} for k in keys]  # fmt: skip

@@ -30,6 +30,7 @@ from procedures.common.certificate import (
     budget_rows,
     load_instrument_spec,
     load_laboratory,
+    not_applicable,
     render_html,
     render_pdf,
     result_rows,
@@ -156,6 +157,8 @@ def _remarks(parts: Sequence[Certified], rows: Sequence[Any], own: Iterable[str]
                    "advised for a reliable uncertainty.")  # fmt: skip
     if any(r.conformity == "not decided" for r in rows):
         out.append("'not decided': the value lies within U of a limit, so conformity cannot be stated at 95 %.")
+    out += [f"Not applicable: {s.source} (u = 0 on this session: {s.note or 'no uncertainty stated'}); left out of "
+            "the budget table." for p in parts for s in not_applicable(p.budget)]  # fmt: skip
     return out
 
 

@@ -242,6 +242,7 @@ def seed000_budget(
             note=f"{r_t.distribution}; "
             "random per stamp, root-sum-square over all stamps: already in the fit's scatter (Type A), not added",
             in_combined=False,
+            shape=r_t.shape,
         )
     )
     by_name = {s.source: s for s in sources}

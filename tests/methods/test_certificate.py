@@ -21,7 +21,9 @@ from procedures.common.certificate import (
     CertificateError,
     Limit,
     conformity,
+    gum_round,
     load_instrument_spec,
+    unit_text,
 )
 from procedures.integral_precession.procedure import analyse_integral, analyse_multi_frequency
 from station.jsonsafe import json_safe
@@ -42,6 +44,25 @@ def test_guarded_acceptance_rule() -> None:
     assert conformity(3e-5, 5e-6, lim) == "does not conform"
     assert conformity(-3e-5, 5e-6, lim) == "does not conform"
     assert conformity(0.0, 1.0, None) == "no limit"
+
+
+@pytest.mark.parametrize(
+    ("value", "expanded", "printed"),
+    [
+        (0.5608048, 3.49e-3, ("5.608e-01", "3.5e-03")),
+        (1.23456e-6, 9.96e-7, ("1.2e-06", "1.0e-06")),  # U rounds up a decade: the value follows it
+        (0.0099996, 2.5e-5, ("1.0000e-02", "2.5e-05")),  # the value rounds up a decade
+        (-0.00049, 0.00051, ("-4.9e-04", "5.1e-04")),
+        (3e-12, 2.5e-8, ("0.0e-08", "2.5e-08")),  # a value far below U: U's exponent
+        (12345.678, 0.95, ("1.234568e+04", "9.5e-01")),
+    ],
+)
+def test_values_are_rounded_to_the_two_significant_digits_of_u(value, expanded, printed) -> None:
+    assert gum_round(value, expanded) == printed
+
+
+def test_a_dimensionless_unit_says_so() -> None:
+    assert unit_text("1") == unit_text("") == "(dimensionless)" and unit_text("rad/s/g") == "rad/s/g"
 
 
 def test_instrument_file_is_checked(tmp_path: Path) -> None:
