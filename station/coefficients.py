@@ -13,9 +13,10 @@ every method of seeds 000-004 has one) a coefficient also has `standard_uncertai
 (Type A and B combined), `coverage_factor` k (Student's t at the Welch-Satterthwaite
 effective degrees of freedom, so k varies from coefficient to coefficient: 2.57 at 5 dof,
 1.96 for a Type B dominated one), `coverage_probability` and `expanded_uncertainty`
-U = k u: then u, k and U are the budget's, read as stated, never a fixed k. Only a result
-without those fields (a method or an old results file with the fit alone) falls back to
-U = COVERAGE_K u, and then k = COVERAGE_K is printed beside it.
+U = k u: then u, k and U are the budget's, read as stated, never a fixed k. A result
+without those fields (an old results file with the fit alone) gets k = Student's t at the
+fit's residual degrees of freedom (the result's `dof`), printed beside U; a row with no
+stated dof gets no U (a fixed k would claim a coverage nobody evaluated).
 `mu` is max|e| / sigma and `mu_c = 1.25 + ln sqrt(N / 3)` its critical value
 (seed 000 eq. 28): mu < mu_c says that no residual is an outlier.
 """
@@ -27,12 +28,23 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-COVERAGE_K = 2.0  # expanded uncertainty U = k u, about 95 % for a normal error
+import scipy.stats
+
+COVERAGE_PROBABILITY = 0.95  # of every expanded uncertainty U = k u
 UNCERTAINTY_NOTE = (
     "u is the standard uncertainty (k = 1, about 68 %): the GUM budget's combined Type A and B where the method "
     "has one, else the fit's covariance scaled by the residual sigma (seed 000 eq. 22); U = k u is the expanded "
-    f"uncertainty with the coverage factor k shown (Student t from the budget, else k = {COVERAGE_K:g}, about 95 %)"
+    "uncertainty, about 95 %, with its coverage factor k shown: Student's t at the budget's effective degrees of "
+    "freedom, else at the fit's residual degrees of freedom"
 )
+
+
+def student_k(dof: float, probability: float = COVERAGE_PROBABILITY) -> float:
+    """k = t_{(1+p)/2}(nu) (GUM G.3.4): Student's t at nu degrees of freedom, the normal quantile for infinite nu."""
+    q = 0.5 * (1.0 + probability)
+    return float(scipy.stats.norm.ppf(q) if math.isinf(dof) else scipy.stats.t.ppf(q, dof))
+
+
 MU_NOTE = "mu = max|residual| / sigma; mu_c = 1.25 + ln sqrt(N/3) (seed 000 eq. 28); mu < mu_c: no outlier"
 
 
@@ -46,17 +58,17 @@ class CoefficientRow:
     u: float | None  # standard uncertainty, k = 1 (the budget's where there is one, else the fit's)
     unit: str
     note: str = ""
-    k: float = COVERAGE_K  # coverage factor of `expanded`
+    k: float | None = None  # coverage factor of `expanded`; None: no dof stated, so no U
     stated_expanded: float | None = None  # U as the method states it (GUM budget), if it does
     u_fit: float | None = None  # the least-squares fit's own standard uncertainty (Type A only)
     probability: float | None = None  # coverage probability of U, when the method states it
 
     @property
     def expanded(self) -> float | None:
-        """U = k u: the method's own where it states one, else COVERAGE_K u."""
+        """U = k u: the method's own where it states one, else k u with k from the fit's dof (None without)."""
         if self.stated_expanded is not None:
             return self.stated_expanded
-        return None if self.u is None else self.k * self.u
+        return None if self.u is None or self.k is None else self.k * self.u
 
     @property
     def budgeted(self) -> bool:
@@ -102,7 +114,7 @@ def coefficient_rows(results: Mapping[str, Any]) -> list[CoefficientRow]:
     """Every quantity with a value in the results (either shape of the module docstring), in order; a quantity
     stated twice in one result (plain, then with its GUM budget or unit) once, in its fullest form."""
     best: dict[tuple[str, str], CoefficientRow] = {}
-    for row in _walk(results, "", {}):
+    for row in _walk(results, "", {}, None):
         key = (_block(row.result), row.name)
         old = best.get(key)
         if old is None or (row.budgeted, bool(row.unit)) > (old.budgeted, bool(old.unit)):
@@ -110,21 +122,24 @@ def coefficient_rows(results: Mapping[str, Any]) -> list[CoefficientRow]:
     return list(best.values())
 
 
-def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any]) -> Iterator[CoefficientRow]:
+def _walk(doc: Mapping[str, Any], where: str, units: Mapping[str, Any], dof: float | None) -> Iterator[CoefficientRow]:
+    """The quantities under `doc`, each with the units and the fit's residual `dof` stated at its level or above."""
     own_units = doc.get("units")
     units = {**units, **own_units} if isinstance(own_units, Mapping) else dict(units)
+    own_dof = _number(doc.get("dof"))
+    dof = own_dof if own_dof is not None and own_dof > 0 else dof
     for key, item in doc.items():
         if key == "coefficients" and isinstance(item, Mapping):
-            yield from _walk(item, where, units)
+            yield from _walk(item, where, units, dof)
         elif _is_quantity(item):
             unit = str(item.get("unit") or units.get(key) or suffix_unit(key, where.rsplit(".", 1)[-1]))
-            yield _row(where or key, key, item, unit)
+            yield _row(where or key, key, item, unit, dof)
         elif isinstance(item, Mapping) and key != "units":
-            yield from _walk(item, f"{where}.{key}" if where else key, units)
+            yield from _walk(item, f"{where}.{key}" if where else key, units, dof)
         elif isinstance(item, list):  # per-block results (one per temperature, setup, ...)
             for i, element in enumerate(item):
                 if isinstance(element, Mapping):
-                    yield from _walk(element, f"{where}.{key}[{i}]" if where else f"{key}[{i}]", units)
+                    yield from _walk(element, f"{where}.{key}[{i}]" if where else f"{key}[{i}]", units, dof)
 
 
 def _block(path: str) -> str:
@@ -134,13 +149,14 @@ def _block(path: str) -> str:
     return path[: cut + 1] if cut >= 0 else path.split(".")[0]
 
 
-def _row(result: str, name: str, item: Mapping[str, Any], unit: str) -> CoefficientRow:
+def _row(result: str, name: str, item: Mapping[str, Any], unit: str, dof: float | None) -> CoefficientRow:
     sigma = _number(item.get("sigma"))
     u = _number(item.get("standard_uncertainty"))
     big_u, k = _number(item.get("expanded_uncertainty")), _number(item.get("coverage_factor"))
-    if u is None or big_u is None or k is None:
+    if u is None or big_u is None or k is None:  # the fit alone: Student's t at its residual dof, if stated
         return CoefficientRow(result, name, _number(item["value"]), sigma, unit, str(item.get("note", "")),
-                              u_fit=sigma)  # fmt: skip
+                              k=None if dof is None else student_k(dof), u_fit=sigma,
+                              probability=None if dof is None else COVERAGE_PROBABILITY)  # fmt: skip
     probability = _number(item.get("coverage_probability"))
     return CoefficientRow(result, name, _number(item["value"]), u, unit, str(item.get("note", "")), k=k,
                           stated_expanded=big_u, u_fit=sigma, probability=probability)  # fmt: skip
@@ -202,8 +218,12 @@ def format_rows(rows: list[CoefficientRow]) -> list[str]:
         if r.u is not None:
             rel = f", u/|value| = {r.relative:.1e}" if r.relative is not None else ""
             p = f", {100 * r.probability:.0f} %" if r.probability is not None else ""
-            text += f"   u = {r.u:.2e}{unit}, U = {r.expanded:.2e}{unit} (k = {r.k:.2f}{p}){rel}"
+            big_u = ("U not stated (no degrees of freedom)" if r.expanded is None or r.k is None
+                     else f"U = {r.expanded:.2e}{unit} (k = {r.k:.2f}{p})")  # fmt: skip
+            text += f"   u = {r.u:.2e}{unit}, {big_u}{rel}"
             if r.budgeted and r.u_fit is not None:
                 text += f"; fit alone {r.u_fit:.2e}"
+        if r.note:
+            text += f"; {r.note}"
         lines.append(text)
     return lines

@@ -225,8 +225,9 @@ class Result:
                 continue
             u = "—" if r.u is None else f"{r.u:.2e}"
             big_u = "—" if r.expanded is None else f"{r.expanded:.2e}"
+            k = "—" if r.k is None else f"{r.k:.2f}"
             source = "GUM budget" if r.budgeted else "fit (Type A)"
-            cells.append(f"<tr><td>{html.escape(r.name)}</td><td>{r.value:.7e}</td><td>{u}</td><td>{r.k:.2f}</td>"
+            cells.append(f"<tr><td>{html.escape(r.name)}</td><td>{r.value:.7e}</td><td>{u}</td><td>{k}</td>"
                          f"<td>{big_u}</td><td>{html.escape(r.unit)}</td><td>{source}</td></tr>")  # fmt: skip
         head = ("<tr><th>coefficient</th><th>value</th><th>u (k = 1)</th><th>k</th><th>U = k u</th><th>unit</th>"
                 "<th>u from</th></tr>")  # fmt: skip

@@ -11,7 +11,7 @@ import sys
 import pytest
 from quick_run import run_quick_session
 
-from station.coefficients import COVERAGE_K, coefficient_rows, conclusion, format_rows
+from station.coefficients import coefficient_rows, conclusion, format_rows
 
 UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3"}
 
@@ -56,7 +56,7 @@ SEED000_DOC = {  # the shape of procedures.integral_precession.identify's to_jso
         "ky": {"value": None, "sigma": None, "note": "not identifiable by the baseline model"},
     },
     "units": {"kzz": "rad/s/g^2", "ky": "rad/s/g^2"},
-    "mu": 1.4, "mu_c": 2.2, "reliable": True, "n_points": 20,
+    "mu": 1.4, "mu_c": 2.2, "reliable": True, "n_points": 20, "dof": 5,
 }  # fmt: skip
 
 
@@ -65,13 +65,16 @@ def test_coefficient_rows_read_both_shapes_and_the_budget():
         "dtheta_h": {"value": 1e-4, "sigma": 2e-5, "unit": "rad"}}})}  # fmt: skip
     kz, kzz, ky, dth = rows["kz"], rows["kzz"], rows["ky"], rows["dtheta_h"]
     assert (kz.u, kz.k, kz.expanded, kz.u_fit, kz.budgeted) == (3.0e-4, 2.2, 6.6e-4, 2.8e-4, True)
-    assert (kzz.unit, kzz.u, kzz.k, kzz.budgeted) == ("rad/s/g^2", 4.0e-8, COVERAGE_K, False)
-    assert kzz.expanded == pytest.approx(COVERAGE_K * 4.0e-8, rel=1e-15)
+    assert (kzz.unit, kzz.u, kzz.budgeted) == ("rad/s/g^2", 4.0e-8, False)
+    assert kzz.k == pytest.approx(2.5706, abs=1e-4)  # no budget: Student's t at the fit's 5 dof, not a fixed 2
+    assert kzz.expanded == pytest.approx(kzz.k * 4.0e-8, rel=1e-15)
+    assert dth.k is None and dth.expanded is None  # no dof stated: no U
     assert ky.value is None and "not identifiable" in ky.note
     assert (dth.result, dth.unit) == ("alignment", "rad")  # the results key it came from
     lines = format_rows([kz, kzz, ky])
     assert "U = 6.60e-04 rad/s/g (k = 2.20, 95 %)" in lines[0] and "fit alone 2.80e-04" in lines[0]
-    assert "(k = 2.00)" in lines[1] and "not identified" in lines[2]
+    assert "(k = 2.57, 95 %)" in lines[1] and "not identified" in lines[2]
+    assert "U not stated" in format_rows([dth])[0]
 
 
 def test_rows_of_a_seed001_tumble_have_units_once_per_block_with_their_budget():

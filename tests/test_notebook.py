@@ -19,7 +19,7 @@ import pytest
 from nbclient import NotebookClient
 from quick_run import REPO, run_quick_session
 
-from station.coefficients import COVERAGE_K
+from station.coefficients import student_k
 from station.errors import InputError
 from station.store import SessionStore
 
@@ -77,9 +77,9 @@ def test_sessions_as_dataframes_match_the_store_and_the_run(run_dir):
                 if c["value"] is None:
                     assert math.isnan(row.value) and "not identifiable" in row.note
                     continue
-                # u and U are the GUM budget's where the method states one, else the fit's sigma and k = 2
+                # u and U are the GUM budget's where the method states one, else the fit's sigma and t at its dof
                 u = c.get("standard_uncertainty", c["sigma"])
-                big_u = c.get("expanded_uncertainty", COVERAGE_K * c["sigma"])
+                big_u = c.get("expanded_uncertainty", student_k(written[method]["dof"]) * c["sigma"])
                 assert row.value == c["value"] and row.u == u and row.u_fit == c["sigma"]
                 assert pytest.approx(big_u, rel=1e-15) == row.U and pytest.approx(big_u / u, rel=1e-12) == row.k
                 assert row.unit == written[method]["units"][name]

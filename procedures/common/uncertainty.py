@@ -32,9 +32,10 @@ from typing import Literal
 import numpy as np
 import scipy.stats
 
+from station.coefficients import COVERAGE_PROBABILITY, student_k
+
 SourceType = Literal["A", "B"]
 Shape = Literal["normal", "rectangular"]
-COVERAGE_PROBABILITY = 0.95
 MIN_RELIABLE_DOF = 10  # below this the Type A estimate of sigma is itself uncertain by > 22 % (GUM E.4.3)
 COVERAGE_RULE = (
     "k = Student's t at the Welch-Satterthwaite effective dof (GUM G.4), times q_95 / 1.96 where rectangular "
@@ -58,8 +59,19 @@ def coverage_factor(dof: float, probability: float = COVERAGE_PROBABILITY) -> fl
         raise UncertaintyError(f"coverage probability {probability!r}: expected 0 < p < 1")
     if not dof > 0:
         raise UncertaintyError(f"effective degrees of freedom {dof!r}: expected > 0")
-    q = 0.5 * (1.0 + probability)
-    return float(scipy.stats.norm.ppf(q) if math.isinf(dof) else scipy.stats.t.ppf(q, dof))
+    return student_k(dof, probability)
+
+
+def gum_fields(u: float, dof: float, k: float, probability: float = COVERAGE_PROBABILITY) -> dict:
+    """The GUM fields of one quantity in a results JSON: u, nu_eff (null when infinite), k, p and U = k u."""
+    return {
+        "standard_uncertainty": float(u),
+        "effective_dof": finite_or_none(float(dof)),
+        "effective_dof_note": "infinite (Type B only)" if math.isinf(dof) else "",
+        "coverage_factor": float(k),
+        "coverage_probability": probability,
+        "expanded_uncertainty": float(k * u),
+    }
 
 
 GRID_POINTS = 4001  # of the convolution in coverage_point: its q to about 1e-4 u_c
@@ -208,20 +220,14 @@ class Budget:
         return [n for n, nu in zip(self.names, self.effective_dof(), strict=True) if nu < MIN_RELIABLE_DOF]
 
     def coefficients_json(self) -> dict:
+        """Per coefficient: value, unit, the GUM fields and the shape factor (k = t(nu_eff) x shape_factor)."""
         u, nu, k = self.standard_uncertainty(), self.effective_dof(), self.coverage_factors()
-        return {
-            n: {
-                "value": float(v),
-                "unit": self.units.get(n, ""),
-                "standard_uncertainty": float(u[j]),
-                "effective_dof": finite_or_none(float(nu[j])),
-                "effective_dof_note": "infinite (Type B only)" if math.isinf(nu[j]) else "",
-                "coverage_factor": float(k[j]),
-                "coverage_probability": self.probability,
-                "expanded_uncertainty": float(k[j] * u[j]),
-            }
-            for j, (n, v) in enumerate(zip(self.names, self.values, strict=True))
-        }
+        shape = self.shape_factors()
+        out = {}
+        for j, (n, v) in enumerate(zip(self.names, self.values, strict=True)):
+            fields = gum_fields(u[j], nu[j], k[j], self.probability)
+            out[n] = {"value": float(v), "unit": self.units.get(n, ""), **fields, "shape_factor": float(shape[j])}
+        return out
 
     def to_json(self) -> dict:
         return {

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from procedures.common.uncertainty import coverage_factor, gum_fields
 from station.session import StationInfo
 
 
@@ -34,18 +35,27 @@ class Alignment:
     k0_radps: float
     residual_sigma_radps: float | None  # None: no residual degrees of freedom (eq. 26, or three positions)
     sigma_k0_radps: float | None = None  # None where the design gives no estimate of it
+    dof: float = math.inf  # of every sigma: the fit's n - 3 (eq. 25), infinite for eq. 27's propagated inputs
+
+    def quantity(self, value: float, sigma: float | None, unit: str) -> dict:
+        """value, sigma, unit and, where sigma is finite, the GUM fields with k = Student's t at `dof`."""
+        q: dict = {"value": value, "sigma": sigma, "unit": unit}
+        if sigma is not None and math.isfinite(sigma) and self.dof > 0:
+            q |= gum_fields(sigma, self.dof, coverage_factor(self.dof))
+        return q
 
     def to_json(self) -> dict:
-        """Quantities with value, sigma and unit; a sigma the design cannot give is None with the reason."""
-        k0 = {"value": self.k0_radps, "sigma": self.sigma_k0_radps, "unit": "rad/s"}
+        """Quantities with value, sigma, unit and U = k u; a sigma the design cannot give is None with the reason."""
+        k0 = self.quantity(self.k0_radps, self.sigma_k0_radps, "rad/s")
         if self.sigma_k0_radps is None:
             k0["note"] = "no residual degrees of freedom: sigma(k0) not estimable"
         return {
             "method": self.method,
-            "dtheta_h": {"value": self.dtheta_h_rad, "sigma": self.sigma_rad, "unit": "rad"},
-            "kz": {"value": self.kz_radps_per_g, "sigma": self.sigma_kz, "unit": "rad/s/g"},
+            "dtheta_h": self.quantity(self.dtheta_h_rad, self.sigma_rad, "rad"),
+            "kz": self.quantity(self.kz_radps_per_g, self.sigma_kz, "rad/s/g"),
             "k0": k0,
             "residual_sigma_radps": self.residual_sigma_radps,
+            "dof": self.dof if math.isfinite(self.dof) else None,
         }
 
 
@@ -102,4 +112,4 @@ def multi_position(theta_rad: np.ndarray, rates_radps: np.ndarray, station: Stat
         return math.sqrt(var) if sigma_e is not None else None
 
     return Alignment(f"eq. 25 least squares ({len(y)} positions)", angle, sd(cov_ka[1, 1]), kz, sd(cov_ka[0, 0]),
-                     float(k0), sigma_e, sd(cov[0, 0]))  # fmt: skip
+                     float(k0), sigma_e, sd(cov[0, 0]), dof=float(dof))  # fmt: skip

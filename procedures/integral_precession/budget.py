@@ -39,7 +39,9 @@ from procedures.integral_precession.identify import (
     COEFFICIENT_UNITS,
     Compensation,
     Identification,
+    Method,
     design,
+    identify,
     point_weights,
 )
 from station.least_squares import fit_joint
@@ -251,3 +253,14 @@ def seed000_budget(
     extra = corr * (np.outer(c0, c1) + np.outer(c1, c0))
     units = {n: COEFFICIENT_UNITS[n] for n in names}
     return Budget(names, np.asarray(result.values, dtype=float), units, sources, cov_a=result.cov, extra_cov=extra)
+
+
+def identify_with_budget(
+    session: Session, method: Method = "integral", compensation: Compensation | None = None
+) -> Identification:
+    """`identify` and its GUM budget (seed000_budget with the session's params and the shipped references): the one
+    path of the procedure's analysis and of `station identify`; `compensation` given: the measured Zs1, axs1 and
+    eps_f of the params were compensated."""
+    result = identify(session, method, compensation)
+    result.budget = seed000_budget(session, result, compensated=compensation is not None)
+    return result

@@ -23,9 +23,9 @@ import numpy as np
 
 from procedures.common.session_certificate import certificate_files, result_provenance
 from procedures.integral_precession.alignment import multi_position, two_position
-from procedures.integral_precession.budget import seed000_budget
+from procedures.integral_precession.budget import identify_with_budget
 from procedures.integral_precession.design_check import check_design
-from procedures.integral_precession.identify import METHODS, Compensation, Identification, Method, identify
+from procedures.integral_precession.identify import METHODS, Compensation, Identification, Method
 from procedures.integral_precession.planning import design_quality, relative_sensitivity
 from procedures.integral_precession.report import certificate, render_report
 from station import constants
@@ -104,12 +104,10 @@ def _summary(results: dict[str, Identification]) -> str:
 def _analyse(session: Session, order: tuple[Method, ...], title: str) -> Analysis:
     """Identify, budget each identification (GUM), the report, and the certificate of the primary one."""
     params = session.meta.get("params", {})
-    results: dict[str, Identification] = {m: identify(session, m) for m in order}
+    results: dict[str, Identification] = {m: identify_with_budget(session, m) for m in order}
     comp = _compensation(params)
     if comp is not None:
-        results["integral_compensated"] = identify(session, "integral", comp)
-    for m, r in results.items():
-        r.budget = seed000_budget(session, r, params, compensated=m == "integral_compensated")
+        results["integral_compensated"] = identify_with_budget(session, "integral", comp)
     uid = session.meta.get("store_uid", "")
     html = render_report(session, results, title=f"Session {uid}: {title}", config=params)
     primary = "integral_compensated" if comp is not None else order[0]
@@ -289,8 +287,14 @@ def analyse_alignment(session: Session) -> Analysis:
             ((f"{q.position_deg:g}", f"{q.Tm_s:.6f}", f"{r:.9e}") for q, r in zip(pts, rates, strict=True)),
         ),
     ]
-    sigma = "sigma not estimable (no residual dof)" if result.sigma_rad is None else f"± {result.sigma_rad:.1e}"
-    summary = f"misalignment {result.dtheta_h_rad:.3e} rad {sigma} ({result.method})"
+    angle = doc["dtheta_h"]
+    if "expanded_uncertainty" in angle:
+        dof = "infinite dof" if angle["effective_dof"] is None else f"{angle['effective_dof']:g} dof"
+        sigma = (f"u = {result.sigma_rad:.1e}, U = {angle['expanded_uncertainty']:.1e} rad (k = "
+                 f"{angle['coverage_factor']:.2f} at {dof}, 95 %)")  # fmt: skip
+    else:
+        sigma = "sigma not estimable (no residual dof)"
+    summary = f"misalignment {result.dtheta_h_rad:.3e} rad, {sigma} ({result.method})"
     return Analysis({"alignment": doc}, document("Self-alignment (seed 000 eqs. 25-27)", parts), summary)
 
 

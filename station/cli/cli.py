@@ -21,7 +21,9 @@ from tqdm import tqdm
 
 from drivers.config import ConfigError
 from drivers.errors import DriverError
-from procedures.integral_precession.identify import METHODS, identify
+from procedures.common.references import REFERENCES_FILE
+from procedures.integral_precession.budget import identify_with_budget
+from procedures.integral_precession.identify import METHODS
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.cli.console import (
     DEFAULT_PROCEDURE,
@@ -47,12 +49,14 @@ from station.engine.registry import (
     ProcedureError,
     ProcedureSpec,
     get_procedure,
+    load_library,
     load_procedure_file,
     procedure_file_serial,
 )
 from station.errors import StationError
 from station.extras import MissingExtra, needs_extra
 from station.interchange import SessionFormatError, SessionWriter, content_hash, read_session, write_session
+from station.jsonsafe import json_safe
 from station.least_squares import FitError
 from station.provenance import make_provenance
 from station.session import Session
@@ -218,13 +222,57 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
+    """The identification with its GUM budget, by the procedure analysis' own path (identify_with_budget)."""
     session = read_session(args.session_dir)
-    result = identify(session, args.method).to_json()
-    text = json.dumps(result, indent=2)
+    result = identify_with_budget(session, args.method).to_json()
+    result["references"] = {"file": str(REFERENCES_FILE), "is": "the shipped default references (Type B inputs of "
+                            "the budget, config/instruments/references.toml)"}  # fmt: skip
+    text = json.dumps(json_safe(result), indent=2)
     if args.json:
         Path(args.json).write_text(text)
     else:
         print(text)
+    return 0
+
+
+# the procedure of a session that names none (an import of a directory without one: piga-session/1 is seed 000's)
+SIMULATED_PROCEDURE = "integral_precession"
+
+
+def _session_for_certificate(where: str, db: str | None) -> Session:
+    """An exported piga-session/1 directory, else a uid in the store `db`."""
+    if Path(where).is_dir():
+        return read_session(where)
+    if db is None:
+        raise StoreError(f"{where}: no session directory there; for a stored session pass its uid and --db STORE")
+    with SessionStore(existing_store(db)) as store:
+        if where not in {s["uid"] for s in store.sessions()}:
+            raise StoreError(f"{where}: no such session directory, nor a session of that uid in {db} "
+                             "(`station sessions --db` lists them)")  # fmt: skip
+        return store.load_session(where, with_raw=False)
+
+
+def cmd_certificate(args: argparse.Namespace) -> int:
+    """The certificate of a stored (imported included) or exported session, issued by its procedure's analysis as
+    after `station run`: certificate-UID.html and .pdf, and certificate-UID.json with the analysis' results."""
+    session = _session_for_certificate(args.session, args.db)
+    named = session.meta.get("procedure")
+    name = SIMULATED_PROCEDURE if named in (None, "", "imported") else str(named)
+    load_library()
+    spec = get_procedure(name)
+    analysis = spec.analyse(session) if spec.analyse is not None else None
+    if analysis is None or not any(f.startswith("certificate-") for f in analysis.files):
+        raise ProcedureError(f"procedure {name!r} issues no certificate")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    uid = str(session.meta.get("store_uid") or "session")
+    for file_name, content in analysis.files.items():
+        (out / Path(file_name).name).write_bytes(content)
+        print(f"certificate: {out / Path(file_name).name}")
+    doc = {"session_uid": uid, "procedure": name, "results": analysis.results}
+    path = out / f"certificate-{uid}.json"
+    path.write_text(json.dumps(json_safe(doc), indent=2))
+    print(f"certificate: {path}")
     return 0
 
 
@@ -378,6 +426,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="integral: integral precession with exact window means (default); baseline: the integer "
                    "periodic vibration model of seed 000 eq. 35 (no kz)")  # fmt: skip
     p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("certificate", help="issue the certificate of an exported or stored (imported) session")
+    p.add_argument("session", metavar="SESSION_DIR_OR_UID", help="a piga-session/1 directory, or a session's uid "
+                   "in the store of --db")  # fmt: skip
+    p.add_argument("--db", help="the store of a session given by its uid (`station sessions --db` lists them)")
+    p.add_argument("--out", default="out", help="directory for certificate-UID.html, .pdf and .json (default: out)")
+    p.set_defaults(func=cmd_certificate)
 
     p = sub.add_parser(
         "simulate", help="write a seed-000 session by the session_sim shortcut (not the engine) as piga-session/1"

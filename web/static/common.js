@@ -117,10 +117,10 @@ export function appendCertificateLinks(box, uid) {
   }).catch(() => {});
 }
 
-export const COVERAGE_K = 2; // expanded uncertainty U = k u where the method states no coverage factor
 export const UNCERTAINTY_NOTE = "u: standard uncertainty (k = 1, about 68 %), the GUM budget's (Type A and B) " +
   "where the method has one, else the least-squares fit's (seed 000 eq. 22); U = k u: expanded uncertainty with " +
-  `its coverage factor k (Student t from the budget, else k = ${COVERAGE_K}, about 95 %).`;
+  "its coverage factor k (Student's t at the effective degrees of freedom, about 95 %), shown where the method " +
+  "states it.";
 
 // Every quantity with a value in a method's results, in either shape the methods write:
 // {coefficients: {name: {value, sigma, ...}}, units: {name: unit}} or {name: {value, sigma, unit}}, at any depth
@@ -141,30 +141,55 @@ export function suffixUnit(...names) {
   return "";
 }
 
-function* walkQuantities(doc, where, units) {
+// k = t_0.975(nu): Student's t at a whole number nu of degrees of freedom (a fit's n - p), as
+// station.coefficients.student_k: P(|T| < t) in closed form (Abramowitz and Stegun 26.7.3-4), inverted by bisection.
+export function studentK(nu) {
+  if (!Number.isInteger(nu) || nu < 1) return null;
+  const within = (t) => {
+    const th = Math.atan(t / Math.sqrt(nu));
+    const c2 = Math.cos(th) ** 2;
+    const odd = nu % 2 === 1;
+    let term = 1, sum = 1;
+    for (let m = 1; m <= (odd ? (nu - 3) / 2 : (nu - 2) / 2); m++) {
+      term *= c2 * (odd ? (2 * m) / (2 * m + 1) : (2 * m - 1) / (2 * m));
+      sum += term;
+    }
+    return odd ? (2 / Math.PI) * (th + (nu > 1 ? Math.sin(th) * Math.cos(th) * sum : 0)) : Math.sin(th) * sum;
+  };
+  let lo = 0, hi = 1e3;
+  for (let i = 0; i < 200 && hi - lo > 1e-15 * hi; i++) {
+    const mid = 0.5 * (lo + hi);
+    if (within(mid) < 0.95) lo = mid; else hi = mid;
+  }
+  return 0.5 * (lo + hi);
+}
+
+function* walkQuantities(doc, where, units, dof) {
   const isNumber = (x) => typeof x === "number" && Number.isFinite(x);
   const own = doc && typeof doc.units === "object" && !Array.isArray(doc.units) ? doc.units : {};
   const u = { ...units, ...own };
+  const nu = doc && isNumber(doc.dof) && doc.dof > 0 ? doc.dof : dof; // the fit's residual dof at this level or above
   for (const [key, item] of Object.entries(doc || {})) {
     if (Array.isArray(item)) {
       for (const [i, element] of item.entries()) {
         if (element && typeof element === "object" && !Array.isArray(element)) {
-          yield* walkQuantities(element, where ? `${where}.${key}[${i}]` : `${key}[${i}]`, u);
+          yield* walkQuantities(element, where ? `${where}.${key}[${i}]` : `${key}[${i}]`, u, nu);
         }
       }
       continue;
     }
     if (!item || typeof item !== "object" || key === "units") continue;
-    if (key === "coefficients") { yield* walkQuantities(item, where, u); continue; }
+    if (key === "coefficients") { yield* walkQuantities(item, where, u, nu); continue; }
     if ("value" in item && (item.value === null || isNumber(item.value))) {
       const budget = isNumber(item.standard_uncertainty) && isNumber(item.expanded_uncertainty) && isNumber(item.coverage_factor);
       const sigma = isNumber(item.sigma) ? item.sigma : null;
       const std = budget ? item.standard_uncertainty : sigma;
-      const k = budget ? item.coverage_factor : COVERAGE_K;
+      const k = budget ? item.coverage_factor : nu === null ? null : studentK(nu); // never a fixed k
       const unit = item.unit || u[key] || suffixUnit(key, where.split(".").at(-1) || "");
       yield { result: where || key, name: key, value: item.value, u: std, k, unit,
-        expanded: budget ? item.expanded_uncertainty : std === null ? null : k * std, note: item.note || "", budget };
-    } else yield* walkQuantities(item, where ? `${where}.${key}` : key, u);
+        expanded: budget ? item.expanded_uncertainty : std === null || k === null ? null : k * std,
+        note: item.note || "", budget };
+    } else yield* walkQuantities(item, where ? `${where}.${key}` : key, u, nu);
   }
 }
 
@@ -172,7 +197,7 @@ const blockOf = (path) => (path.lastIndexOf("]") >= 0 ? path.slice(0, path.lastI
 
 export function coefficientRows(results) {
   const best = new Map();
-  for (const row of walkQuantities(results, "", {})) {
+  for (const row of walkQuantities(results, "", {}, null)) {
     const key = `${blockOf(row.result)}\u0000${row.name}`;
     const old = best.get(key);
     const rank = (r) => 2 * Number(r.budget) + Number(Boolean(r.unit));
