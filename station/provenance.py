@@ -1,4 +1,4 @@
-"""Where a session came from: software, station, operator, host, time, simulated or real, seed, instrument.
+"""Where a session came from: software, station, operator, host, time, simulated or real, seed, instrument, customer.
 
 Every session carries a `provenance` record (session.json and the store). Its keys are PROVENANCE_KEYS;
 certificates and reports read it as a plain dict. On a real station the instrument serial number must be
@@ -29,6 +29,7 @@ PROVENANCE_KEYS = (
     "simulated",
     "seed",
     "instrument_serial",
+    "customer",
 )
 SIMULATED_SERIAL = "SIM-PIGA-0001"  # the simulated instrument's serial: a default only on a simulated station
 
@@ -77,6 +78,7 @@ def make_provenance(
     instrument_serial: str = "",
     seed: int | None = None,
     operator: str | None = None,
+    customer: str | None = None,
     created_utc: str | None = None,
 ) -> dict[str, Any]:
     """The provenance record of a new session; ProvenanceError for a real station without an instrument serial."""
@@ -89,7 +91,8 @@ def make_provenance(
             )
         serial = SIMULATED_SERIAL
     return local_provenance(
-        station_id=station_id, operator=operator, created_utc=created_utc, simulated=bool(simulated),
+        station_id=station_id, operator=operator or None, customer=customer or None, created_utc=created_utc,
+        simulated=bool(simulated),
         seed=seed if simulated else None, instrument_serial=serial,
     )  # fmt: skip
 

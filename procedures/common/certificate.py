@@ -35,6 +35,14 @@ from station.tomlfile import read_toml
 
 INSTRUMENTS_DIR = config_file("instruments")  # shipped defaults (station.defaults)
 DEFAULT_INSTRUMENT_FILE = INSTRUMENTS_DIR / "piga-sim.toml"
+LABORATORY_FILE = config_file("laboratory.toml")
+LABORATORY_KEYS = ("name", "address", "place_of_calibration")  # a real station's certificate needs each
+SIMULATED_LABORATORY = {
+    "name": "SIMULATED LABORATORY",
+    "address": "no address (simulated station)",
+    "place_of_calibration": "the station's digital twin (no instrument was calibrated)",
+    "accreditation": "",
+}
 NOT_MEASURED = "not measured"
 NOT_RECORDED = "not recorded"
 UNBROKEN_CELL = 26  # characters: a PDF table cell this short is one line (no number broken across lines)
@@ -132,10 +140,21 @@ def with_unit(number: str, unit: str) -> str:
     return number if unit_text(unit) == DIMENSIONLESS else f"{number}\u00a0{unit}"
 
 
-def load_laboratory(path: str | Path = INSTRUMENTS_DIR / "references.toml") -> dict[str, str]:
-    """The issuing laboratory ([laboratory] of the references file): name, address, accreditation."""
-    lab = read_toml(path, "references file", CertificateError).get("laboratory", {})
-    return {k: str(lab.get(k, NOT_RECORDED)) for k in ("name", "address", "accreditation")}
+def load_laboratory(simulated: bool, path: str | Path = LABORATORY_FILE) -> dict[str, str]:
+    """The issuing laboratory and the place of calibration ([laboratory] of config/laboratory.toml): name, address,
+    place_of_calibration, accreditation (optional). A simulated station's missing key says SIMULATED LABORATORY;
+    a real station's is refused (CertificateError naming the file and key): never a placeholder on the certificate."""
+    lab = read_toml(path, "laboratory file", CertificateError).get("laboratory", {})
+    out = {}
+    for key in (*LABORATORY_KEYS, "accreditation"):
+        value = str(lab.get(key, "")).strip()
+        if not value and simulated:
+            value = SIMULATED_LABORATORY[key]
+        elif not value and key != "accreditation":
+            raise CertificateError(f"laboratory file {path}: [laboratory] {key} is not set: a real station's "
+                                   "certificate names the laboratory that issues it")  # fmt: skip
+        out[key] = value
+    return out
 
 
 @dataclass(frozen=True)
@@ -354,8 +373,8 @@ def render_pdf(cert: Certificate) -> bytes:
     cell = ParagraphStyle("cell", parent=small, fontSize=7, leading=8.5)
     story: list[Any] = [Paragraph(pdf_text(cert.title), styles["Title"])]
     lab = cert.laboratory
-    story.append(Paragraph(f"<b>{pdf_text(lab.get('name', ''))}</b>, {pdf_text(lab.get('address', ''))}. "
-                           f"{pdf_text(lab.get('accreditation', ''))}", small))  # fmt: skip
+    accreditation = f". {pdf_text(lab['accreditation'])}" if lab.get("accreditation") else ""
+    story.append(Paragraph(f"<b>{pdf_text(lab['name'])}</b>, {pdf_text(lab['address'])}{accreditation}", small))
     story.append(Paragraph(f"Certificate number <b>{pdf_text(cert.certificate_id)}</b>", small))
 
     def tbl(header: Sequence[str] | None, rows: Sequence[Sequence[str]], widths=None) -> Table:
@@ -404,7 +423,7 @@ def render_pdf(cert: Certificate) -> bytes:
                                          "written approval of the laboratory. The results relate only to the "
                                          "item calibrated.", small)]))  # fmt: skip
     doc = SimpleDocTemplate(buf, pagesize=A4, leftMargin=15 * mm, rightMargin=15 * mm, topMargin=18 * mm,
-                            bottomMargin=18 * mm, title=cert.title, author=lab.get("name", ""))  # fmt: skip
+                            bottomMargin=18 * mm, title=cert.title, author=lab["name"])  # fmt: skip
 
     def maker(*a, **k):
         return _NumberedCanvas(*a, cert_id=cert.certificate_id, simulated=cert.simulated, **k)

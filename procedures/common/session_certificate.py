@@ -25,6 +25,7 @@ from procedures.common.certificate import (
     NOT_MEASURED,
     NOT_RECORDED,
     Certificate,
+    CertificateError,
     InstrumentSpec,
     TableText,
     budget_rows,
@@ -39,6 +40,7 @@ from procedures.common.references import traceability
 from procedures.common.uncertainty import COVERAGE_RULE, MIN_RELIABLE_DOF, Budget
 from station.session import Session
 
+SIMULATED_CUSTOMER = "SIMULATED CUSTOMER (a simulated station calibrates no one's instrument)"
 BUDGET_COLUMNS = 6  # coefficients per budget table: wider tables do not fit an A4 page
 
 
@@ -97,6 +99,17 @@ def is_simulated(session: Session) -> bool:
     if prov.get("simulated") is not None:
         return bool(prov["simulated"])
     return "SIM" in str(prov.get("instrument_serial") or session.meta.get("instrument_serial") or "")
+
+
+def customer(session: Session, simulated: bool) -> str:
+    """The customer the session's provenance names (`--customer`); a real session without one is refused."""
+    name = provenance_of(session).get("customer")
+    if name:
+        return str(name)
+    if simulated:
+        return SIMULATED_CUSTOMER
+    raise CertificateError(f"session {session.meta.get('store_uid') or ''}: provenance.customer is not set: a real "
+                           "station's certificate names the customer (station run --customer NAME)")  # fmt: skip
 
 
 def environment_conditions(session: Session) -> list[tuple[str, str]]:
@@ -182,7 +195,10 @@ def session_certificate(
     uid = or_not_recorded(session.meta.get("store_uid"))
     simulated = is_simulated(session)
     serial = prov.get("instrument_serial") or session.meta.get("instrument_serial")
+    laboratory = load_laboratory(simulated)
     ident = [
+        ("customer", customer(session, simulated)),
+        ("place of calibration", laboratory["place_of_calibration"]),
         ("station", or_not_recorded(prov.get("station_id"))),
         ("instrument", spec.model),
         ("manufacturer", spec.manufacturer),
@@ -201,7 +217,7 @@ def session_certificate(
     return Certificate(
         certificate_id=f"CERT-{uid}",
         title=card.title,
-        laboratory=load_laboratory(),
+        laboratory=laboratory,
         identification=ident,
         dates=_dates(session),
         environment=environment if environment is not None else environment_conditions(session),

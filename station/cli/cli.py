@@ -138,6 +138,8 @@ def _run(
             controller_for(config, hw, store, out, args.telemetry) as controller,
             RunSignals(controller),  # Ctrl-C pauses and asks, a second one aborts; SIGTERM aborts
         ):
+            if resume_uid is None:  # a resumed session keeps the provenance it was started with
+                controller.engine.operator, controller.engine.customer = args.operator, args.customer
             outcome = run_with_progress(
                 controller, spec.name, params, instrument_serial=args.serial or serial, resume_uid=resume_uid
             )
@@ -390,8 +392,15 @@ def build_parser() -> argparse.ArgumentParser:
                        help="publish telemetry on this zmq endpoint (tcp://HOST:PORT)")  # fmt: skip
         p.add_argument("--dry-run", action="store_true", help="validate and print the time estimates; move nothing")
 
+    def session_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--operator", help="who runs the session, as its provenance and certificate name them "
+                       "(default: the user at the console)")  # fmt: skip
+        p.add_argument("--customer", help="the customer whose instrument is calibrated, named on the certificate "
+                       "(required for a real station's certificate)")  # fmt: skip
+
     p = sub.add_parser("calibrate", help="the main job: seed 000's calibration session on the simulated station")
     station_options(p)
+    session_options(p)
     p.add_argument("--yes", action="store_true", help="run a design that the dry run warns about")
     p.add_argument("--procedure", default=str(DEFAULT_PROCEDURE),
                    help="procedure file, or a shipped one's name (default: integral_precession, seed 000)")  # fmt: skip
@@ -402,6 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "name: its file name under config/procedures without .toml (every procedure has one of its own "
                    "name, e.g. integral_precession; others too, e.g. rlg_g_sensitivity-quick)")  # fmt: skip
     station_options(p)
+    session_options(p)
     p.add_argument("--yes", action="store_true", help="run a design that the dry run warns about")
     p.set_defaults(func=cmd_run)
 

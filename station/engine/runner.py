@@ -141,7 +141,8 @@ class Engine:
         self.supervisor = supervisor or MotionSupervisor(hardware, clock=hardware.clock)
         self.clock = hardware.clock
         self.store = store
-        self.operator: str | None = None  # who starts the runs (the panel's user); None: the OS user
+        self.operator: str | None = None  # who starts the runs (the panel's user, --operator); None: the OS user
+        self.customer: str | None = None  # whose instrument the runs calibrate (--customer)
         self.publish: Publisher = publish or (lambda topic, msg: None)
         self.watched = publish is not None  # someone reads the telemetry: windows stream a display trace
         self.progress = Progress()
@@ -391,6 +392,7 @@ class Engine:
         return make_provenance(
             station_id=getattr(cfg, "station_id", "") or "unknown", simulated=bool(getattr(cfg, "simulated", True)),
             instrument_serial=instrument_serial, seed=getattr(self.hw, "seed", None), operator=self.operator,
+            customer=self.customer,
         )  # fmt: skip
 
     def _open_session(self, spec: ProcedureSpec, plan: Plan, serial: str, resume_uid: str | None, config: dict) -> dict:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,9 +24,12 @@ from procedures.common.certificate import (
     conformity,
     gum_round,
     load_instrument_spec,
+    load_laboratory,
     unit_text,
 )
+from procedures.common.session_certificate import customer
 from procedures.integral_precession.procedure import analyse_integral, analyse_multi_frequency
+from station.cli.cli import main
 from station.jsonsafe import json_safe
 from station.twin.config import default_twin
 from station.twin.plan import multiposition_plan, seed000_plan
@@ -196,3 +200,44 @@ def test_environment_comes_from_the_stations_sensors_where_it_has_them() -> None
     pts = [replace(p, extra={"temperature_c": f"{20.0 + 0.1 * i:.1f}"}) for i, p in enumerate(s.points)]
     env = dict(environment_conditions(replace(s, points=pts)))
     assert env["temperature"].startswith("20.00 to 20.30 °C (4 readings")
+
+
+def test_a_real_stations_certificate_needs_its_laboratory_and_customer(analysis, tmp_path: Path) -> None:
+    """The shipped laboratory file names no laboratory: a simulated certificate says SIMULATED LABORATORY, a real
+    one is refused in one line naming the file and the key, never a placeholder printed on it."""
+    with pytest.raises(CertificateError) as refused:
+        load_laboratory(simulated=False)
+    assert "\n" not in str(refused.value)
+    assert re.fullmatch(r"laboratory file \S*laboratory\.toml: \[laboratory\] name is not set: .*", str(refused.value))
+    lab = tmp_path / "laboratory.toml"
+    lab.write_text('[laboratory]\nname = "Gyro Lab"\naddress = "1 Main St"\nplace_of_calibration = "room 12"\n')
+    assert load_laboratory(simulated=False, path=lab) == {
+        "name": "Gyro Lab",
+        "address": "1 Main St",
+        "place_of_calibration": "room 12",
+        "accreditation": "",
+    }
+    s, a = analysis
+    real = dict(PROVENANCE, simulated=False, instrument_serial="PIGA-0042")
+    s.meta["provenance"] = real
+    try:
+        with pytest.raises(CertificateError, match=r"\[laboratory\] name is not set"):
+            analyse_integral(s)
+        with pytest.raises(CertificateError, match=r"provenance\.customer is not set: .*--customer NAME\)$"):
+            customer(s, simulated=False)
+        assert customer(s, simulated=True).startswith("SIMULATED CUSTOMER")
+    finally:
+        s.meta["provenance"] = PROVENANCE
+    html = a.files["certificate-t15-int.html"].decode()
+    assert "SIMULATED LABORATORY" in html and "SIMULATED CUSTOMER" in html and "set [laboratory]" not in html
+
+
+def test_operator_and_customer_from_the_command_line_are_on_the_certificate(tmp_path: Path) -> None:
+    proc = tmp_path / "quick.toml"
+    proc.write_text('procedure = "integral_precession"\n[params]\npositions_deg = [0, 72, 144, 216, 288]\n'
+                    "freqs_hz = [9, 10]\nwindow_s = 5\nsettle_s = 0\n")  # fmt: skip
+    out = tmp_path / "out"
+    main(["run", str(proc), "--out", str(out), "--seed", "4", "--operator", "Q. Manager", "--customer", "ACME Gyro"])
+    (cert,) = out.glob("certificate-*.pdf")
+    text = "\n".join(page.extract_text() for page in pypdf.PdfReader(cert).pages)
+    assert re.search(r"(?m)^operator\s*\nQ\. Manager$", text) and re.search(r"(?m)^\s*customer\s*\nACME Gyro$", text)
