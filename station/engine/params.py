@@ -7,6 +7,7 @@ the value and what is allowed, before anything moves.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
@@ -42,10 +43,25 @@ class Param:
         rng = f" in [{lo}, {hi}]" if self.min is not None or self.max is not None else ""
         return f"{kind}{rng}{(' ' + self.unit) if self.unit else ''}"
 
+    def label(self) -> str:
+        """The parameter in words, for a form, from its help as written (u(z0) is not U(z0)): without its asides in
+        parentheses, up to the first ';' and the first ':' (unless one or two words follow it, which name the part:
+        'measured Zs1(w): z1'); its name in words where the help says too little; with its unit (none for a pure
+        number, unit '1')."""
+        words = re.split(r";", re.sub(r"\s+\([^()]*\)", "", self.help), maxsplit=1)[0].strip()
+        head, colon, tail = words.partition(":")
+        words = head.strip() if colon and len(tail.split()) > 2 else words
+        if len(words) < 4:
+            tokens = self.name.split("_")
+            words = " ".join(tokens[:-1] if self.unit and len(tokens) > 1 else tokens)
+        unit = f" ({self.unit})" if self.unit not in ("", "1") else ""
+        return words + unit
+
     def describe(self) -> dict:
         """The declaration as JSON, for a form that validates before it submits."""
         kind = {float: "float", int: "int", str: "str", bool: "bool", list: "list"}[self.kind]
-        return {"name": self.name, "kind": kind, "default": self.default, "min": self.min, "max": self.max,
+        return {"name": self.name, "label": self.label(), "kind": kind, "default": self.default, "min": self.min,
+                "max": self.max,
                 "choices": list(self.choices) if self.choices else None, "unit": self.unit, "help": self.help,
                 "required": self.required, "allowed": self.allowed()}  # fmt: skip
 

@@ -128,5 +128,5 @@ def test_declared_parameters_describe_themselves_for_forms() -> None:
     p = Param("freqs_hz", list, default=[8.0], min=0.1, max=10.0, unit="Hz", help="h")
     d = p.describe()
     assert d["allowed"] == "list of numbers in [0.1, 10] Hz"
-    assert d == {"name": "freqs_hz", "kind": "list", "default": [8.0], "min": 0.1, "max": 10.0, "choices": None,
-                 "unit": "Hz", "help": "h", "required": False, "allowed": d["allowed"]}  # fmt: skip
+    assert d == {"name": "freqs_hz", "label": "freqs (Hz)", "kind": "list", "default": [8.0], "min": 0.1, "max": 10.0,
+                 "choices": None, "unit": "Hz", "help": "h", "required": False, "allowed": d["allowed"]}  # fmt: skip

@@ -49,6 +49,24 @@ def test_status_and_library_come_from_the_station(as_user):
     assert params["window_s"]["min"] == 1.0 and params["window_s"]["unit"] == "s"
 
 
+def test_the_library_says_what_this_station_runs_and_where_the_rest_runs(as_user):
+    """The embedded default station (vibration-sim) runs seed 000's procedures; the tumble, the shaker's, the two
+    PIGAs' and the electronics' need another station file, named; labels are words with units, not code names."""
+    library = {p["name"]: p for p in as_user("victor").get("/api/stations/sim/library").json()}
+    assert library["integral_precession"]["not_here"] is None
+    assert library["integral_precession.planning"]["not_here"] is None
+    needs = {"tumble": "tumble-sim.toml", "rlg_g_sensitivity": "shaker-sim.toml", "multiposition": "dual-sim.toml",
+             "nonlinear_suppression": "electronics-sim.toml"}  # fmt: skip
+    for name, station_file in needs.items():
+        files = library[name]["station_files"]
+        assert station_file in files and "vibration-sim.toml" not in files, (name, files)
+        assert "is not allowed" in library[name]["not_here"], library[name]["not_here"]
+    labels = {p["name"]: p["label"] for p in library["integral_precession"]["params"]}
+    assert labels["zs1_z0_sigma_m"] == "u(z0) of the Zs1 line fit (m)"
+    assert labels["eps_f"] == "measured relative frequency error" and labels["window_s"] == "target window length (s)"
+    assert all(label != name for name, label in labels.items())
+
+
 @pytest.mark.parametrize(("name", "status"), [("nosuch", 404), ("bad name!", 422)])
 def test_an_unknown_or_malformed_station_name(as_user, name, status):
     reply = as_user("victor").get(f"/api/stations/{name}/status")

@@ -127,6 +127,15 @@ def test_eta_only_while_running_analysing_until_results_and_a_new_start_clears_t
     expect(card.locator("span.eta")).to_have_text("no run under way")
     card.evaluate(RECORD_ETA)
 
+    # The form offers what this station runs, in words with units, and names the station file for the rest.
+    form = card.locator(".start-form")
+    expect(form.locator("option[value=integral_precession]")).to_have_count(1)  # once the library has come
+    offered = form.locator("select[name=procedure] option").evaluate_all("(os) => os.map((o) => o.value)")
+    assert "integral_precession" in offered and "tumble" not in offered and "rlg_g_sensitivity" not in offered
+    expect(form.locator(".elsewhere li[data-procedure=tumble]")).to_contain_text("tumble-sim.toml")
+    sigma = form.locator("label", has=page.locator("input[name=zs1_z0_sigma_m]")).locator("span")
+    expect(sigma).to_have_text("u(z0) of the Zs1 line fit (m)")
+
     first = post(page, "/api/stations/sim/start", {"procedure": PROCEDURE, "params": quick,
                                                    "instrument_serial": "DAY-1"})  # fmt: skip
     assert first["status"] == 200, first

@@ -579,8 +579,10 @@ class StartForm {
     this.view = view;
     this.library = library;
     this.fields = [];
+    const here = library.filter((p) => !p.not_here);
     this.procedure = el("select", { name: "procedure", onchange: () => this.build() },
-      library.map((p) => el("option", { value: p.name }, `${p.title} (${p.name})`)));
+      here.map((p) => el("option", { value: p.name }, p.title)));
+    this.elsewhere = elsewhere(library.filter((p) => p.not_here));
     this.serial = el("input", { name: "instrument_serial", value: "SIM-PIGA-0001", maxlength: "64",
       pattern: "[ -~]*" });
     this.params = el("div", { class: "params" });
@@ -609,10 +611,10 @@ class StartForm {
       input = el("input", { type: "number", name: p.name, value: p.default ?? "", min: p.min ?? null, max: p.max ?? null,
         step: p.kind === "int" ? "1" : "any" });
     } else input = el("input", { type: "text", name: p.name, value: p.default ?? "" });
-    const hint = el("small", {}, `${p.allowed}${p.help ? ` — ${p.help}` : ""}`);
+    const hint = el("small", {}, `${p.name} = ${p.allowed}${p.help ? ` — ${p.help}` : ""}`);
     const problem = el("small", { class: "error field-error", role: "alert" });
     input.addEventListener("input", () => this.read());
-    const label = el("label", {}, el("span", {}, p.name + (p.unit ? ` (${p.unit})` : "")), input, hint, problem);
+    const label = el("label", {}, el("span", {}, p.label), input, hint, problem);
     return { p, input, label, problem };
   }
 
@@ -659,6 +661,17 @@ class StartForm {
     this.warnings.replaceChildren(...(warnings.length ? [el("p", {}, el("b", {}, "The design has warnings:")),
       el("ul", {}, warnings.map((w) => el("li", {}, w.line)))] : []), ...(confirmable ? [confirm] : []));
   }
+}
+
+// The procedures this station cannot run, each with the shipped station files it runs on and why not here.
+function elsewhere(procedures) {
+  if (!procedures.length) return null;
+  return el("details", { class: "elsewhere" },
+    el("summary", {}, `${procedures.length} more procedures need another station`),
+    el("ul", {}, procedures.map((p) => el("li", { dataset: { procedure: p.name } }, el("b", {}, p.title), ": ",
+      p.station_files.length ? `runs on the station file ${p.station_files.join(" or ")} ` +
+        `(station serve --station ${p.station_files[0].replace(/\.toml$/, "")})` : "no shipped station file runs it",
+      el("br"), el("small", {}, `not here: ${p.not_here}`)))));
 }
 
 function parseParam(p, input) {
@@ -708,7 +721,7 @@ function buildControls(view, library) {
     el("h3", {}, "Control"),
     el("div", { class: "run-buttons" }, b.pause, b.resume, b.abort, b.estop, b.reset),
     el("form", { class: "start-form", onsubmit: (e) => e.preventDefault() },
-      el("label", {}, el("span", {}, "procedure"), form.procedure),
+      el("label", {}, el("span", {}, "procedure"), form.procedure), form.elsewhere,
       el("label", {}, el("span", {}, "instrument serial"), form.serial),
       form.params,
       el("div", {}, b.plan, b.start)),
