@@ -25,7 +25,13 @@ from procedures.common.session_certificate import certificate_files, result_prov
 from procedures.integral_precession.alignment import multi_position, two_position
 from procedures.integral_precession.budget import identify_with_budget
 from procedures.integral_precession.design_check import check_design
-from procedures.integral_precession.identify import METHODS, Compensation, Identification, Method
+from procedures.integral_precession.identify import (
+    METHODS,
+    Compensation,
+    Identification,
+    Method,
+    state_first_passage_bias,
+)
 from procedures.integral_precession.planning import design_quality, relative_sensitivity
 from procedures.integral_precession.report import certificate, render_report
 from station import constants
@@ -93,6 +99,7 @@ def _summary(results: dict[str, Identification]) -> str:
                               for n, v, x, kk in zip(r.names, r.values, U, k, strict=True))  # fmt: skip
         else:
             coefs = ", ".join(f"{n} = {v:.6e} ± {s:.1e}" for n, v, s in zip(r.names, r.values, r.sigmas, strict=True))
+        coefs += "".join(f"; {n}: {r.bias_note(n)}" for n in r.first_passage_bias)
         verdict = "no outlier" if r.reliable else "possible outlier"
         few = r.budget.few_dof() if r.budget is not None else []
         flag = f"; few dof ({r.dof}) for {', '.join(few)}: t-based U" if few else ""
@@ -108,6 +115,8 @@ def _analyse(session: Session, order: tuple[Method, ...], title: str) -> Analysi
     comp = _compensation(params)
     if comp is not None:
         results["integral_compensated"] = identify_with_budget(session, "integral", comp)
+    if {"baseline", "integral"} <= set(results):
+        state_first_passage_bias(results["baseline"], results["integral"])
     uid = session.meta.get("store_uid", "")
     html = render_report(session, results, title=f"Session {uid}: {title}", config=params)
     primary = "integral_compensated" if comp is not None else order[0]

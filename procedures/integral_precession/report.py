@@ -89,6 +89,9 @@ def _coef_table(results: Mapping[str, Identification], truth: Mapping[str, float
         "variant (all rates, N all points) sees about μ/√2 and is shown for comparison only.</p>"
     ]
     for m, r in results.items():
+        if r.first_passage_bias:
+            notes.append(f"<p class=bad>{esc(m)}: " + "; ".join(f"{n}: {esc(r.bias_note(n))}"
+                                                                 for n in r.first_passage_bias) + ".</p>")  # fmt: skip
         few = r.budget.few_dof() if r.budget is not None else ([] if r.dof >= MIN_RELIABLE_DOF else list(r.names))
         if few:
             notes.append(
@@ -224,6 +227,6 @@ def certificate(
         replace(CARD, procedure_title=procedure_title),
         spec=spec,
         figures=[(RESIDUAL_CAPTION, lambda: residual_figure({primary: r}))],
-        remarks=[reliability],
+        remarks=[reliability, *(f"{n}: {r.bias_note(n)}." for n in r.first_passage_bias)],
         identification=[("identification", f"{r.method}, weighted joint least squares ({r.weighting})")],
     )

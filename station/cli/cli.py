@@ -23,7 +23,7 @@ from drivers.config import ConfigError
 from drivers.errors import DriverError
 from procedures.common.references import REFERENCES_FILE
 from procedures.integral_precession.budget import identify_with_budget
-from procedures.integral_precession.identify import METHODS
+from procedures.integral_precession.identify import METHODS, state_first_passage_bias
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
 from station.cli.console import (
     DEFAULT_PROCEDURE,
@@ -226,7 +226,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_identify(args: argparse.Namespace) -> int:
     """The identification with its GUM budget, by the procedure analysis' own path (identify_with_budget)."""
     session = read_session(args.session_dir)
-    result = identify_with_budget(session, args.method).to_json()
+    identified = identify_with_budget(session, args.method)
+    if args.method == "baseline":  # its first-passage bias beside it, as in the procedure's analysis
+        state_first_passage_bias(identified, identify_with_budget(session, "integral"))
+    result = identified.to_json()
     result["references"] = {"file": str(REFERENCES_FILE), "is": "the shipped default references (Type B inputs of "
                             "the budget, config/instruments/references.toml)"}  # fmt: skip
     text = json.dumps(json_safe(result), indent=2)

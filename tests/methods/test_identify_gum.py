@@ -63,3 +63,23 @@ def test_the_example_notebook_states_no_fixed_k():
 
     text = (Path(__file__).resolve().parents[2] / "examples" / "session_in_a_notebook.ipynb").read_text()
     assert "k = 2" not in text and "U = 2u" not in text and "Student's t" in text
+
+
+def test_the_baseline_states_its_first_passage_bias_beside_k3(tmp_path):
+    """Seed 000's plan: the baseline's k3 is off the true 7e-7 by more than its U (Table 10: +5.5e-7 to +9.5e-7);
+    the stated bias (baseline minus integral on the same data) accounts for it and the console shows it."""
+    from station.twin.plan import seed000_plan
+
+    session_dir = write_session(simulate_session(seed000_plan(), TwinConfig(), seed=3), tmp_path / "s")
+    docs = {}
+    for method in ("baseline", "integral"):
+        out = tmp_path / f"{method}.json"
+        assert main(["identify", str(session_dir), "--json", str(out), "--method", method]) == 0
+        docs[method] = json.loads(out.read_text())
+    k3, k3_integral = docs["baseline"]["coefficients"]["k3"], docs["integral"]["coefficients"]["k3"]
+    assert k3["first_passage_bias"] == pytest.approx(k3["value"] - k3_integral["value"], rel=1e-12)
+    assert k3["value"] - 7e-7 > k3["expanded_uncertainty"]  # the bias its U does not cover
+    assert abs(k3["value"] - k3["first_passage_bias"] - 7e-7) < k3_integral["expanded_uncertainty"]
+    assert "first_passage_bias" not in k3_integral
+    line = next(x for x in format_rows(coefficient_rows({"baseline": docs["baseline"]})) if x.strip().startswith("k3"))
+    assert "first-passage bias +" in line and "not in U" in line
