@@ -7,6 +7,7 @@ import pytest
 
 from station.cli.cli import main
 from station.interchange import write_session
+from station.provenance import make_provenance
 from station.store import SessionStore
 from station.twin.config import TwinConfig
 from station.twin.plan import multiposition_plan
@@ -17,6 +18,7 @@ from station.twin.session_sim import simulate_session
 def session_dir(tmp_path_factory):
     session = simulate_session(multiposition_plan([0.0, 60.0, 120.0, 180.0, 240.0, 300.0], [8.0, 10.0],
                                                   window_s=20.0), TwinConfig(), seed=4)  # fmt: skip
+    session.provenance = make_provenance(station_id="twin", simulated=True, seed=4)  # as `station simulate` writes
     return write_session(session, tmp_path_factory.mktemp("cert") / "s")
 
 
