@@ -94,11 +94,13 @@ def result_provenance(session: Session) -> dict:
 
 
 def is_simulated(session: Session) -> bool:
-    """The provenance says so; without one, a simulated instrument's serial ("SIM-...") does."""
+    """The provenance says so; without one, the instrument's serial: a simulated one's ("SIM-..."), or none at all
+    (a real station does not start without a serial: only the twin's sessions have none)."""
     prov = provenance_of(session)
     if prov.get("simulated") is not None:
         return bool(prov["simulated"])
-    return "SIM" in str(prov.get("instrument_serial") or session.meta.get("instrument_serial") or "")
+    serial = str(prov.get("instrument_serial") or session.meta.get("instrument_serial") or "")
+    return not serial or "SIM" in serial
 
 
 def customer(session: Session, simulated: bool) -> str:
