@@ -84,8 +84,15 @@ class SessionRow(BaseModel):
 
 class GapReply(BaseModel):
     id: str = Field(description="GET /api/gap/{id}/report gives the HTML report")
+    session: dict[str, Any] = Field(description="the session diagnosed: uid, procedure, instrument_serial, "
+                                    "created_utc, n_points")  # fmt: skip
     report: dict[str, Any] = Field(description="the piga-gap/1 document")
     shrink: float | None = Field(description="fraction of the held-out gap the chosen effects remove; null: no gap")
+
+
+class GapStatus(BaseModel):
+    running: bool = Field(description="a diagnosis is running (one at a time)")
+    last_elapsed_s: float | None = Field(description="how long the last diagnosis took; null: none yet")
 
 
 ERRORS = {

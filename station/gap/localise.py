@@ -477,7 +477,7 @@ def _structure_text(dets: list[Detector], alpha: float) -> str:
     sig = significant(dets, alpha)
     if sig:
         return "structure: " + "; ".join(f"{dt.label} F = {dt.F:.1f} (p = {dt.p_value:.1e})" for dt in sig)
-    return f"no structure test significant at the {alpha:g} level (Bonferroni over {len(dets)} tests)"
+    return f"no structure test significant at the {alpha:.2g} level (Bonferroni over {len(dets)} tests)"
 
 
 def where_text(m: dict, dets: list[Detector], alpha: float) -> str:

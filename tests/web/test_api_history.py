@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 import zipfile
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -154,9 +155,17 @@ def test_gap_diagnosis_of_a_stored_session_and_its_html_report(victor, recorded)
     assert report["format"] == "piga-gap/1" and report["verdict"] in ("no_gap", "explained", "unexplained",
                                                                        "cannot_tell")  # fmt: skip
     assert report["where"]["maps"]["by_position"] and report["candidates"][0]["name"]
-    assert victor.get(f"/api/gap/{body['id']}").json()["report"]["verdict"] == report["verdict"]
+    kept = victor.get(f"/api/gap/{body['id']}").json()
+    assert kept["report"]["verdict"] == report["verdict"]
     html = victor.get(f"/api/gap/{body['id']}/report")
     assert html.status_code == 200 and "Sim-to-real gap diagnosis" in html.text
+    # It names the session it diagnosed (kept with it), and the panel says how long it took.
+    row = victor.get(f"/api/sessions/{recorded['finished']}").json()["session"]
+    named = {k: row[k] for k in ("uid", "procedure", "instrument_serial")} | {"n_points": report["session"]["n_points"]}
+    assert {k: body["session"][k] for k in named} == named and kept["session"] == body["session"]
+    status = victor.get("/api/gap/status").json()
+    assert status["running"] is False and status["last_elapsed_s"] > 0
+    assert not re.search(r"\d\.0*[1-9]\d{2,}", report["where"]["summary"]), report["where"]["summary"]  # levels rounded
 
 
 def _zip(files: dict[str, bytes]) -> bytes:

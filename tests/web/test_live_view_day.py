@@ -166,6 +166,7 @@ def test_eta_only_while_running_analysing_until_results_and_a_new_start_clears_t
     assert json.loads((out / f"result-{uid1}.json").read_text()) == stored
     exported = read_session(out / f"session-{uid1}")
     assert len(exported.points) == n and exported.provenance["instrument_serial"] == "DAY-1"
+    created = exported.provenance["created_utc"]
 
     # Its page links the report, the certificate (HTML, PDF) and the export, and draws its residuals.
     session_page = page.context.new_page()
@@ -178,6 +179,14 @@ def test_eta_only_while_running_analysing_until_results_and_a_new_start_clears_t
         reply = session_page.request.get(f"{site['url']}{href}")
         assert reply.status == 200 and reply.body()[:9].upper().startswith(starts.upper()), (selector, reply.status)
     expect(session_page.locator("#residuals .chart[data-chart=residuals_radps]")).to_be_visible()
+
+    # Its gap diagnosis says what it diagnoses while it runs, and names the session once done.
+    session_page.click("#links a[href^='/gap']")
+    expect(session_page.locator("#busy")).to_contain_text(f"Diagnosing session {uid1}: ")
+    expect(session_page.locator("#verdict")).to_be_visible(timeout=90_000)
+    expect(session_page.locator("#busy")).to_be_hidden()
+    expect(session_page.locator("#diagnosed")).to_have_attribute("data-uid", uid1)
+    expect(session_page.locator("#diagnosed")).to_contain_text(f"DAY-1, created {created[:10]}")
     session_page.close()
 
     second = post(page, "/api/stations/sim/start", {"procedure": PROCEDURE, "params": quick | {"window_s": 120},

@@ -1,5 +1,5 @@
 // Gap diagnosis of a stored session (?uid=) or an uploaded piga-session/1 zip: verdict, shrink, effects, maps.
-import { api, el, num, showError, start, table } from "/static/common.js";
+import { api, duration, el, num, showError, start, table } from "/static/common.js";
 
 const $ = (id) => document.querySelector(id);
 const error = $("#error");
@@ -43,8 +43,16 @@ function maps(r) {
     el("h3", {}, "By time block"), table(head("block"), rowsOf(m.by_time_block, "block"))];
 }
 
-function show({ id, report: r, shrink }) {
-  $("#result").replaceChildren(
+// Which session the diagnosis is of: its uid (linked to its page where it is stored), procedure, instrument, points.
+function diagnosed(s, id) {
+  const name = s.uid ? el("a", { href: `/sessions/${encodeURIComponent(s.uid)}` }, s.uid) : "an uploaded session";
+  const what = [s.procedure, s.instrument_serial && `instrument ${s.instrument_serial}`,
+    s.created_utc && `created ${s.created_utc.replace("T", " ").slice(0, 19)} UTC`, `${s.n_points} points`].filter(Boolean);
+  return el("p", { id: "diagnosed", dataset: { uid: s.uid || "", gap: id } }, "Diagnosis of session ", name, ` (${what.join(", ")})`);
+}
+
+function show({ id, session: s, report: r, shrink }) {
+  $("#result").replaceChildren(diagnosed(s, id),
     el("h2", {}, "Verdict: ", el("span", { class: `verdict ${r.verdict}`, id: "verdict" }, r.verdict)),
     el("p", {}, r.verdict_text),
     el("p", {}, el("a", { href: `/api/gap/${encodeURIComponent(id)}/report`, target: "_blank" }, "full HTML report")),
@@ -53,14 +61,34 @@ function show({ id, report: r, shrink }) {
     el("h2", {}, "Ranked effects"), candidates(r));
 }
 
-async function run(promise) {
+// While a diagnosis runs (one request, seconds to a minute of CPU): what is diagnosed, the time so far, and the
+// last diagnosis's time on this panel as the only honest expectation.
+async function run(what, promise) {
   error.hidden = true;
+  $("#result").replaceChildren();
+  const status = await api("/api/gap/status").catch(() => ({ last_elapsed_s: null }));
+  const expected = status.last_elapsed_s;
+  const t0 = performance.now();
+  const bar = el("div", { class: "bar-fill" });
+  const line = el("span", {});
+  busy.replaceChildren(line, expected ? el("div", { class: "bar small" }, bar) : "");
+  const tick = () => {
+    const elapsed = (performance.now() - t0) / 1000;
+    line.textContent = `Diagnosing ${what}: ${duration(elapsed)} so far; ` + (expected
+      ? `the last diagnosis on this panel took ${duration(expected)}.`
+      : "a diagnosis refits the twin with every candidate effect, some tens of seconds of CPU.");
+    if (expected) bar.style.width = `${Math.min(100, (100 * elapsed) / expected).toFixed(0)}%`;
+    busy.dataset.elapsedS = elapsed.toFixed(1);
+  };
+  tick();
+  const timer = setInterval(tick, 500);
   busy.hidden = false;
   try {
     show(await promise);
   } catch (err) {
     showError(error, err);
   } finally {
+    clearInterval(timer);
     busy.hidden = true;
   }
 }
@@ -71,9 +99,9 @@ async function main() {
   const form = $("#upload");
   form.addEventListener("submit", (e) => {
     e.preventDefault();
-    run(api("/api/gap", { method: "POST", form: new FormData(form) }));
+    run(`the uploaded ${form.archive.files[0]?.name ?? "session"}`, api("/api/gap", { method: "POST", form: new FormData(form) }));
   });
-  if (uid) run(api(`/api/sessions/${encodeURIComponent(uid)}/gap`));
+  if (uid) run(`session ${uid}`, api(`/api/sessions/${encodeURIComponent(uid)}/gap`));
 }
 
 main();
