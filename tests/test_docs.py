@@ -91,3 +91,12 @@ def test_references_cite_every_seed_the_code_cites() -> None:
     assert cited >= {"000", "001", "002", "003", "004"}
     anchors = _anchors(ROOT / "docs" / "references.md")
     assert not {f"seed-{n}" for n in cited} - anchors, f"docs/references.md lacks {sorted(cited)}"
+
+
+def test_references_quote_the_citations_a_certificate_prints() -> None:
+    from procedures.common.papers import PAPERS
+
+    text = " ".join(_prose(ROOT / "docs" / "references.md").split())
+    for n, citation in PAPERS.items():
+        section = text.split(f"## Seed {n} ")[1].split("## Seed")[0]
+        assert f"A certificate cites it as: {citation}" in section, n

@@ -45,6 +45,8 @@ SIMULATED_LABORATORY = {
 }
 NOT_MEASURED = "not measured"
 NOT_RECORDED = "not recorded"
+CONDITIONS = "3. Calibration and environmental conditions"
+PAPERS_NOTE = "equation, table and figure numbers are the paper's"
 UNBROKEN_CELL = 26  # characters: a PDF table cell this short is one line (no number broken across lines)
 Conformity = Literal["conforms", "does not conform", "not decided", "no limit"]
 
@@ -199,6 +201,8 @@ class Certificate:
     figures: Sequence[tuple[str, Callable[[], Any]]] = ()  # (caption, a maker of a matplotlib figure)
     remarks: Sequence[str] = ()
     simulated: bool = False
+    conditions: Sequence[tuple[str, str]] = ()  # (condition, value): positions, frequencies, amplitude, windows
+    papers: Sequence[str] = ()  # "seed NNN: full citation" of every seed paper the certificate names
     signatures: Sequence[str] = ("Calibrated by", "Reviewed and approved by")
     extra_tables: Sequence[TableText] = field(default_factory=tuple)
 
@@ -276,7 +280,9 @@ _ENV = jinja2.Environment(
 def render_html(cert: Certificate) -> str:
     """The certificate as one self-contained HTML page (figures inline as SVG), print-ready (A4, page numbers)."""
     figures = [(caption, svg(make())) for caption, make in cert.figures]
-    return _ENV.get_template("certificate.html.j2").render(c=cert, figures=figures, result_header=RESULT_HEADER)
+    return _ENV.get_template("certificate.html.j2").render(
+        c=cert, figures=figures, result_header=RESULT_HEADER, conditions=CONDITIONS, papers_note=PAPERS_NOTE
+    )
 
 
 def _png(fig) -> tuple[bytes, float]:
@@ -394,12 +400,15 @@ def render_pdf(cert: Certificate) -> bytes:
 
     story += [section("1. Identification"), tbl(None, cert.identification, [55 * mm, 125 * mm])]
     story += [section("2. Dates"), tbl(None, cert.dates, [55 * mm, 125 * mm])]
-    story += [section("3. Environmental conditions"), tbl(None, cert.environment, [55 * mm, 125 * mm])]
+    story += [section(CONDITIONS), tbl(None, [*cert.conditions, *cert.environment], [55 * mm, 125 * mm])]
     story.append(section("4. Results (expanded uncertainty U = k u, coverage probability about 95 %)"))
     story.append(tbl(RESULT_HEADER, [r.cells() for r in cert.results]))
     story.append(Paragraph(f"<b>Decision rule.</b> {pdf_text(cert.decision_rule)}", small))
     for r in cert.remarks:
         story.append(Paragraph(pdf_text(r), small))
+    if cert.papers:
+        story.append(Paragraph(f"<b>Papers cited</b> ({PAPERS_NOTE})", small))
+        story += [Paragraph(pdf_text(p), small) for p in cert.papers]
     story.append(section("5. Traceability of the references"))
     story.append(tbl(("quantity", "standard uncertainty", "traceability"),
                      [(t["quantity"], t["standard_uncertainty"], t["traceability"]) for t in cert.traceability],

@@ -36,6 +36,7 @@ from procedures.common.certificate import (
     render_pdf,
     result_rows,
 )
+from procedures.common.papers import papers_cited
 from procedures.common.references import traceability
 from procedures.common.uncertainty import COVERAGE_RULE, MIN_RELIABLE_DOF, Budget
 from station.session import Session
@@ -112,6 +113,24 @@ def customer(session: Session, simulated: bool) -> str:
         return SIMULATED_CUSTOMER
     raise CertificateError(f"session {session.meta.get('store_uid') or ''}: provenance.customer is not set: a real "
                            "station's certificate names the customer (station run --customer NAME)")  # fmt: skip
+
+
+def calibration_conditions(session: Session) -> list[tuple[str, str]]:
+    """The conditions the session's windows were measured under: the head's positions, the table's frequencies and
+    amplitude A0 (static windows: the table at rest), the window lengths Tm; the site's latitude and g."""
+    st, points = session.station, session.points
+    out = []
+    if points:
+        positions = sorted({round(p.position_deg, 4) for p in points})
+        out.append(("indexing head positions", f"{len(positions)}: " + ", ".join(f"{x:g}" for x in positions) + " deg"))
+        freqs = sorted({round(p.freq_hz, 4) for p in points if p.freq_hz > 0})
+        static = sum(p.freq_hz <= 0 for p in points)
+        table = [f"{', '.join(f'{f:g}' for f in freqs)} Hz at amplitude A0 = {st.A0_m * 1e3:g} mm"] if freqs else []
+        out.append(("vibration table", "; ".join(table + [f"{static} static windows (table at rest)"] * bool(static))))
+        tm = [p.Tm_s for p in points]
+        out.append(("measurement windows Tm", f"{len(points)} windows, {min(tm):.1f} to {max(tm):.1f} s"))
+    out.append(("site", f"latitude {st.latitude_deg:g} deg, local gravity g = {st.g_mps2:.8g} m/s^2"))
+    return out
 
 
 def environment_conditions(session: Session) -> list[tuple[str, str]]:
@@ -216,7 +235,7 @@ def session_certificate(
     ]
     rows = [r for p in parts for r in result_rows(p.budget.coefficients_json(), spec, prefix=p.prefix,
                                                    suffix=p.suffix, limit_names=p.limit_names)]  # fmt: skip
-    return Certificate(
+    cert = Certificate(
         certificate_id=f"CERT-{uid}",
         title=card.title,
         laboratory=laboratory,
@@ -231,7 +250,12 @@ def session_certificate(
         remarks=_remarks(parts, rows, remarks),
         simulated=simulated,
         extra_tables=extra_tables,
+        conditions=calibration_conditions(session),
     )
+    named = [cert.title, cert.decision_rule, *cert.remarks, *(caption for caption, _ in figures)]
+    tables = [cert.identification, cert.environment, cert.traceability, cert.budgets, cert.extra_tables]
+    cert.papers = papers_cited(named + [repr(t) for t in tables])
+    return cert
 
 
 def certificate_files(cert: Certificate, uid: str) -> dict[str, bytes]:

@@ -132,7 +132,7 @@ def test_certificate_html_has_clause_7_8_content(analysis) -> None:
     assert names == ["certificate-t15-int.html", "certificate-t15-int.pdf"]
     html = a.files["certificate-t15-int.html"].decode()
     for needle in ("Calibration certificate", "CERT-t15-int", "sim-test", "SIM-PIGA-0001", "integral_precession",
-                   "0.1.0+gtest", "tester", "Environmental conditions", "not measured", "Decision rule",
+                   "0.1.0+gtest", "tester", "Calibration and environmental conditions", "not measured", "Decision rule",
                    "ILAC-G8", "Traceability", "gravity survey", "counter time base", "Uncertainty budget",
                    "Signatures", "counter(page)", "SIMULATED", "Welch-Satterthwaite", "Residuals", "<svg"):  # fmt: skip
         assert needle in html, needle
@@ -140,6 +140,17 @@ def test_certificate_html_has_clause_7_8_content(analysis) -> None:
         assert verdict in html
     _no_nan(html)
     _no_nan(a.report_html)
+
+
+def test_the_certificate_states_the_conditions_and_cites_the_paper_in_full(analysis) -> None:
+    _, a = analysis
+    reader = pypdf.PdfReader(io.BytesIO(a.files["certificate-t15-int.pdf"]))
+    text = " ".join(" ".join(page.extract_text() for page in reader.pages).split())
+    assert "indexing head positions 10: 0, 36, 72, 108, 144, 180, 216, 252, 288, 324 deg" in text
+    assert "vibration table 8, 9, 10 Hz at amplitude A0 = 30 mm; 10 static windows (table at rest)" in text
+    assert re.search(r"measurement windows Tm 40 windows, 5\d\d\.\d to 5\d\d\.\d s", text)
+    assert "seed 000: C. Sun, S.-q. Ren, J.-w. Cao, R. Huo: Integral precession calibration method of PIGA" in text
+    assert "seed 001" not in text  # only the papers the certificate names
 
 
 def test_certificate_pdf_says_simulated_on_every_page(analysis, tmp_path: Path) -> None:

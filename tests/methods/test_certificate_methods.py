@@ -27,7 +27,8 @@ import numpy as np
 import pypdf
 import pytest
 
-from procedures.common.certificate import fmt_dof, gum_round, unit_text
+from procedures.common.certificate import CONDITIONS, fmt_dof, gum_round, unit_text
+from procedures.common.papers import PAPERS
 from procedures.common.references import load_references
 from station.engine.registry import Analysis
 
@@ -264,7 +265,7 @@ def test_the_html_has_what_clause_7_8_asks(analysed) -> None:
     method, a, _ = analysed
     html = a.files[f"certificate-c{method}.html"].decode()
     for needle in ("Calibration certificate", f"CERT-c{method}", "sim-cert", "0.1.0+gcert", "tester",
-                   "1. Identification", "2. Dates", "2026-12-02", "3. Environmental conditions", "Decision rule",
+                   "1. Identification", "2. Dates", "2026-12-02", CONDITIONS, "Decision rule",
                    "ILAC-G8", "5. Traceability", "6. Uncertainty budget", "Figures", "<svg", "Signatures",
                    "counter(page)", "SIMULATED", "Welch-Satterthwaite", "JCGM 101"):  # fmt: skip
         assert needle in html, needle
@@ -272,7 +273,8 @@ def test_the_html_has_what_clause_7_8_asks(analysed) -> None:
     for key in REFERENCES[method]:
         assert REFS[key].traceability in text, key
     assert REFS[NOT_THEIRS[method]].quantity not in text  # the method's own references only
-    env = html.split("3. Environmental conditions")[1].split("4. Results")[0]
+    assert f"seed {method}: {PAPERS[method]}" in text  # the method's paper cited in full
+    env = html.split(CONDITIONS)[1].split("4. Results")[0]
     assert ("°C (chamber product sensor" in env) if method == "001" else ("not measured" in env)
     _no_nan(html, "certificate")
     _no_nan(a.report_html, "report")
