@@ -170,6 +170,7 @@ def test_eta_only_while_running_analysing_until_results_and_a_new_start_clears_t
 
     # Its page links the report, the certificate (HTML, PDF) and the export, and draws its residuals.
     session_page = page.context.new_page()
+    session_page.on("pageerror", lambda e: errors.append(str(e)))
     session_page.goto(f"{site['url']}/sessions/{uid1}")
     links = session_page.locator("#links")
     expect(links.locator("a.certificate-pdf")).to_be_visible()

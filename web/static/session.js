@@ -1,5 +1,5 @@
 // A session: summary, coefficients with uncertainties, residual plots, timing capture, events, report and download.
-import { api, appendCertificateLinks, chart, coefficientRows, el, facts, num, session as me, showError, start, table, UNCERTAINTY_NOTE } from "/static/common.js";
+import { api, appendCertificateLinks, chart, coefficientRows, el, facts, num, session as me, showError, start, table, tickLabels, UNCERTAINTY_NOTE } from "/static/common.js";
 
 const uid = decodeURIComponent(location.pathname.split("/").pop());
 const error = document.querySelector("#error");
@@ -31,7 +31,7 @@ function residualCharts(residuals) {
   const n = methods[0][1].residuals_radps.length;
   const x = Array.from({ length: n }, (_, i) => i + 1);
   const colours = ["#1565c0", "#c62828", "#2e7d32"];
-  const values = (u, ticks) => ticks.map((v) => num(v, 2));
+  const decades = (u, ticks) => ticks.map((v) => num(v, 2)); // a log axis: its ticks are a decade's steps
   // Each method on its own scale: the baseline's residuals are about 1000 times the integral method's.
   for (const [title, key, unit, log] of [["Residuals e", "residuals_radps", "rad/s", false],
     ["Proportional residuals |e / (a cos θ)|", "proportional_residuals", "rad/s/g", true]]) {
@@ -42,7 +42,7 @@ function residualCharts(residuals) {
     const scales = { x: { time: false } };
     for (const [m] of methods) scales[m] = log ? { distr: 3 } : {};
     const axes = [{ label: "vibration point" }, ...methods.map(([m], i) => ({ scale: m, side: i ? 1 : 3, size: 80,
-      label: `${m} (${unit})`, values, stroke: colours[i % colours.length], grid: { show: i === 0 } }))];
+      label: `${m} (${unit})`, values: log ? decades : tickLabels, stroke: colours[i % colours.length], grid: { show: i === 0 } }))];
     const ys = methods.map(([, r]) => r[key].map((v) => (log ? Math.abs(v) : v)));
     chart(holder, { title, scales, axes, series: [{ label: "vibration point" }, ...series] }, [x, ...ys]);
   }
