@@ -157,14 +157,20 @@ def measured_span_s(session: Session) -> float | None:
     return max(t) - min(t) if len(t) > 1 else None
 
 
-def _dates(session: Session) -> list[tuple[str, str]]:
+def measurement_duration(session: Session) -> str:
+    """The session's duration as the console and the certificate print it: "6.63 h of station time (40 points)",
+    from the first window's opening to the last one's close (measured_span_s)."""
     span = measured_span_s(session)
+    if span is None:
+        return "no measurement recorded"
     n = len(session.points) or len(session.measurements)
-    what = "points" if session.points else "measurements"
-    duration = NOT_RECORDED if span is None else f"{span / 3600:.2f} h of station time ({n} {what})"
+    return f"{span / 3600:.2f} h of station time ({n} {'points' if session.points else 'measurements'})"
+
+
+def _dates(session: Session) -> list[tuple[str, str]]:
     return [
         ("date of calibration (session start)", or_not_recorded(provenance_of(session).get("created_utc"))),
-        ("duration of the measurements", duration),
+        ("duration of the measurements", measurement_duration(session)),
         ("date of issue", datetime.now(UTC).isoformat(timespec="seconds")),
     ]
 

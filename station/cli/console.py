@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from drivers.config import StationConfig, load_station_config
 from drivers.station import StationDevices, simulated_station
+from procedures.common.session_certificate import measurement_duration
 from station.cli.controller import RunOutcome, StationController, write_run_files
 from station.coefficients import MU_NOTE, UNCERTAINTY_NOTE, coefficient_rows, conclusion, format_rows
 from station.defaults import config_dir, shipped_file
@@ -150,9 +151,8 @@ def run_with_progress(
           f"estimated {plan.total_s / 3600:.2f} h of station time", file=out)  # fmt: skip
     t0 = time.perf_counter()
     outcome = watch(controller, plan, err, analysed=get_procedure(procedure).analyse is not None)
-    station_h = controller.engine.progress.elapsed_s / 3600
-    print(f"{outcome.state}: {station_h:.2f} h of station time in {time.perf_counter() - t0:.1f} s of wall time",
-          file=out)  # fmt: skip
+    measured = measurement_duration(controller.engine.store.load_session(uid, with_raw=False))  # the certificate's
+    print(f"{outcome.state}: {measured} in {time.perf_counter() - t0:.1f} s of wall time", file=out)
     for fault in outcome.faults:
         print(f"  fault: {fault}", file=out)
     return outcome

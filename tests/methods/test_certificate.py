@@ -243,7 +243,7 @@ def test_a_real_stations_certificate_needs_its_laboratory_and_customer(analysis,
     assert "SIMULATED LABORATORY" in html and "SIMULATED CUSTOMER" in html and "set [laboratory]" not in html
 
 
-def test_operator_and_customer_from_the_command_line_are_on_the_certificate(tmp_path: Path) -> None:
+def test_operator_customer_and_duration_from_the_command_line_are_on_the_certificate(tmp_path: Path, capsys) -> None:
     proc = tmp_path / "quick.toml"
     proc.write_text('procedure = "integral_precession"\n[params]\npositions_deg = [0, 72, 144, 216, 288]\n'
                     "freqs_hz = [9, 10]\nwindow_s = 5\nsettle_s = 0\n")  # fmt: skip
@@ -252,3 +252,5 @@ def test_operator_and_customer_from_the_command_line_are_on_the_certificate(tmp_
     (cert,) = out.glob("certificate-*.pdf")
     text = "\n".join(page.extract_text() for page in pypdf.PdfReader(cert).pages)
     assert re.search(r"(?m)^operator\s*\nQ\. Manager$", text) and re.search(r"(?m)^\s*customer\s*\nACME Gyro$", text)
+    console = re.search(r"(?m)^finished: (\d+\.\d\d h of station time \(15 points\)) in ", capsys.readouterr().out)
+    assert console and f"duration of the measurements\n{console[1]}\n" in text  # one duration, console and certificate
