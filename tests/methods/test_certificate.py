@@ -153,6 +153,21 @@ def test_the_certificate_states_the_conditions_and_cites_the_paper_in_full(analy
     assert "seed 001" not in text  # only the papers the certificate names
 
 
+def test_every_value_u_and_limit_of_the_json_is_whole_on_one_line_of_the_pdf(analysis) -> None:
+    """A quality manager reads the PDF: each coefficient's value and U as GUM 7.2.6 rounds them and its limits
+    stand unbroken on a line; no dimensionless number carries the unit '1'; no instruction to a developer."""
+    _, a = analysis
+    reader = pypdf.PdfReader(io.BytesIO(a.files["certificate-t15-int.pdf"]))
+    text = "\n".join(page.extract_text() for page in reader.pages).replace("\xa0", " ")
+    spec = load_instrument_spec()
+    for name, c in json.loads(json.dumps(json_safe(a.results)))["integral"]["coefficients"].items():
+        value, big_u = gum_round(c["value"], c["expanded_uncertainty"])
+        lim = spec.limits[name]
+        for number in (value, big_u, f"[{lim.min:.4g}, {lim.max:.4g}]"):
+            assert re.search(rf"(?m)^{re.escape(number)}$", text), (name, number)
+    assert not re.search(r"(?m)\d 1$", text) and "set [laboratory]" not in text
+
+
 def test_certificate_pdf_says_simulated_on_every_page(analysis, tmp_path: Path) -> None:
     _, a = analysis
     pdf = a.files["certificate-t15-int.pdf"]
