@@ -42,6 +42,7 @@ from procedures.common.uncertainty import COVERAGE_RULE, MIN_RELIABLE_DOF, Budge
 from station.session import Session
 
 SIMULATED_CUSTOMER = "SIMULATED CUSTOMER (a simulated station calibrates no one's instrument)"
+LISTED_POSITIONS = 24  # the conditions list the head's positions one by one up to this many
 BUDGET_COLUMNS = 6  # coefficients per budget table: wider tables do not fit an A4 page
 
 
@@ -122,7 +123,9 @@ def calibration_conditions(session: Session) -> list[tuple[str, str]]:
     out = []
     if points:
         positions = sorted({round(p.position_deg, 4) for p in points})
-        out.append(("indexing head positions", f"{len(positions)}: " + ", ".join(f"{x:g}" for x in positions) + " deg"))
+        listed = ", ".join(f"{x:g}" for x in positions) if len(positions) <= LISTED_POSITIONS else (
+            f"from {positions[0]:g} to {positions[-1]:g}")  # fmt: skip
+        out.append(("indexing head positions", f"{len(positions)}: {listed} deg"))
         freqs = sorted({round(p.freq_hz, 4) for p in points if p.freq_hz > 0})
         static = sum(p.freq_hz <= 0 for p in points)
         table = [f"{', '.join(f'{f:g}' for f in freqs)} Hz at amplitude A0 = {st.A0_m * 1e3:g} mm"] if freqs else []
@@ -213,9 +216,11 @@ def session_certificate(
     environment: Sequence[tuple[str, str]] | None = None,
     identification: Sequence[tuple[str, str]] = (),
     extra_tables: Sequence[TableText] = (),
+    conditions: Sequence[tuple[str, str]] = (),
 ) -> Certificate:
     """The certificate of `session` for the budgets `parts` of the method `card` (its limits from `spec`, else from
-    the card's instrument file); `identification`: rows beside the common ones."""
+    the card's instrument file); `identification`: rows beside the common ones; `conditions`: the method's own
+    before those of the session's points and site."""
     spec = spec or load_instrument_spec(card.instrument_file)
     procedure = f"{session.meta.get('procedure') or card.procedure} {card.procedure_title}"
     prov = provenance_of(session)
@@ -256,7 +261,7 @@ def session_certificate(
         remarks=_remarks(parts, rows, remarks),
         simulated=simulated,
         extra_tables=extra_tables,
-        conditions=calibration_conditions(session),
+        conditions=[*conditions, *calibration_conditions(session)],
     )
     named = [cert.title, cert.decision_rule, *cert.remarks, *(caption for caption, _ in figures)]
     tables = [cert.identification, cert.environment, cert.traceability, cert.budgets, cert.extra_tables]

@@ -69,6 +69,16 @@ def environment(session: Session, r: Readings, points: list[EightPoint]) -> list
     return rows + [row for row in environment_conditions(session) if row[0] != "temperature"]
 
 
+def conditions(r: Readings, points: list[EightPoint]) -> list[tuple[str, str]]:
+    """The tumble's conditions: the head's positions, the strokes at each temperature and the set points."""
+    heads = sorted({position_deg(int(j)) for j in r.J})
+    return [
+        ("optical head positions", f"{len(heads)}: {', '.join(f'{x:g}' for x in heads)} deg (seed 001 Fig. 2)"),
+        ("strokes", f"{int(r.stroke.max())} strokes (forward and back) at each temperature, {r.J.size} readings"),
+        ("chamber set points", ", ".join(map(block_name, points))),
+    ]
+
+
 def _reliability(p: EightPoint) -> str:
     verdict = "no outlier" if p.mu <= p.mu_c else "POSSIBLE OUTLIER: to be reviewed"
     sigma_ug = p.sigma_v / p.cf[1] * 1e6
@@ -97,5 +107,6 @@ def certificate(session: Session, r: Readings, points: list[EightPoint], model: 
         figures=[(RESIDUAL_CAPTION, lambda: residual_figure(r, points))],
         remarks=remarks,
         environment=environment(session, r, points),
+        conditions=conditions(r, points),
         extra_tables=[(laws, TEMPERATURE_HEADER, temperature_rows(model))],
     )

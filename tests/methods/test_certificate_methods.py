@@ -214,6 +214,8 @@ REFERENCES = {
     "003": ("index_harmonic_rad", "latitude_deg", "timer_resolution_s"),
     "004": ("g_mps2", "A0_m", "zs1_z0_m", "axs1_rad", "angular_momentum_kgm2ps", "end_radius_mm", "removal_angle_deg"),
 }
+CONDITION_SHOWN = {"001": "optical head positions", "002": "latitude", "003": "indexing head positions",
+                   "004": "Hz at amplitude A0 = 30 mm"}  # fmt: skip
 NOT_THEIRS = {"001": "imu_gyro_scale", "002": "angular_momentum_kgm2ps", "003": "voltmeter_gain",
               "004": "tumble_head_angle_rad"}  # fmt: skip
 
@@ -276,6 +278,7 @@ def test_the_html_has_what_clause_7_8_asks(analysed) -> None:
     assert f"seed {method}: {PAPERS[method]}" in text  # the method's paper cited in full
     env = html.split(CONDITIONS)[1].split("4. Results")[0]
     assert ("°C (chamber product sensor" in env) if method == "001" else ("not measured" in env)
+    assert CONDITION_SHOWN[method] in env and "site" in env  # the calibration conditions beside the environment
     _no_nan(html, "certificate")
     _no_nan(a.report_html, "report")
     _no_nan(a.summary, "summary")
