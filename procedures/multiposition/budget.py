@@ -51,15 +51,17 @@ def _units(names: tuple[str, ...]) -> dict[str, str]:
     return {n: UNITS.get(n, "") for n in names}
 
 
-def timer_row(fit: Fit, angles_rad: np.ndarray, rates_radps: np.ndarray, Tm_s: np.ndarray, u_s: float) -> Source:
+def timer_row(fit: Fit, angles_rad: np.ndarray, rates_radps: np.ndarray, Tm_s: np.ndarray, timer: Reference) -> Source:
     """The timer resolution, listed: each window's rate w / Tm moves by w u sqrt(2) / Tm (two stamps), through
-    the linear fit K = pinv(X) y, root-sum-square over the windows."""
+    the linear fit K = pinv(X) y, root-sum-square over the windows; the reference's distribution in both columns."""
+    u_s = timer.standard_uncertainty
     X = regressors(np.cos(angles_rad), fit.names)
     du = np.abs(rates_radps) * math.sqrt(2.0) * u_s / np.asarray(Tm_s, dtype=float)
     contribution = np.sqrt(((np.linalg.pinv(X) * du) ** 2).sum(axis=1))
     return Source("timer resolution (two stamps a window)", "B", 0.0, u_s, "s",
                   contribution / u_s if u_s else contribution,
-                  note="already in the fit's scatter (Type A), not added", in_combined=False)  # fmt: skip
+                  note=f"{timer.distribution}; already in the fit's scatter (Type A), not added", in_combined=False,
+                  shape=timer.shape)  # fmt: skip
 
 
 def rate_noise(fit: Fit, head_rad: np.ndarray, aligned_rad: np.ndarray, station: StationInfo,
@@ -113,7 +115,7 @@ def uncompensated_budget(
         return fit_static(angles, rates_radps, fit.names, replace(station, latitude_deg=x["latitude"])).values
 
     rows = refit_sources(inputs, refit)
-    rows.append(timer_row(fit, aligned_rad, rates_radps, Tm_s, refs["timer_resolution_s"].standard_uncertainty))
+    rows.append(timer_row(fit, aligned_rad, rates_radps, Tm_s, refs["timer_resolution_s"]))
     sigma, dof = rate_noise(fit, head_rad, aligned_rad, station, order)
     cov = fit.cov * (sigma / fit.sigma_residual) ** 2 if fit.sigma_residual > 0 else fit.cov
     return fit_budget(fit.names, fit.values, cov, dof, _units(fit.names), rows,
@@ -152,6 +154,6 @@ def compensated_budget(
                    note=f"their covariance through the compensated angles; {fp.fit.dof} dof of the four-pose fit",
                    block_cov=total.cov - fit.cov)  # fmt: skip
     rows = [block, *refit_sources([latitude], refit)]
-    rows.append(timer_row(fit, angles, rates_radps, Tm_s, refs["timer_resolution_s"].standard_uncertainty))
+    rows.append(timer_row(fit, angles, rates_radps, Tm_s, refs["timer_resolution_s"]))
     return fit_budget(fit.names, fit.values, fit.cov, fit.dof, _units(fit.names), rows,
                       f"eq. 49, {fit.dof} dof; compensated angles")  # fmt: skip

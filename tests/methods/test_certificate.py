@@ -115,6 +115,9 @@ def test_result_json_has_gum_fields_covariance_budget_and_provenance(analysis) -
     for b in r["budget"]:
         assert set(b) >= {"source", "type", "value", "standard_uncertainty", "sensitivity", "contribution"}
         assert set(b["contribution"]) == {"kz", "kzz", "ky", "k3"}
+        # one distribution: the shape the budget uses is the one its note states (the timer row said both)
+        stated = re.search(r"\b(rectangular|normal)\b", b["note"])
+        assert stated is None or stated[1] == b["distribution"], b["source"]
     prov = r["provenance"]
     assert prov["session_uid"] == "t15-int" and prov["instrument_serial"] == "SIM-PIGA-0001"
     assert prov["station_id"] == "sim-test" and prov["software_version"] == "0.1.0+gtest"
