@@ -42,7 +42,6 @@ from procedures.integral_precession.identify import (
     Method,
     design,
     identify,
-    point_weights,
 )
 from station.least_squares import fit_joint
 from station.session import PointRecord, Session
@@ -105,7 +104,7 @@ class _Refit:
     def __init__(self, session: Session, result: Identification, values: Mapping[str, float]) -> None:
         self.session, self.method = session, result.method
         self.values = dict(values)
-        self.weights, _ = point_weights(session)
+        self.weights = result.weights
         self.rates, self.index, _, self.names, self.vib = design(session, result.method, self.compensation())
 
     def compensation(self, **changes: float) -> Compensation:

@@ -26,6 +26,7 @@ import numpy as np
 
 from procedures.common.uncertainty import Budget
 from station.least_squares import FitError, JointFit, fit_joint, reliability
+from station.noise_form import form_likelihoods, most_likely, rate_variance_shape
 from station.session import Session
 from station.twin.regressors import (
     BASELINE_COEFFICIENTS,
@@ -38,6 +39,9 @@ from station.twin.window_means import window_means
 Method = Literal["integral", "baseline"]
 COEFFICIENT_UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3": "rad/s/g^3"}
 METHODS: tuple[Method, ...] = ("integral", "baseline")
+# White rate noise (f = 0) is kept unless l(f_best) - l(0) exceeds chi2_1(0.95) / 2: on a 6-position design the
+# form is weakly identified and a free choice under-covers white noise (kzz's z spread 1.54 against 1.24, issue 32).
+WHITE_REJECTED = 1.92
 
 
 @dataclass(frozen=True)
@@ -61,14 +65,20 @@ class Compensation:
 Weighting = Literal["auto", "equal"]
 
 
-def point_weights(session: Session, weighting: Weighting = "auto") -> tuple[np.ndarray, str]:
+def point_weights(
+    session: Session,
+    weighting: Weighting = "auto",
+    method: Method = "integral",
+    compensation: Compensation | None = None,
+) -> tuple[np.ndarray, str]:
     """Relative weights 1 / var of each measured rate for weighted least squares, and how they were chosen.
 
     A per-point `repeatability_radps` column (the stated one-sigma rate repeatability of that
     point) gives w = 1 / r^2; a session-wide `instrument_repeatability_radps` (physics.md: the
-    same for every window) gives equal weights; otherwise the rate noise is taken as white, so
-    the variance of a window-mean rate goes as 1 / Tm and w = Tm. The scale sigma is always
-    estimated from the residuals (eq. 21), so only the ratios matter.
+    same for every window) gives equal weights. Otherwise the form of the rate noise is chosen from
+    the data (station.noise_form, as the gap diagnosis does): a constant per window, white rate noise
+    (the variance of a window-mean rate goes as 1/Tm), or a mixture, T_ref the session's median window.
+    The scale sigma is always estimated from the residuals (eq. 21), so only the ratios matter.
     """
     pts = session.points
     if weighting == "equal":
@@ -85,7 +95,19 @@ def point_weights(session: Session, weighting: Weighting = "auto") -> tuple[np.n
     if session.meta.get("instrument_repeatability_radps") is not None:
         return np.ones(len(pts)), "equal weights: instrument_repeatability_radps is stated, the same for every window"
     tm = np.array([p.Tm_s for p in pts], dtype=float)
-    return tm / tm.mean(), "w = Tm: white rate noise, the variance of a window-mean rate goes as 1/Tm"
+    rates, index, L, names, _vib = design(session, method, compensation)
+    ref_s = float(np.median(tm))
+    ll = form_likelihoods(rates, index, L, names, tm, ref_s)
+    f = most_likely(ll)
+    if ll[0.0] >= ll[f] - WHITE_REJECTED:
+        f = 0.0
+    w = 1.0 / rate_variance_shape(tm, ref_s, f)
+    how = (
+        f"w = 1 / (f + (1 - f) T_ref / Tm), f = {f:g} by profile likelihood (station.noise_form; white noise, "
+        f"f = 0, unless the likelihood ratio rejects it at 5 %), T_ref = {ref_s:.4g} s: the rate noise is not "
+        "stated; f = 0 is white noise (variance as 1/Tm), f = 1 a constant per window"
+    )
+    return w / w.mean(), how
 
 
 @dataclass
@@ -112,6 +134,7 @@ class Identification:
     mu_c_eq28: float = math.nan
     Y_residuals_eq21: np.ndarray = field(default_factory=lambda: np.zeros(0))
     weighting: str = ""
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # relative 1 / var of every measured rate
     budget: Budget | None = None
     # the baseline's first-passage bias per coefficient: (bias, its standard uncertainty); see the module docstring
     first_passage_bias: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -267,7 +290,7 @@ def identify(
     rates, index, L, names, vib = design(session, method, compensation)
     if not vib.any():
         raise FitError("the session has no vibration points: the nonlinear coefficients need vibration")
-    weights, how = point_weights(session, weighting)
+    weights, how = point_weights(session, weighting, method, compensation)
     fit: JointFit = fit_joint(rates, index, L, names, weights=weights)
     mu, mu_c = reliability(fit.residuals * np.sqrt(weights), fit.sigma_residual)
     pts = session.points
@@ -302,4 +325,5 @@ def identify(
         mu_c_eq28=mu_c_seed,
         Y_residuals_eq21=e_seed,
         weighting=how,
+        weights=weights,
     )

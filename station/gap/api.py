@@ -39,7 +39,6 @@ from station.gap.heldout import Folds, HeldOut, heldout, shrink
 from station.gap.identifiability import IdentifiabilityReport, assess, seen_only_at_rest
 from station.gap.localise import Detector, detectors, maps, significant, standardised, where_text
 from station.gap.noise import (
-    RATE_FORM_GRID,
     HonestNoise,
     PureError,
     StatedNoise,
@@ -56,7 +55,8 @@ from station.gap.rawstreams import GratingRecord, PulseRecord, raw_evidence, raw
 from station.gap.report import GapReport, render, summary_text
 from station.gap.subsets import best_subset
 from station.gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide, family_level
-from station.least_squares import FitError, fit_joint
+from station.least_squares import FitError
+from station.noise_form import form_likelihoods, most_likely
 from station.session import Session
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
 
@@ -75,24 +75,17 @@ def _check_fittable(design: PointDesign) -> None:
 
 
 def _rate_form(design: PointDesign, twin: TwinConfig, model: TwinConfig | None = None) -> float:
-    """Constant fraction f of the rate variance (gap.noise) by the profile likelihood of the model refitted
-    (the twin's own, or the twin with the chosen effects: a strong gap in the residuals biases the form).
-
-    l(f) = -(n / 2) ln(RSS_w(f) / n) + (1 / 2) sum ln w_i(f): the weights' shape, sigma0 profiled out."""
+    """Constant fraction f of the rate variance (station.noise_form, shared with identification) by the profile
+    likelihood of the model refitted (the twin's own, or the twin with the chosen effects: a strong gap in the
+    residuals biases the form)."""
     pred = predict(design, model or twin)
     y = design.rate_radps - pred.base_radps
-    best, best_ll = 0.0, -math.inf
-    for f in RATE_FORM_GRID:
-        w = rate_weights(design, twin, constant_fraction=f)
-        try:
-            fit = fit_joint(y, design.level_index, pred.units_radps, CALIBRATED, w)
-        except FitError as exc:
-            raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
-        rss = float(np.sum(w * fit.residuals**2))
-        ll = -0.5 * design.n_points * math.log(max(rss, 1e-300) / design.n_points) + 0.5 * float(np.sum(np.log(w)))
-        if ll > best_ll + 1e-9:
-            best, best_ll = f, ll
-    return best
+    try:
+        ref_s = twin.noise.rate_noise_ref_s
+        ll = form_likelihoods(y, design.level_index, pred.units_radps, CALIBRATED, design.Tm_s, ref_s)
+    except FitError as exc:
+        raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
+    return most_likely(ll)
 
 
 def _channels(

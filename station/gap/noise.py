@@ -10,7 +10,7 @@ where the resolution is not stated);
 Unstated rate noise may be per-window constant (a repeatability) or white rate
 noise that averages down as 1/sqrt(Tm): the window-mean rate of point i has
 variance sigma0^2 (f + (1 - f) T_ref / Tm_i), the fraction f chosen by the
-profile likelihood of the twin refitted (RATE_FORM_GRID), T_ref a reference
+profile likelihood of the twin refitted (station.noise_form, shared with identification), T_ref a reference
 window only; the two time stamps that bound Tm add (wbar_i sigma_tau / Tm_i)^2,
 since wbar = 2 pi P / (16384 Tm). sigma0 is then estimated from the data and
 its own uncertainty carried into the tests (F, never chi-square with it as known):
@@ -35,10 +35,10 @@ import numpy as np
 from scipy import stats
 
 from station.gap.design import GapInputError, PointDesign
+from station.noise_form import rate_variance_shape
 from station.twin.config import TwinConfig
 
 PURE_ERROR_MIN_DOF = 5
-RATE_FORM_GRID = (0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)  # constant fraction f of the rate variance
 
 
 @dataclass(frozen=True)
@@ -111,8 +111,7 @@ def rate_weights(
     constant_fraction: float = 0.0,
 ) -> np.ndarray:
     """w_i = sigma0^2 / var(wbar_i) = 1 / (f + (1 - f) T_ref / Tm_i + (timing sd_i / sigma0)^2)."""
-    f = constant_fraction
-    var = f + (1.0 - f) * twin.noise.rate_noise_ref_s / design.Tm_s
+    var = rate_variance_shape(design.Tm_s, twin.noise.rate_noise_ref_s, constant_fraction)
     if sigma_tau_s > 0 and math.isfinite(sigma0_radps):
         var = var + (timing_rate_sd_radps(design, sigma_tau_s) / sigma0_radps) ** 2
     return 1.0 / var

@@ -10,8 +10,9 @@ minimum within max_window_s is left out of the design. Static windows near a hor
 generation time does not depend on window length (phi is solved period by period).
 
 Noise: each window has a constant rate error eps ~ N(0, sigma) ("per_window": the instrument
-repeatability of physics.md, stated in session.json) or N(0, sigma sqrt(300 s / Tm)) ("white": a
-white rate noise that averages down, never stated as a repeatability); every stamped event has
+repeatability of physics.md, stated in session.json unless state_noise is off) or N(0, sigma sqrt(300 s / Tm))
+("white": a white rate noise that averages down, never stated as a repeatability) or both, half the variance
+each at 300 s ("mixed": never stated); every stamped event has
 Gaussian jitter timing_sigma_s and is counted in 50 ns ticks; grating samples carry white noise
 noise_m and 1 nm steps.
 """
@@ -78,6 +79,7 @@ class Design:
     index_move_s: float = 20.0
     settle_index_s: float = 30.0
     settle_freq_s: float = 15.0
+    window_s: float | None = None  # equal windows: every window's nominal Tm (pulses from its rate), not P revs
 
     def __post_init__(self) -> None:
         if self.family not in FAMILIES:
@@ -164,6 +166,7 @@ def equal_angle_design(
     window_revs: int = 20,
     static_repeats: int = 1,
     max_window_s: float = 3600.0,
+    window_s: float | None = None,
 ) -> Design:
     """A fixed equal-angle design of any size (n_positions x (static_repeats + len(freqs)) windows),
     for sessions larger than random_design draws (e.g. 160 or 640 points)."""
@@ -181,6 +184,7 @@ def equal_angle_design(
         "ascending",
         tuple(points),
         max_window_s=max_window_s,
+        window_s=window_s,
     )
 
 
@@ -189,7 +193,7 @@ class Noise:
     """Noise of the recording (see the module docstring)."""
 
     rate_sigma_radps: float
-    rate_form: str  # "per_window" | "white"
+    rate_form: str  # "per_window" | "white" | "mixed"
     timing_sigma_s: float
     grating_noise_m: float
     tick_s: float = TICK_S
@@ -197,6 +201,8 @@ class Noise:
     def rate_sd(self, tm_nominal_s: float) -> float:
         if self.rate_form == "white":
             return self.rate_sigma_radps * math.sqrt(WHITE_REF_S / tm_nominal_s)
+        if self.rate_form == "mixed":
+            return self.rate_sigma_radps * math.sqrt(0.5 + 0.5 * WHITE_REF_S / tm_nominal_s)
         return self.rate_sigma_radps
 
     def identity_sd(self) -> float:
@@ -269,7 +275,7 @@ def plan_pulses(design: Design, co: Coefficients) -> list[tuple[PointSpec, int, 
     out = []
     for p in design.points:
         r = abs(nominal_rate(co, p.position_deg, p.freq_hz))
-        full = design.window_revs * PULSES_PER_REV
+        full = design.window_revs * PULSES_PER_REV if design.window_s is None else int(r * design.window_s / PULSE_RAD)
         cap = math.floor(r * design.max_window_s / PULSE_RAD)
         pulses = min(full, cap)
         if pulses < (MIN_VIBRATION_PULSES if p.freq_hz else MIN_STATIC_PULSES):
