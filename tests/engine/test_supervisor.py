@@ -30,6 +30,7 @@ from drivers.servo.driver import ABORT_CONNECTION_OPTION, QUICK_STOP_OPTION, Ser
 from drivers.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
 from station.cli.controller import StationController
 from station.clock import WallClock
+from station.engine import registry
 from station.engine.registry import procedure
 from station.engine.runner import State
 from station.engine.steps import Step
@@ -232,12 +233,14 @@ class UncooperativeStep(Step):
         time.sleep(self.block_s)  # wall time: a driver call that hangs, from the engine's point of view
 
 
-@procedure("test.uncooperative", "a step that ignores aborts", [])
 def _uncooperative(params: dict):
     yield UncooperativeStep(8.0, 6.0)
 
 
-def test_an_engine_that_ignores_an_abort_is_stopped_by_the_supervisor_within_its_grace(make_rig) -> None:
+def test_an_engine_that_ignores_an_abort_is_stopped_by_the_supervisor_within_its_grace(make_rig, monkeypatch) -> None:
+    # registered for this test only: the library other tests on this worker see is the shipped one
+    monkeypatch.setattr(registry, "_REGISTRY", registry.load_library())  # a copy, the shipped procedures loaded
+    procedure("test.uncooperative", "a step that ignores aborts", [])(_uncooperative)
     rig = make_rig()
     controller = rig.controller
     controller.supervisor.abort_grace_s = 1.0  # the same rule as ABORT_GRACE_S, at a test's scale
