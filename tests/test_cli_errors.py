@@ -64,6 +64,8 @@ CASES = [
     ("identify {d}/nope", "not a directory"),
     ("identify {d}", "session.json"),
     ("identify {d} --method nope", "invalid choice: 'nope'"),
+    ("certificate {d}/nope --out {d}/c", "no session directory there; for a stored session pass its uid and --db"),
+    ("certificate NOPE --db {d}/nope.sqlite --out {d}/c", "nope.sqlite: no session store there"),
     ("simulate {d}/afile", "afile exists; pass --overwrite to replace it"),
     ("simulate {d}/sim --twin {d}/nope.toml", "no such file"),
     ("sessions --db {d}/nope.sqlite", "no session store there"),

@@ -274,3 +274,14 @@ def certificate_files(cert: Certificate, uid: str) -> dict[str, bytes]:
     report)."""
     stem = f"certificate-{uid or 'session'}"
     return {f"{stem}.html": render_html(cert).encode(), f"{stem}.pdf": render_pdf(cert)}
+
+
+def issue_certificate(build: Callable[[], Certificate | None], uid: str) -> tuple[dict[str, bytes], str]:
+    """The certificate's files, or none and the line that says why not: a session is analysed and reported even
+    when its certificate cannot be issued (a real station without config/laboratory.toml's keys or a customer);
+    `build` returning None (nothing to certify) gives no files and leaves the reason to the procedure."""
+    try:
+        cert = build()
+    except CertificateError as exc:
+        return {}, f"no certificate: {exc}"
+    return ({} if cert is None else certificate_files(cert, uid)), ""

@@ -21,7 +21,7 @@ import math
 import matplotlib.pyplot as plt
 import numpy as np
 
-from procedures.common.session_certificate import certificate_files, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance
 from procedures.integral_precession.alignment import multi_position, two_position
 from procedures.integral_precession.budget import identify_with_budget
 from procedures.integral_precession.design_check import check_design
@@ -120,10 +120,10 @@ def _analyse(session: Session, order: tuple[Method, ...], title: str) -> Analysi
     uid = session.meta.get("store_uid", "")
     html = render_report(session, results, title=f"Session {uid}: {title}", config=params)
     primary = "integral_compensated" if comp is not None else order[0]
-    files = certificate_files(certificate(session, results, primary, procedure_title=title), uid)
+    files, why_not = issue_certificate(lambda: certificate(session, results, primary, procedure_title=title), uid)
     prov = result_provenance(session)
     docs = {m: {**r.to_json(), "provenance": prov} for m, r in results.items()}
-    return Analysis(docs, html, _summary(results), files)
+    return Analysis(docs, html, "\n".join(filter(None, [_summary(results), why_not])), files)
 
 
 def analyse_integral(session: Session) -> Analysis:

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.errors import DriverError
-from procedures.common.session_certificate import certificate_files, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance
 from procedures.integral_precession.alignment import Alignment
 from procedures.multiposition import gravity_field as gf
 from procedures.multiposition.alignment import ALIGNMENT_ANGLES_DEG, horizontal_axis_alignment
@@ -298,10 +298,9 @@ def analyse_gravity_field(session: Session) -> Analysis:
                 coefs = ", ".join(f"{n} = {v:.6e} ± {s:.1e}" for n, v, s in zip(fit.names, fit.values, fit.sigmas,
                                                                                   strict=True))  # fmt: skip
                 lines.append(f"{cal.scheme} {name}: {coefs}; sigma = {fit.sigma_residual:.2e} rad/s")
-    cert = certificate(session, res)
-    if cert is None:
-        lines.append("no certificate: the session has no calibration sequence of A")
-    files = {} if cert is None else certificate_files(cert, uid)
+    files, why_not = issue_certificate(lambda: certificate(session, res), uid)
+    if not files:
+        lines.append(why_not or "no certificate: the session has no calibration sequence of A")
     results = {"gravity_field": res.to_json() | {"provenance": result_provenance(session)}}
     return Analysis(results, html, "\n".join(lines), files)
 

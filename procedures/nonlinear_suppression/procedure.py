@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from procedures.common.session_certificate import certificate_files, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance
 from procedures.nonlinear_suppression import analysis
 from procedures.nonlinear_suppression.budget import with_budget
 from procedures.nonlinear_suppression.certificate import certificate
@@ -273,9 +273,10 @@ def analyse_suppression(session: Session) -> Analysis:
         }
     }
     results["suppression"]["provenance"] = result_provenance(session)
-    cert = certificate(session, s)
-    summary = analysis.summary(s) + ("" if cert else "\nno certificate: no calibration at the best offset or after")
-    files = {} if cert is None else certificate_files(cert, uid)
+    files, why_not = issue_certificate(lambda: certificate(session, s), uid)
+    if not files and not why_not:
+        why_not = "no certificate: no calibration at the best offset or after"
+    summary = "\n".join(filter(None, [analysis.summary(s), why_not]))
     return Analysis(results, analysis.report_html(s, title), summary, files)
 
 

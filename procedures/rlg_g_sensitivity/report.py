@@ -16,7 +16,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from procedures.common.certificate import budget_rows
-from procedures.common.session_certificate import certificate_files, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance
 from procedures.common.uncertainty import merged_json
 from procedures.rlg_g_sensitivity.analysis import FlexureFit, estimate_flexure, run_weights
 from procedures.rlg_g_sensitivity.budget import SEED002_TYPE_B, flexure_budget
@@ -184,5 +184,5 @@ def analyse_session(session: Session) -> Analysis:
         f"(-{c['decrease_pct']:.1f} %)"
         for c in checks
     ]
-    files = certificate_files(certificate(session, fit, budget, calibration, checks), uid)
-    return Analysis(results, html, "\n".join(lines), files)
+    files, why_not = issue_certificate(lambda: certificate(session, fit, budget, calibration, checks), uid)
+    return Analysis(results, html, "\n".join(filter(None, [*lines, why_not])), files)

@@ -20,7 +20,7 @@ import numpy as np
 
 from drivers.errors import DeviceTimeout
 from drivers.voltmeter.protocol import MAX_SAMPLES, NPLC_LIMITS, OVERRANGE, RANGES_V, reading_s
-from procedures.common.session_certificate import certificate_files, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance
 from procedures.tumble.analysis import READING, SOAK, STEP_DEG, analyse_tumble, position_deg, stroke_sequence
 from procedures.tumble.certificate import certificate
 from procedures.tumble.report import render_tumble_report, summary
@@ -263,8 +263,8 @@ def analyse(session: Session) -> Analysis:
     html = render_tumble_report(session, r, points, model, title=f"Session {uid}: eight-point tumble (seed 001)")
     results = {"eight_point": {"temperatures": [p.to_json() for p in points], "provenance": result_provenance(session)},
                "temperature_model": model.to_json()}  # fmt: skip
-    files = certificate_files(certificate(session, r, points, model), uid)
-    return Analysis(results, html, summary(points, model), files)
+    files, why_not = issue_certificate(lambda: certificate(session, r, points, model), uid)
+    return Analysis(results, html, "\n".join(filter(None, [summary(points, model), why_not])), files)
 
 
 @procedure(

@@ -267,7 +267,8 @@ def cmd_certificate(args: argparse.Namespace) -> int:
     spec = get_procedure(name)
     analysis = spec.analyse(session) if spec.analyse is not None else None
     if analysis is None or not any(f.startswith("certificate-") for f in analysis.files):
-        raise ProcedureError(f"procedure {name!r} issues no certificate")
+        why_not = [line for line in (analysis.summary if analysis else "").splitlines() if line.startswith("no certi")]
+        raise ProcedureError(why_not[0] if why_not else f"procedure {name!r} issues no certificate")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     uid = str(session.meta.get("store_uid") or "session")
