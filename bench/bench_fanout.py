@@ -7,7 +7,7 @@ apart from the cases. Machine: 2 cores shared with other work, so the load avera
 
     .venv/bin/python bench/bench_fanout.py [--reps R] [--scheduler ADDRESS]
 
-Simulation path: the session_sim shortcut (not the engine): gap.validate's cases simulate their sessions with
+Simulation path: the session_sim shortcut (not the engine): station.gap.validate's cases simulate their sessions with
 station.twin.session_sim.
 """
 

@@ -21,7 +21,7 @@ the code of another checkout (the figure before a change).
     .venv/bin/python bench/bench_gap.py [--sizes-only]
     .venv/bin/python bench/bench_gap.py --cli [--code /path/to/other/checkout]
 
-Simulation path: the session_sim shortcut (not the engine): station.twin.session_sim (gap.validate's generator),
+Simulation path: the session_sim shortcut (not the engine): station.twin.session_sim (station.gap.validate's generator),
 sessions
 to diagnose; `--cli` reads tests/indep's sessions (the independent generator, neither path).
 """

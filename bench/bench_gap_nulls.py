@@ -4,13 +4,13 @@ Null sessions (no effect) of tests/indep (`indep.cases.make_case(seed, "null")`:
 raw records or not, rate noise 2e-7..5e-6 rad/s per-window or white, timing noise 5e-8..2e-7 s, noise stated
 in session.json or not, every third seed without the stamps' resolution) and the null cases of
 ../shared/gap-devset, diagnosed blind against the default twin. Per case: the verdict and every residual
-test's p-value before any effect (gap.localise; the goodness-of-fit tests of the rate, timing, pulse and grating
+test's p-value before any effect (station.gap.localise; the goodness-of-fit tests of the rate, timing, pulse and grating
 channels among them). Scores:
 
 - family-wise false alarms: a verdict other than `no_gap` (the structure tests, the excess-scatter check and
   the candidates' significance together; the verdict corrects each family for multiplicity);
 - per test: the fraction of nulls on which it is significant at the verdict's Bonferroni level
-  (gap.verdict.family_level(n) / n), and at the nominal 0.01 and 0.05 (a calibration check of its p-value),
+  (station.gap.verdict.family_level(n) / n), and at the nominal 0.01 and 0.05 (a calibration check of its p-value),
   per generator (indep, devset).
 
     .venv/bin/python bench/bench_gap_nulls.py --n 80 --workers 2 --out /tmp/nulls.jsonl

@@ -2,7 +2,7 @@
 
 Records of tests/gap/test_false_alarms.py (a rate 0.5 (1 - 0.9 sin psi + 0.05 cos 2 psi) rad/s at 5 Hz over 2 s,
 ~2600 edges stamped in 50 ns ticks with Gaussian jitter, the angle carrying a random walk of density D: white
-rate noise), each reduced by gap.rawstreams._pulse_lsq. Per D: the mean over the records of each harmonic's
+rate noise), each reduced by station.gap.rawstreams._pulse_lsq. Per D: the mean over the records of each harmonic's
 squared deviation over the variance the pulse test assumes (1 when the model is right; sd sqrt(2 / (6 reps))),
 the same without the walk's term, and the median density the records imply.
 

@@ -8,7 +8,7 @@ One request at a time, as four frames, and one JSON reply:
              body  = {"cmd": ..., "args": {...}, "user": "for whom a delegate (the panel) asks"}
     reply    {"ok": true, "result": ...} | {"ok": false, "error": {"type": ..., "message": ...}}
 
-The station's end is app.control.ControlServer; the panel's is `ControlClient`. A request is
+The station's end is station.cli.control.ControlServer; the panel's is `ControlClient`. A request is
 authenticated (`request_mac` under the station's token, `ensure_token`) before anything is parsed, then
 fresh (its time stamp within FRESH_WINDOW_S of the station's UTC clock) and new (a seq above the last one
 its sender used): a captured frame sent again is refused. Bounded (MAX_REQUEST_BYTES, MAX_DEPTH by

@@ -7,7 +7,7 @@
     s.points, s.measurements, s.events  # DataFrames
     s.results                           # one row per coefficient: value, u, U = k u, unit
     s.result("integral")                # rich display in Jupyter: coefficients with units, the fit check (mu vs mu_c)
-    s.gap()                             # the sim-to-real gap diagnosis (gap.report.GapReport, rich display too)
+    s.gap()                             # the sim-to-real gap diagnosis (station.gap.report.GapReport, rich display too)
 
 Everything is read from the store (SQLite WAL: safe while a station writes). Units are in the
 column names (`_s`, `_hz`, `_deg`, `_radps`); u is the standard uncertainty (k = 1) and U = k u the
@@ -171,7 +171,8 @@ class StoredSession:
 
     def gap(self, twin: Any = None, **options: Any):
         """The sim-to-real gap diagnosis of this session against `twin` (default: the embedded twin);
-        a gap.report.GapReport, which a notebook displays as the HTML report. Options go to gap.api.diagnose."""
+        a station.gap.report.GapReport, which a notebook displays as the HTML report. Options go to
+        station.gap.api.diagnose."""
         from station.gap.api import diagnose
         from station.twin.config import default_twin
 

@@ -131,7 +131,7 @@ def test_every_subcommand_is_covered_and_every_option_has_help():
 
     parsers = {**sub.choices, "gap": gap_parser()}  # `station gap` parses its own arguments (station/gap/api.py)
     for name, p in parsers.items():
-        if name == "gap-validate":  # its parser lives inside gap.validate.main: its --help is checked below
+        if name == "gap-validate":  # its parser lives inside station.gap.validate.main: its --help is checked below
             continue
         for action in p._actions:
             if action.dest != "help":
@@ -139,7 +139,7 @@ def test_every_subcommand_is_covered_and_every_option_has_help():
 
 
 def test_gap_validate_explains_every_option(capsys):
-    """Its parser lives in gap.validate.main: every option in its --help has text, on its line or the next."""
+    """Its parser lives in station.gap.validate.main: every option in its --help has text, on its line or the next."""
     from station.gap.validate import main as validate_main
 
     with pytest.raises(SystemExit):

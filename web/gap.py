@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnoses run by the panel (gap.api.diagnose), kept for a while for their pages.
+"""Sim-to-real gap diagnoses run by the panel (station.gap.api.diagnose), kept for a while for their pages.
 
 A diagnosis takes seconds of CPU: one runs at a time, off the event loop,
 and the last few are kept by id (`session-<uid>` or `upload-<random>`).

@@ -270,7 +270,7 @@ def session_certificate(
 
 
 def certificate_files(cert: Certificate, uid: str) -> dict[str, bytes]:
-    """certificate-<uid>.html and .pdf, as an analysis returns them (app.analysis_job writes them beside the
+    """certificate-<uid>.html and .pdf, as an analysis returns them (station.cli.analysis_job writes them beside the
     report)."""
     stem = f"certificate-{uid or 'session'}"
     return {f"{stem}.html": render_html(cert).encode(), f"{stem}.pdf": render_pdf(cert)}

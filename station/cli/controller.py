@@ -371,7 +371,7 @@ class StationController:
             job.communicate()
 
     def _analyse(self, spec: ProcedureSpec, uid: str) -> tuple[Analysis, Path]:
-        """The procedure's analysis in a child process (app.analysis_job), results into the store."""
+        """The procedure's analysis in a child process (station.cli.analysis_job), results into the store."""
         self.reports_dir.mkdir(parents=True, exist_ok=True)
         report = self.reports_dir / f"report-{uid}.html"
         with self._analyst_lock:

@@ -2,5 +2,5 @@
 
 Entry points: `station.gap.api.diagnose` (a GapReport; `.to_json()`),
 `station.gap.report.render` (the HTML report), `station gap` and
-`station gap-validate` (gap.validate).
+`station gap-validate` (station.gap.validate).
 """

@@ -6,7 +6,7 @@
 Python API (stable; the web panel uses it):
     report = diagnose(session, twin)          # GapReport; raises GapInputError on bad input
     report.to_json()                          # the OUT.json document (plain JSON types)
-    gap.report.render(report)    # the self-contained HTML report
+    station.gap.report.render(report)    # the self-contained HTML report
     report.twin_out                           # the twin with the effect(s) switched on
 
 Steps (issue 3): localise (refit the calibrated coefficients, standardised
@@ -131,7 +131,7 @@ def _coefficients(fit: ModelFit) -> dict:
     return {c: {"value": float(v), "sigma": float(s)} for c, v, s in zip(CALIBRATED, fit.K, fit.K_sigmas, strict=True)}
 
 
-# How a lateral resonance's fr and Q are set (gap.attribute.lateral_profile, lateral_pulse_profile).
+# How a lateral resonance's fr and Q are set (station.gap.attribute.lateral_profile, lateral_pulse_profile).
 PROFILE_METHOD = (
     "set by profile: a grid (fr 0.5-100 Hz in 41 log steps, Q 0.7-50), then a fine one "
     "around its best point: the point whose kx column removes the most chi^2 (lateral_profile); "
@@ -326,7 +326,7 @@ def _attribute(ch: Channels, exclude: Sequence[str], max_effects: int, suggest: 
     dets = detectors(ch, base)
     if base.dof_rate < MIN_DOF:
         return base, ident, dets, Selection([], [], base)
-    # The pulse record rejects a candidate at the level the verdict tests it at (gap.verdict.residual_checks).
+    # The pulse record rejects a candidate at the level the verdict tests it at (station.gap.verdict.residual_checks).
     pulse_level = family_level(len(dets)) / max(len(dets), 1)
     names, drop = ident.fittable(), ident.dropped
     greedy = forward_select(lin, base, names, drop, max_effects, pulse_level)
@@ -353,7 +353,7 @@ def _attribution(
 
 def _honest_noise(ch: Channels, final: ModelFit, pe: PureError | None, dets_after: list[Detector]) -> HonestNoise:
     """The rate noise sigma0: as the session states it, else from the pure error of repeats or the final model's
-    residuals less the structure its significant rate tests find (gap.noise.honest_noise)."""
+    residuals less the structure its significant rate tests find (station.gap.noise.honest_noise)."""
     if ch.rate_sigma_known:
         return HonestNoise(ch.sigma0_radps, 0, "stated by the session (instrument_repeatability_radps)")
     structure = [d.basis for d in significant(dets_after, ALPHA) if d.basis is not None and d.channel == "rate"]
@@ -407,7 +407,7 @@ def _verdict(
     h_final: HeldOut,
     rest_only: dict[str, list[str]],
 ) -> Verdict:
-    """The verdict (gap.verdict.decide) on the attribution, the tests after it and the held-out gaps."""
+    """The verdict (station.gap.verdict.decide) on the attribution, the tests after it and the held-out gaps."""
     base, ident, dets_before, selection = attribution
     heldout_after, heldout_rows = (h_final.G, h_final.se), (h_base.n_rows, h_final.n_rows)
     shrunk = shrink(h_base, h_final)

@@ -2,8 +2,8 @@
 
 Forward selection. At each step every candidate not yet chosen (and with at
 least one parameter the calibrated terms do not absorb:
-gap.identifiability) is fitted jointly with the calibrated
-coefficients and the effects already chosen (gap.fit.fit_model), then
+station.gap.identifiability) is fitted jointly with the calibrated
+coefficients and the effects already chosen (station.gap.fit.fit_model), then
 - evidence: the F-test of the rate channel, F = (dRSS / m) / (RSS / dof),
   with m the candidate's fitted rate parameters; for the other channels (period
   identities, grating harmonics) the chi-square test of their d chi^2 with as
@@ -12,10 +12,10 @@ coefficients and the effects already chosen (gap.fit.fit_model), then
 - information criterion: BIC = n_r ln(RSS_r / n_r) + chi^2_other + k ln(n_rows).
 A candidate is accepted when its p-value is below ALPHA / (number tested at that
 step) (Bonferroni), it lowers the BIC and every fitted parameter is within its
-physically plausible bound (gap.candidates, at 2 sigma); among those the lowest
-BIC wins unless the pulse record (gap.rawstreams.PulseRecord, when the session has one) rejects it:
+physically plausible bound (station.gap.candidates, at 2 sigma); among those the lowest
+BIC wins unless the pulse record (station.gap.rawstreams.PulseRecord, when the session has one) rejects it:
 each such candidate's fitted twin is tested against the rate harmonics of the pulse edges
-(gap.localise.pulse_goodness_of_fit) at the verdict's level, and one that leaves them
+(station.gap.localise.pulse_goodness_of_fit) at the verdict's level, and one that leaves them
 significantly inconsistent is rejected (`rejected_by` names the test) and the next one is tried;
 when the pulse record rejects every one, the rates' best is taken (the pulses may show a second
 effect still missing, as in a pair: the verdict's own pulse test, after the selection, decides).
@@ -136,7 +136,7 @@ class Selection:
     steps: list[list[Scored]]  # every candidate scored at each step, best BIC first
     final: ModelFit
     capped: bool = False  # a further effect would still be accepted beyond max_effects
-    alternatives: list[list[str]] = field(default_factory=list)  # other models reproducing it (gap.subsets)
+    alternatives: list[list[str]] = field(default_factory=list)  # other models reproducing it (station.gap.subsets)
 
     @property
     def effects(self) -> list[str]:

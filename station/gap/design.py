@@ -3,7 +3,7 @@
 Bad input is refused with a clear message (issue 3, point 8): here a session
 from another station geometry, an empty one, or vibration points without
 timing capture; too few points for the calibrated coefficients in
-gap.api.
+station.gap.api.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ class PointDesign:
 
     @property
     def level_index(self) -> np.ndarray:
-        """Index of each point's free static level: one bias k0 for the whole session (gap.forward)."""
+        """Index of each point's free static level: one bias k0 for the whole session (station.gap.forward)."""
         return np.zeros(self.n_points, dtype=np.int64)
 
     @property

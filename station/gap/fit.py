@@ -1,15 +1,15 @@
 """Joint fit of candidate effects with the calibrated coefficients (never to a frozen residual).
 
-Model of every recorded rate (gap.forward):
+Model of every recorded rate (station.gap.forward):
 
     wbar_i = k0 + base_i(p) + units_i(p) . K          (K = kz, kzz, ky, k3)
 
 of every period identity, tau_i = Np_i (T_true - T_cmd)(p), and of the grating's
-harmonics at every point with a raw record (gap.rawstreams.GratingRecord): rate
+harmonics at every point with a raw record (station.gap.rawstreams.GratingRecord): rate
 rows, then timing rows, then grating rows, each whitened by its own noise. For given
 effect parameters p the bias k0 (the one free level) and K follow by the weighted joint
 least squares of station.least_squares.fit_joint (weights from
-gap.noise), so the calibrated terms are refitted at every p (variable
+station.gap.noise), so the calibrated terms are refitted at every p (variable
 projection). p is fitted with finite-difference columns of the exact forward
 model: the columns at the twin's own values are computed once per session
 (`Linearisation`) and give every candidate a first linear step, which is the
@@ -48,14 +48,14 @@ class Channels:
 
     design: PointDesign
     twin: TwinConfig
-    weights: np.ndarray  # sigma0^2 / var(wbar_i) (gap.noise.rate_weights)
+    weights: np.ndarray  # sigma0^2 / var(wbar_i) (station.gap.noise.rate_weights)
     sigma0_radps: float  # rate noise at T_ref used for whitening
     sigma_tau_s: float
     grating: GratingRecord | None = None
-    constant_fraction: float = 0.0  # of the rate variance (gap.noise)
+    constant_fraction: float = 0.0  # of the rate variance (station.gap.noise)
     rate_sigma_known: bool = False  # stated by the session: chi-square tests of the rate rows
     tau_sigma_known: bool = False
-    pulses: PulseRecord | None = None  # rate harmonics of the pulse edges: tested (gap.localise), not fitted
+    pulses: PulseRecord | None = None  # rate harmonics of the pulse edges: tested (station.gap.localise), not fitted
 
     @property
     def n_rate(self) -> int:

@@ -10,7 +10,7 @@ the window mean of d t_session.
 
 The model is linear in the instrument coefficients, so it is returned as a
 base (k0 and every calibrated coefficient zero; earth rate and effects kept)
-plus one unit column per calibrated coefficient; the fit (gap.fit) takes the
+plus one unit column per calibrated coefficient; the fit (station.gap.fit) takes the
 bias k0 and the coefficients from there by linear least squares. Every column
 is the absolute window mean, static points included: the static rate of a
 position is what the twin predicts there (k0 + kz c + kzz c^2 + ky (1 - c^2) +

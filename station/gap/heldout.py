@@ -7,7 +7,7 @@ Three schemes: leave one position out, leave one frequency out (static points
 are a "frequency" of their own), leave one block of the run order out (BLOCKS
 contiguous blocks of points).
 
-For a fitted model with whitened Jacobian J and residual r (gap.fit), each
+For a fitted model with whitened Jacobian J and residual r (station.gap.fit), each
 fold is the model linearised at the full-data estimate refitted on the
 training rows (one Gauss-Newton step: exact for k0 and K, and for effects that
 are linear in their parameters), in closed form from one QR factorisation
@@ -15,7 +15,7 @@ J = Q R of all rows: with H_gg = Q_g Q_g^T the hat matrix of the held-out rows
 g, the held-out residual is e_(-g) = (I - H_gg)^-1 r_g and its predictive
 covariance (I - H_gg)^-1 = I + J_g (J_T^T J_T)^-1 J_g^T (Woodbury), so
 z_i^2 = e_(-g),i^2 / [(I - H_gg)^-1]_ii: a standardisation by the predictive
-variance sigma_i^2 + x_i^T Cov x_i with sigma_i the honest noise (gap.noise).
+variance sigma_i^2 + x_i^T Cov x_i with sigma_i the honest noise (station.gap.noise).
 The cost is one factorisation plus a |g| x |g| solve per fold: linear in points.
 
 Metric: G = mean over held-out rows of z^2, minus 1 (0 when the model is

@@ -1,6 +1,6 @@
 """Identifiability of each candidate in the session's design, before any ranking.
 
-For every candidate parameter, its whitened column J_p (gap.fit.Linearisation)
+For every candidate parameter, its whitened column J_p (station.gap.fit.Linearisation)
 is projected onto the orthogonal complement of the calibrated terms' columns
 (the bias k0 and kz, kzz, ky, k3): r_p = P_perp J_p. Then
 - rho = |r_p| / |J_p'| is the fraction of its signature that the calibrated
@@ -122,7 +122,7 @@ class CandidateId:
     def identifiable(self) -> bool:
         """Some parameter keeps a signature off the calibrated terms. Near-collinearity with another candidate
         is reported (collinear_with) but decides nothing: whether a rival reproduces this one's fit within its
-        plausible bounds on every channel is judged on the fits (gap.attribute)."""
+        plausible bounds on every channel is judged on the fits (station.gap.attribute)."""
         return bool(self.kept)
 
     @property
@@ -301,7 +301,7 @@ def assess(lin: Linearisation, suggest: bool = True, has_raw: bool = False) -> I
 # A parameter is seen only at rest when its signature per vibration row is below this fraction of its
 # signature per static row (and so are the period identities' and the grating's, in information).
 REST_ONLY_RATIO = 0.1
-# Its fit carries the effect when |value| / sd exceeds the two-sided 1-dof test at ALPHA (gap.attribute).
+# Its fit carries the effect when |value| / sd exceeds the two-sided 1-dof test at ALPHA (station.gap.attribute).
 REST_ONLY_Z = float(stats.norm.isf(ALPHA / 2))
 PULSE_TEST_HOW = "the pulse record (raw pulse_t with pulse_dir at vibration points) would test it"
 

@@ -1,7 +1,7 @@
 """Where the gap lies: standardised residuals, their maps, and tests for structure in them.
 
 Standardised residual of point i under a fitted model (whitened by the honest
-noise, gap.noise): z_i = e_i / (sigma_i sqrt(1 - h_ii)), h_ii the
+noise, station.gap.noise): z_i = e_i / (sigma_i sqrt(1 - h_ii)), h_ii the
 leverage of the joint fit. Maps: position x frequency, static vs vibration,
 run order (time blocks), and the period identity of the timing capture.
 
@@ -247,7 +247,7 @@ def _profile_phase(
 
 
 def pulse_goodness_of_fit(ch: Channels, fit: ModelFit) -> Detector | None:
-    """Chi-square of the pulse edges' rate harmonics against the fitted twin (gap.rawstreams.PulseRecord).
+    """Chi-square of the pulse edges' rate harmonics against the fitted twin (station.gap.rawstreams.PulseRecord).
 
     The prediction's uncertainty is carried in: G Cov G^T with G = d(harmonics)/d(K, effect parameters) by
     forward differences (linear in K; the effects' own fd steps), Cov the fit's covariance of K and a prior as

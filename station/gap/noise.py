@@ -19,7 +19,7 @@ its own uncertainty carried into the tests (F, never chi-square with it as known
   any model gap that repeats share), when it has PURE_ERROR_MIN_DOF dof;
 - otherwise from the residuals of the final model, sigma0^2 = sum w_i e_i^2 / dof
   (seed 000 eq. 21 with these weights), after the generic structure that the
-  structure tests found significant (gap.localise) is taken out too,
+  structure tests found significant (station.gap.localise) is taken out too,
   so that a gap the library does not explain is not mistaken for noise.
 The period identity tau = t2 - t1 + Tm - Np T has the noise of two time
 stamps: sigma_tau is estimated from its scatter once a single frequency error

@@ -114,7 +114,7 @@ ROWS_PER_RECORD = 7  # six harmonics and the record's own frequency error
 
 @dataclass(frozen=True)
 class GratingRecord:
-    """The grating at every vibration point with a raw record: a channel of the fit (gap.fit).
+    """The grating at every vibration point with a raw record: a channel of the fit (station.gap.fit).
 
     measured[k] = (Zs1 + A0, Zc1, Zs2, Zc2, Zs3, Zc3, eps_g) of point index[k]: the harmonics (m)
     read in the apparent crank phase w_m (t - t_ref), and the frequency error eps_g = w_g / w_cmd - 1

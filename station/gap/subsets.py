@@ -1,19 +1,19 @@
 """Models the greedy forward selection does not reach: a pair of effects against one candidate absorbing both.
 
-Forward selection (gap.attribute) adds at each step the candidate that lowers the BIC most. A candidate with
+Forward selection (station.gap.attribute) adds at each step the candidate that lowers the BIC most. A candidate with
 many parameters can absorb two weaker effects at once and end the selection: on 6 positions the four index
 harmonics the design can fit take any static pattern over the positions, a mount tilt's and a bias drift's
 alike (../shared/gap-devset case c05bc5fc: index_harmonics chosen, BIC -1005.0, against -1008.6 for
 mount_misalignment + bias_drift).
 
 Every pair of the first step's POOL best candidates within their bounds that lower the BIC alone is fitted
-jointly with the calibrated coefficients (gap.fit.fit_model); pairs with the greedy's first choice are left
+jointly with the calibrated coefficients (station.gap.fit.fit_model); pairs with the greedy's first choice are left
 out (its next step scored them). A pair is a model when each member is significant given the other (the
-test of gap.attribute.score at ALPHA / pairs, and a lower BIC), every parameter is within its plausible bound
+test of station.gap.attribute.score at ALPHA / pairs, and a lower BIC), every parameter is within its plausible bound
 and the pulse record (when there is one) does not reject the fit. Among the greedy choice and these models
 the lowest BIC wins, and the selection continues from it; every other one that reproduces it on every
 channel (chi^2, rate rows in its sigma^2, within REPRODUCE_CHI2: the rule of a rival) is an alternative:
-the session cannot tell them apart (gap.verdict names them all).
+the session cannot tell them apart (station.gap.verdict names them all).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ def _pool(step: list[Scored], skip: str) -> list[Scored]:
 
 
 def _pair(lin: Linearisation, a: Scored, b: Scored, drop: frozenset[str], n_pairs: int):
-    """The pair (a, b) as a model: (its Scored members, a first, and its fit), or None (gap.subsets docstring;
+    """The pair (a, b) as a model: (its Scored members, a first, and its fit), or None (station.gap.subsets docstring;
     the pulse test is left to the caller)."""
     over = {s.name: s.profiled for s in (a, b) if s.profiled}
     fit = fit_model(lin, [a.name, b.name], drop=drop, fixed_override=over)
@@ -98,7 +98,7 @@ def best_subset(
     level: float,
 ) -> Selection:
     """The greedy selection, or the pair model of lower BIC continued by forward selection; either way with
-    the models that reproduce it as its alternatives (gap.subsets docstring). level: the pulse test's."""
+    the models that reproduce it as its alternatives (station.gap.subsets docstring). level: the pulse test's."""
     if not greedy.chosen or not greedy.steps or max_effects < 2:
         return greedy
     models = _models(lin, greedy, drop, level)

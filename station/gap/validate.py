@@ -216,7 +216,7 @@ def scaled_injection(d: PointDesign, twin: TwinConfig, effect: str, snr: float) 
 
 
 def within_bounds(d: PointDesign, effect: str, params: dict[str, float]) -> dict[str, float]:
-    """The injection scaled down, if need be, to the candidate's plausible bounds (gap.candidates; its joint
+    """The injection scaled down, if need be, to the candidate's plausible bounds (station.gap.candidates; its joint
     bound, such as the waveform's Zs1(w) = z0 + z1 w, at the design's frequencies too), as tests/indep's
     STRENGTH_CAP = 1: a design that needs more for the SNR asked gets less (the case records the SNR it reached)."""
     cand = cl.LIBRARY[effect]

@@ -2,10 +2,10 @@
 
 Evidence of a gap (before any effect is added), two families each at level
 ALPHA with a Bonferroni correction inside it:
-- a library candidate significant in the forward selection (gap.attribute), accepted or
+- a library candidate significant in the forward selection (station.gap.attribute), accepted or
   rejected by another test (beyond its plausible bounds, or by the pulse record);
 - the residual checks: the structure tests on the twin's residuals
-  (gap.localise) and excess scatter, the residual noise of the fit
+  (station.gap.localise) and excess scatter, the residual noise of the fit
   against a reference: the pure error of repeats when there are any
   (lack-of-fit F test), else the twin's own noise model (chi-square test);
   none when neither exists.
@@ -13,9 +13,9 @@ ALPHA with a Bonferroni correction inside it:
 significant, the held-out gap shrank by at least
 MIN_SHRINK (when there was a held-out gap to shrink), and each effect is one
 this design can tell from the others: no rival reproducing its fit within its bounds on
-every channel (gap.attribute), no alternative model reproducing the chosen set (gap.subsets),
+every channel (station.gap.attribute), no alternative model reproducing the chosen set (station.gap.subsets),
 and none of its significant parameters is one that only the static points see where the
-session has no pulse record to test it (gap.identifiability.seen_only_at_rest). Parameters
+session has no pulse record to test it (station.gap.identifiability.seen_only_at_rest). Parameters
 the design does not fix (absorbed, aliased, unseen) are named as undetermined; one effect
 whose held-out points alone fix some of its parameters is still `explained`, and says so.
 "cannot_tell": the effects that explain the gap are ones this design cannot tell
@@ -43,7 +43,7 @@ from station.gap.localise import Detector, significant
 MIN_SHRINK = 0.5
 MIN_DOF = 4
 # The chosen effects leave more than this fraction of the held-out rows that the twin predicts unpredictable
-# (gap.heldout.UNPREDICTABLE_EIG): the design fixes their parameters only with the held-out points themselves.
+# (station.gap.heldout.UNPREDICTABLE_EIG): the design fixes their parameters only with the held-out points themselves.
 MAX_UNPREDICTABLE = 0.1
 # Held-out rows of a right model are chi-square_1 (se of their mean sqrt(2 / rows)). The limit is loose:
 # a nonlinear effect fitted on a grid (lateral fr, Q) leaves up to ~6 se at SNR 30 on tests/indep sessions,
@@ -135,7 +135,7 @@ def _look_alikes(selection: Selection) -> dict[str, list[str]]:
 
 def _rejected(selection: Selection) -> list[str]:
     """Candidates that the rates would accept but another test rejects: parameters beyond their plausible
-    bounds, or the pulse record (gap.attribute): those of the last step, and chosen ones the pulses reject
+    bounds, or the pulse record (station.gap.attribute): those of the last step, and chosen ones the pulses reject
     (taken because the pulses rejected every candidate of their step)."""
     if not selection.steps:
         return []
@@ -232,7 +232,7 @@ def _seen_only_at_rest(
     """The chosen effects fit the gap through parameters the session sees only at rest: `cannot_tell` naming
     them with the library's look-alikes (among them chosen exact aliases: a mount tilt carrying the rocking's ax0);
     without one it is `unexplained` (out-of-library motions with that rest value fit the same:
-    gap.identifiability.seen_only_at_rest), never `explained`."""
+    station.gap.identifiability.seen_only_at_rest), never `explained`."""
     why = _rest_only_text(rest_only)
     if len(named) > len(effects) or _aliases_chosen(effects):
         text = f"cannot tell with this design ({sh}): with {', '.join(effects)}, {why}{alike}{_separating_text(sep)}"
@@ -249,7 +249,7 @@ def _accepted_verdict(
     heldout_rows: tuple[int, int] | None,
 ) -> Verdict:
     """The verdict once the chosen effects leave no residual check significant: `explained`, or `cannot_tell`
-    naming the effects with every look-alike and alternative model that reproduces them (gap.verdict docstring);
+    naming the effects with every look-alike and alternative model that reproduces them (station.gap.verdict docstring);
     one effect whose parameters the design does not all fix is `explained` with those marked undetermined."""
     effects = selection.effects
     alike = _look_alikes(selection)
@@ -340,7 +340,7 @@ def decide(
     rest_only: dict[str, list[str]] | None = None,
     heldout_rows: tuple[int, int] | None = None,
 ) -> Verdict:
-    """The verdict; heldout_after = (G, se) of the held-out gap with the chosen effects (gap.heldout);
+    """The verdict; heldout_after = (G, se) of the held-out gap with the chosen effects (station.gap.heldout);
     rest_only: chosen effects' significant parameters seen only at rest, untested by a pulse record;
     heldout_rows: the held-out rows predictable by the twin and by the model with the effects."""
     if dof < MIN_DOF:

@@ -1,7 +1,7 @@
 """Shared, seeded sessions for the gap-diagnosis tests, each simulated and diagnosed once per run.
 
 The "real" sessions are the twin with an effect injected at a given signal-to-noise
-ratio after the calibrated terms are projected out (gap.validate), so
+ratio after the calibrated terms are projected out (station.gap.validate), so
 every tolerance below can be stated in units of the noise.
 """
 

@@ -1,6 +1,6 @@
 """Issue 28, deliverable 2: `cannot_tell` always names at least two effects (the chosen ones with the look-alikes
 and alternative models that reproduce them), each in its text, and explains none; one effect alone is
-`explained` (its undetermined parameters marked) or `unexplained` with the reason. gap.verdict.Verdict refuses
+`explained` (its undetermined parameters marked) or `unexplained` with the reason. station.gap.verdict.Verdict refuses
 any other `cannot_tell` when it is made, so every diagnosis in the suite is checked; here the rule itself, and
 sessions of tests/indep of the kinds the held-out set answered `cannot_tell` with one effect (index_harmonics,
 parasitic_rotation) on its design families.

@@ -40,7 +40,7 @@ def test_devset_case_is_scored_right(case_id: str) -> None:
 
 @pytest.mark.parametrize("case_id", bench.case_ids())
 def test_devset_cannot_tell_names_two_effects_or_more(case_id: str) -> None:
-    """Issue 28, deliverable 2, on every case (gap.verdict.Verdict refuses it when made; asserted here too):
+    """Issue 28, deliverable 2, on every case (station.gap.verdict.Verdict refuses it when made; asserted here too):
     a `cannot_tell` names at least two effects, each in its text, and explains none."""
     r = _row(case_id)
     if r["verdict"] == "cannot_tell":

@@ -1,4 +1,4 @@
-"""The pulse edges of the raw records count in the verdict (issue 10 item 1): gap.rawstreams.PulseRecord.
+"""The pulse edges of the raw records count in the verdict (issue 10 item 1): station.gap.rawstreams.PulseRecord.
 
 The rate harmonics that the edges give are tested against the fitted twin with their own noise (the edges'
 scatter, the phase error of the reference stamp) and the prediction's uncertainty (the refitted K and

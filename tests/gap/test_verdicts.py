@@ -1,7 +1,7 @@
 """Each verdict reached on simulated seed-000 sessions, with tolerances in units of the noise.
 
 Effects are injected at SNR 15 after the calibrated terms are projected out
-(gap.validate.scaled_injection), so for a one-parameter effect the
+(station.gap.validate.scaled_injection), so for a one-parameter effect the
 fitted value over its uncertainty must be about 15 too (|p| / sigma_p is the
 same projected norm); sigma0 is estimated from about 25 residual dof, so
 that ratio is allowed 0.7x to 1.4x.

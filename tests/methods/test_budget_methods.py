@@ -405,7 +405,8 @@ def test_seed004_monte_carlo_coverage() -> None:
 
 
 def test_procedure_analyses_of_seeds_001_and_004_write_the_budget_in_their_results() -> None:
-    """What app.analysis_job prints: the procedure's analyse(session) results, JSON-safe, with the GUM fields."""
+    """What station.cli.analysis_job prints: the procedure's analyse(session) results, JSON-safe, with the GUM
+    fields."""
     import json
 
     from procedures.nonlinear_suppression.analysis import AFTER_REMOVAL, AT_BEST, SWEEP, servo_offset_measurement

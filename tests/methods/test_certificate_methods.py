@@ -1,7 +1,8 @@
 """Every method's analysis writes a calibration certificate (issue 15, ISO/IEC 17025 7.8): seeds 001-004.
 
 Each method's simulated session is made from its twin path (no station: seconds, not minutes), stamped with a
-simulated provenance and analysed by the procedure's own analyse(), as app.analysis_job runs it. Its files must be
+simulated provenance and analysed by the procedure's own analyse(), as station.cli.analysis_job runs it. Its files
+must be
 certificate-<uid>.html and .pdf; the certificate must state every headline coefficient of the results JSON with
 the same value, U and k, the conformity of each under the stated decision rule, the traceability of the method's
 own references, the environment (or "not measured"), the budget tables and figures, the signatures; every PDF

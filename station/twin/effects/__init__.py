@@ -2,8 +2,9 @@
 
 `EFFECTS` lists them in the table's order, each module's `EFFECT` (station.twin.effects.base.Effect). The twin
 (station.twin.config, station.twin.inputs, station.twin.measurement), the gap diagnosis's candidates
-(gap.candidates), its
-validation (gap.validate) and report (gap.report) take everything about an effect from there. Adding an effect
+(station.gap.candidates), its
+validation (station.gap.validate) and report (station.gap.report) take everything about an effect from there. Adding
+an effect
 is a module here, its line below and its tests (README, "Adding an effect"); `registered` adds one for a test.
 """
 
