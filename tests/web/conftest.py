@@ -142,7 +142,8 @@ def login(client: TestClient, name: str) -> TestClient:
 def tools() -> SimpleNamespace:
     """This file's helpers, for the test modules (which cannot import conftest)."""
     return SimpleNamespace(start_station=start_station, stop_process=stop_process, free_port=free_port,
-                           write_users=write_users, serving_panel=serving_panel, screenshots=SCREENSHOTS)  # fmt: skip
+                           write_users=write_users, serving_panel=serving_panel, serving_site=serving_site,
+                           screenshots=SCREENSHOTS)  # fmt: skip
 
 
 @pytest.fixture(scope="session")
@@ -183,6 +184,19 @@ def serving_panel(config: PanelConfig) -> Iterator[str]:
     finally:
         server.should_exit = True
         thread.join(10)
+
+
+@contextmanager
+def serving_site(home: Path, speed: float) -> Iterator[dict]:
+    """A served simulated station at `speed` and a panel on it while the block runs: {"url", "station"}."""
+    station = start_station(home / "station", speed=speed)
+    config = PanelConfig(users=write_users(home / "users.json"), audit_log=home / "audit.jsonl",
+                         stations=(station.entry,))  # fmt: skip
+    try:
+        with serving_panel(config) as url:
+            yield {"url": url, "station": station}
+    finally:
+        stop_process(station.proc)
 
 
 @pytest.fixture(scope="module")

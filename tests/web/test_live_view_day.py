@@ -21,7 +21,6 @@ from playwright.sync_api import Browser, Page, expect
 from drivers.station import GRATING_RATE_HZ, TRACE_SAMPLES_PER_WALL_S, display_divider
 from station.interchange import read_session
 from station.store import SessionStore
-from web.config import PanelConfig
 
 SPEED = 100.0
 UI_TIMEOUT_MS = 30_000
@@ -75,15 +74,8 @@ def test_axis_labels_tell_neighbouring_ticks_apart(tmp_path):
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory, tools) -> Iterator[dict]:
-    home = tmp_path_factory.mktemp("day")
-    station = tools.start_station(home / "station", speed=SPEED)
-    config = PanelConfig(users=tools.write_users(home / "users.json"), audit_log=home / "audit.jsonl",
-                         stations=(station.entry,))  # fmt: skip
-    try:
-        with tools.serving_panel(config) as url:
-            yield {"url": url, "station": station}
-    finally:
-        tools.stop_process(station.proc)
+    with tools.serving_site(tmp_path_factory.mktemp("day"), SPEED) as served:
+        yield served
 
 
 def operator_page(browser: Browser, url: str, password: str) -> Page:

@@ -19,7 +19,6 @@ import pytest
 from playwright.sync_api import Locator, Page, expect
 
 from station.store import SessionStore
-from web.config import PanelConfig
 
 SPEED = 200.0  # station seconds per wall second: a 10-point session takes a few seconds of wall time
 DESIGN = {"positions_deg": "0, 72, 144, 216, 288", "freqs_hz": "10", "window_s": "30", "settle_s": "2"}  # 10 points
@@ -34,15 +33,8 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory, tools) -> Iterator[dict]:
-    home = tmp_path_factory.mktemp("day")
-    station = tools.start_station(home / "station", speed=SPEED)
-    config = PanelConfig(users=tools.write_users(home / "users.json"), audit_log=home / "audit.jsonl",
-                         stations=(station.entry,))  # fmt: skip
-    try:
-        with tools.serving_panel(config) as url:
-            yield {"url": url, "station": station}
-    finally:
-        tools.stop_process(station.proc)
+    with tools.serving_site(tmp_path_factory.mktemp("day"), SPEED) as served:
+        yield served
 
 
 def stored(site: dict, uid: str) -> dict:
