@@ -19,7 +19,12 @@ import numpy as np
 from procedures.common.certificate import Certificate, InstrumentSpec, budget_rows
 from procedures.common.session_certificate import Certified, MethodCard, session_certificate
 from procedures.common.uncertainty import MIN_RELIABLE_DOF, coverage_factor
-from procedures.integral_precession.budget import SEED000_REFERENCES
+from procedures.integral_precession.budget import (
+    SEED000_REFERENCES,
+    TABLE_ERRORS_HEADER,
+    table_error_rows,
+    traceability_keys,
+)
 from procedures.integral_precession.identify import Identification
 from station.htmlkit import document, esc, mapping_table, svg, table
 from station.session import Session
@@ -221,11 +226,14 @@ def certificate(
         f"σ of Y (eq. 21) {_fmt(r.sigma_Y_eq21, '.3e')} rad/s; σ of one rate (joint fit) {r.sigma_residual:.3e} "
         f"rad/s with {r.dof} degrees of freedom."
     )
+    params = session.meta.get("params", {})
+    table_errors = table_error_rows(params, compensated=primary == "integral_compensated")
     return session_certificate(
         session,
         [Certified(r.budget)],
-        replace(CARD, procedure_title=procedure_title),
+        replace(CARD, procedure_title=procedure_title, references=traceability_keys(params)),
         spec=spec,
+        extra_tables=[("Table errors: compensated or not", TABLE_ERRORS_HEADER, table_errors)],
         figures=[(RESIDUAL_CAPTION, lambda: residual_figure({primary: r}))],
         remarks=[reliability, *(f"{n}: {r.bias_note(n)}." for n in r.first_passage_bias)],
         identification=[("identification", f"{r.method}, weighted joint least squares ({r.weighting})")],

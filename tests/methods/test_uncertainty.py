@@ -26,7 +26,7 @@ from procedures.common.uncertainty import (
     type_b_source,
     welch_satterthwaite,
 )
-from procedures.integral_precession.budget import seed000_budget
+from procedures.integral_precession.budget import found_none_params, seed000_budget
 from procedures.integral_precession.identify import identify, point_weights, seed_eq28
 from station.twin.config import NoiseModel, default_twin
 from station.twin.plan import multiposition_plan, seed000_plan
@@ -97,7 +97,7 @@ def session_and_fit():
 
 def test_seed000_budget_sensitivities_obey_the_model_identities(session_and_fit) -> None:
     s, r = session_and_fit
-    b = seed000_budget(s, r, {}, timer_rows=False)
+    b = seed000_budget(s, r, found_none_params(), timer_rows=False)
     by = {x.source: x for x in b.sources}
     c_z0 = by["parasitic translation Zs1: z0 (eq. 32)"].sensitivity
     c_a0 = by["crank radius A0"].sensitivity
@@ -144,7 +144,7 @@ def test_sensitivity_predicts_the_twin_paths_shift(effect: str, param: str, size
     # the budget of the session that has the effect: its windows close where the effect let them (the first
     # passage moves with it, by a fraction of a period when the crossing's rate is small), and the effect on
     # the data is its rate change over those observed windows
-    b = seed000_budget(s1, r1, {}, timer_rows=False)
+    b = seed000_budget(s1, r1, found_none_params(), timer_rows=False)
     c = next(x for x in b.sources if x.source == source).sensitivity
     sign = 1.0 if effect == "waveform_harmonics" else -1.0
     predicted = sign * c * size
@@ -218,7 +218,7 @@ def _coverage_of_one_session(seed: int) -> tuple[np.ndarray, np.ndarray, list[st
     cfg, truth, plan, refs = _coverage_inputs()
     s = simulate_session(plan, cfg, seed=seed)
     r = identify(s)
-    b = seed000_budget(s, r, {}, refs, timer_rows=False)
+    b = seed000_budget(s, r, found_none_params(refs), refs, timer_rows=False)
     err = np.abs(r.values - truth)
     return err <= b.expanded_uncertainty(), err <= 1.96 * b.standard_uncertainty(), list(b.few_dof())
 
