@@ -26,7 +26,7 @@ import numpy as np
 
 from procedures.common.uncertainty import Budget
 from station.least_squares import FitError, JointFit, fit_joint, reliability
-from station.noise_form import form_likelihoods, most_likely, rate_variance_shape
+from station.noise_form import choice_covariance, form_fits, most_likely, rate_variance_shape
 from station.session import Session
 from station.twin.regressors import (
     BASELINE_COEFFICIENTS,
@@ -41,6 +41,7 @@ COEFFICIENT_UNITS = {"kz": "rad/s/g", "kzz": "rad/s/g^2", "ky": "rad/s/g^2", "k3
 METHODS: tuple[Method, ...] = ("integral", "baseline")
 # White rate noise (f = 0) is kept unless l(f_best) - l(0) exceeds chi2_1(0.95) / 2: on a 6-position design the
 # form is weakly identified and a free choice under-covers white noise (kzz's z spread 1.54 against 1.24, issue 32).
+# The same rule as prior odds weighs white among the forms whose spread is the choice's uncertainty.
 WHITE_REJECTED = 1.92
 
 
@@ -80,9 +81,18 @@ def point_weights(
     (the variance of a window-mean rate goes as 1/Tm), or a mixture, T_ref the session's median window.
     The scale sigma is always estimated from the residuals (eq. 21), so only the ratios matter.
     """
+    w, how, _choice = _weights_and_choice(session, weighting, method, compensation)
+    return w, how
+
+
+def _weights_and_choice(
+    session: Session, weighting: Weighting, method: Method, compensation: Compensation | None
+) -> tuple[np.ndarray, str, np.ndarray | None]:
+    """point_weights and, when the form was chosen from the data, the covariance its choice adds
+    (station.noise_form.choice_covariance), else None."""
     pts = session.points
     if weighting == "equal":
-        return np.ones(len(pts)), "equal weights (asked for)"
+        return np.ones(len(pts)), "equal weights (asked for)", None
     if weighting != "auto":
         raise ValueError(f"weighting {weighting!r} is not one of auto, equal")
     stated = [p.extra.get("repeatability_radps", "") for p in pts]
@@ -91,23 +101,25 @@ def point_weights(
         if not np.all(np.isfinite(r) & (r > 0)):
             bad = [p.point_id for p, v in zip(pts, r, strict=True) if not (np.isfinite(v) and v > 0)]
             raise ValueError(f"repeatability_radps of points {bad}: expected finite values > 0 rad/s")
-        return 1.0 / r**2, "1 / r^2 from each point's stated repeatability_radps"
+        return 1.0 / r**2, "1 / r^2 from each point's stated repeatability_radps", None
     if session.meta.get("instrument_repeatability_radps") is not None:
-        return np.ones(len(pts)), "equal weights: instrument_repeatability_radps is stated, the same for every window"
+        how = "equal weights: instrument_repeatability_radps is stated, the same for every window"
+        return np.ones(len(pts)), how, None
     tm = np.array([p.Tm_s for p in pts], dtype=float)
     rates, index, L, names, _vib = design(session, method, compensation)
     ref_s = float(np.median(tm))
-    ll = form_likelihoods(rates, index, L, names, tm, ref_s)
-    f = most_likely(ll)
-    if ll[0.0] >= ll[f] - WHITE_REJECTED:
+    fits = form_fits(rates, index, L, names, tm, ref_s)
+    f = most_likely(fits)
+    if fits[0.0].likelihood >= fits[f].likelihood - WHITE_REJECTED:
         f = 0.0
     w = 1.0 / rate_variance_shape(tm, ref_s, f)
     how = (
         f"w = 1 / (f + (1 - f) T_ref / Tm), f = {f:g} by profile likelihood (station.noise_form; white noise, "
         f"f = 0, unless the likelihood ratio rejects it at 5 %), T_ref = {ref_s:.4g} s: the rate noise is not "
-        "stated; f = 0 is white noise (variance as 1/Tm), f = 1 a constant per window"
+        "stated; f = 0 is white noise (variance as 1/Tm), f = 1 a constant per window; covariance: the fit's at "
+        "this f plus the likelihood-weighted spread of every f's estimates about it (the choice's uncertainty)"
     )
-    return w / w.mean(), how
+    return w / w.mean(), how, choice_covariance(fits, f, math.exp(WHITE_REJECTED))
 
 
 @dataclass
@@ -290,8 +302,9 @@ def identify(
     rates, index, L, names, vib = design(session, method, compensation)
     if not vib.any():
         raise FitError("the session has no vibration points: the nonlinear coefficients need vibration")
-    weights, how = point_weights(session, weighting, method, compensation)
+    weights, how, choice = _weights_and_choice(session, weighting, method, compensation)
     fit: JointFit = fit_joint(rates, index, L, names, weights=weights)
+    cov = fit.cov if choice is None else fit.cov + choice
     mu, mu_c = reliability(fit.residuals * np.sqrt(weights), fit.sigma_residual)
     pts = session.points
     Y = rates[vib] - fit.static_levels[index[vib]]
@@ -307,7 +320,7 @@ def identify(
         method=method,
         names=names,
         values=fit.values,
-        sigmas=fit.sigmas,
+        sigmas=np.sqrt(np.diag(cov)),
         sigma_residual=fit.sigma_residual,
         mu=mu,
         mu_c=mu_c,
@@ -319,7 +332,7 @@ def identify(
         Y=Y,
         Y_residuals=y_res,
         proportional_residuals=prop,
-        cov=fit.cov,
+        cov=cov,
         sigma_Y_eq21=sigma_y,
         mu_eq28=mu_seed,
         mu_c_eq28=mu_c_seed,

@@ -56,7 +56,7 @@ from station.gap.report import GapReport, render, summary_text
 from station.gap.subsets import best_subset
 from station.gap.verdict import MIN_DOF, MIN_SHRINK, NoiseCheck, Verdict, decide, family_level
 from station.least_squares import FitError
-from station.noise_form import form_likelihoods, most_likely
+from station.noise_form import form_fits, most_likely
 from station.session import Session
 from station.twin.config import TwinConfig, TwinConfigError, default_twin
 
@@ -82,10 +82,10 @@ def _rate_form(design: PointDesign, twin: TwinConfig, model: TwinConfig | None =
     y = design.rate_radps - pred.base_radps
     try:
         ref_s = twin.noise.rate_noise_ref_s
-        ll = form_likelihoods(y, design.level_index, pred.units_radps, CALIBRATED, design.Tm_s, ref_s)
+        fits = form_fits(y, design.level_index, pred.units_radps, CALIBRATED, design.Tm_s, ref_s)
     except FitError as exc:
         raise GapInputError(f"the design cannot fit the calibrated coefficients: {exc}") from None
-    return most_likely(ll)
+    return most_likely(fits)
 
 
 def _channels(

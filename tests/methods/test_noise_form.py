@@ -18,7 +18,7 @@ from procedures.integral_precession.identify import design as identify_design
 from procedures.integral_precession.identify import identify, point_weights
 from station.interchange import read_session
 from station.least_squares import FitError, fit_joint
-from station.noise_form import RATE_FORM_GRID, form_likelihoods, most_likely, rate_variance_shape
+from station.noise_form import RATE_FORM_GRID, form_fits, most_likely, rate_variance_shape
 
 generator = pytest.importorskip("indep.generator")  # tests/indep, the project's second generator
 
@@ -76,7 +76,7 @@ def test_the_form_is_found_when_it_is_clear() -> None:
     for f in (0.0, 1.0):
         sd = np.sqrt(rate_variance_shape(tm_s, 200.0, f)) * 1e-3
         rates = 0.3 * index + L @ truth + sd * rng.normal(size=index.size)
-        assert most_likely(form_likelihoods(rates, index, L, ("a", "b"), tm_s, 200.0)) == f
+        assert most_likely(form_fits(rates, index, L, ("a", "b"), tm_s, 200.0)) == f
     assert 0.0 in RATE_FORM_GRID and 1.0 in RATE_FORM_GRID
 
 
@@ -92,3 +92,26 @@ def test_stated_noise_keeps_its_weights_and_equal_windows_keep_equal_ones(tmp_pa
     generator.write_session(tmp_path / "unstated", design, truth, rng, state_noise=False)
     w, how = point_weights(read_session(tmp_path / "unstated"))
     np.testing.assert_allclose(w, 1.0, rtol=0.05)  # nominal windows equal: any form weighs them alike
+
+
+def test_an_unstated_form_adds_its_choice_to_the_covariance(tmp_path) -> None:
+    """The covariance of a form chosen from the data is the chosen fit's plus the likelihood-weighted spread of
+    every form's estimates about it (station.noise_form.choice_covariance): larger where the forms disagree
+    (unequal windows), the conditional one where every form is one fit (equal windows)."""
+    rng = np.random.default_rng(3202)
+    for window_s, label in ((None, "unequal"), (200.0, "equal")):
+        design = generator.equal_angle_design(10, (8.0, 9.0, 10.0), window_revs=50, window_s=window_s)
+        noise = replace(generator.random_noise(rng), rate_form="mixed")
+        truth = generator.Truth(generator.random_coefficients(rng), noise=noise)
+        generator.write_session(tmp_path / label, design, truth, rng, state_noise=False)
+        session = read_session(tmp_path / label)
+        r = identify(session)
+        w, _ = point_weights(session)
+        conditional = fit_joint(*identify_design(session)[:4], weights=w)
+        np.testing.assert_allclose(r.values, conditional.values, rtol=1e-12)
+        extra = np.diag(r.cov) / np.diag(conditional.cov) - 1.0
+        if label == "unequal":
+            assert np.all(extra > 1e-5), extra  # old: the conditional covariance, extra = 0
+            assert np.all(np.linalg.eigvalsh(r.cov - conditional.cov) > -1e-12 * np.abs(r.cov).max())
+        else:
+            assert np.all(np.abs(extra) < 1e-6), extra
