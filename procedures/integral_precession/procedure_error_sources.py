@@ -9,10 +9,12 @@
   crank phases 2 pi i / N over whole turns (eq. 34, Table 7).
 
 The results' "compensation" blocks hold what the integral identification compensates
-(seed 000 6.1: "the error calibration model should be compensated"), named as the
-parameters of integral_precession that take them: zs1_z0_m (m) and zs1_z1_m_s
-(m s/rad) of Zs1(w) = z0 + z1 w, and axs1_rad (rad); that procedure builds
-procedures.integral_precession.identify.Compensation(zs1_m=lambda w: z0 + z1 w, axs1_rad=axs1) from them.
+(seed 000 6.1: "the error calibration model should be compensated") with the uncertainty it is budgeted at,
+named exactly as the parameters of integral_precession that take them (USAGE): zs1_z0_m (m), zs1_z1_m_s
+(m s/rad) of Zs1(w) = z0 + z1 w with their sigmas and correlation, axs1_rad (rad) and its sigma, eps_f and
+its sigma; that procedure builds procedures.integral_precession.identify.Compensation from the values, and its
+budget takes a table error these give as measured, at their sigma (issue 32: an error not measured is
+budgeted at seed 000's size).
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ if TYPE_CHECKING:
 TABLE5_FREQS_HZ = [1.0, 3.0, 5.0, 7.0, 9.0, 10.0]
 TABLE6_FREQS_HZ = [0.1, *map(float, range(1, 11))]
 INTEGRAL = "integral_precession"  # the procedure whose identification the results compensate
+USAGE = f"the compensation block's keys are [params] of {INTEGRAL}, to be copied as they are"
 
 TRANSLATION_PARAMS = (
     Param("freqs_hz", list, default=TABLE5_FREQS_HZ, min=0.1, max=10.0, unit="Hz",
@@ -114,10 +117,11 @@ def analyse_translation(session: Session) -> Analysis:
            "dof": line.dof}  # fmt: skip
     comp = {
         "zs1_z0_m": line.z0_m, "zs1_z1_m_s": line.z1_m_s_per_rad,
-        "sigma_zs1_z0_m": line.sigma_z0_m, "sigma_zs1_z1_m_s": line.sigma_z1_m_s_per_rad,
-        "usage": f"[params] zs1_z0_m and zs1_z1_m_s of {INTEGRAL}: Compensation(zs1_m=lambda w: z0 + z1 w), w in rad/s",
+        "zs1_z0_sigma_m": line.sigma_z0_m, "zs1_z1_sigma_m_s": line.sigma_z1_m_s_per_rad,
+        "zs1_z0_z1_corr": float(np.clip(line.cov[0, 1] / np.sqrt(line.cov[0, 0] * line.cov[1, 1]), -1.0, 1.0)),
     }  # fmt: skip
-    result = {"table5": rows, "zs1_fit": fit, "compensation": comp, "units": "m, Hz, rad/s"}
+    result = {"table5": rows, "zs1_fit": fit, "compensation": comp, "compensation_usage": USAGE,
+              "units": "m, Hz, rad/s"}  # fmt: skip
     uid = session.meta.get("store_uid", "")
     html = translation_report(
         f"Session {uid}: parasitic translation (seed 000 6.1.1)",
@@ -165,6 +169,7 @@ def analyse_stability(session: Session) -> Analysis:
     result = {
         "table6": table, "stability_max": p["stability_max"], "passed": passed,
         "eps_f": {"value": eps, "sigma": sigma_eps, "chi2_per_dof": chi2_dof},
+        "compensation": {"eps_f": eps, "eps_f_sigma": sigma_eps}, "compensation_usage": USAGE,
         "notes": "delta_f_hz = commanded - fbar (seed 000 6.1.2); eps_f = fbar / f - 1 (the twin's frequency_error)",
     }  # fmt: skip
     uid = session.meta.get("store_uid", "")
@@ -288,12 +293,9 @@ def analyse_rotation(session: Session) -> Analysis:
         table7.append(row | {f"phi_{axis}_arcsec": float(slots[axis][1][i]) for axis in AXES})
     by_eq34 = {axis: dict(zip(("a0", "as1", "ac1"), eq34(slot_psi, slots[axis][1]), strict=True)) for axis in AXES}
     x = fits["x"]
-    comp = {
-        "axs1_rad": x.as1 * ARCSEC_RAD, "sigma_axs1_rad": x.sigma_as1 * ARCSEC_RAD,
-        "usage": f"[params] axs1_rad of {INTEGRAL}: Compensation(axs1_rad=axs1_rad)",
-    }  # fmt: skip
+    comp = {"axs1_rad": x.as1 * ARCSEC_RAD, "axs1_sigma_rad": x.sigma_as1 * ARCSEC_RAD}
     result = {"harmonics": {axis: f.to_json() for axis, f in fits.items()}, "eq34_on_slot_means": by_eq34,
-              "table7": table7, "crank_freq_hz": phase.freq_hz, "compensation": comp,
+              "table7": table7, "crank_freq_hz": phase.freq_hz, "compensation": comp, "compensation_usage": USAGE,
               "units": "arc-seconds unless the key says otherwise"}  # fmt: skip
     uid = session.meta.get("store_uid", "")
     html = rotation_report(f"Session {uid}: parasitic rotation (seed 000 6.1.3)", fits, psi, a, table7, by_eq34)

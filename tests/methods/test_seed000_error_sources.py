@@ -21,6 +21,7 @@ from scipy.integrate import quad
 
 from drivers.config import load_station_config
 from drivers.station import simulated_station
+from procedures.integral_precession.budget import MEASURED_BY, is_measured
 from procedures.integral_precession.frequency_stability import mean_rate_error_radps
 from procedures.integral_precession.parasitic_rotation import (
     SEED_HARMONICS_ARCSEC,
@@ -29,6 +30,7 @@ from procedures.integral_precession.parasitic_rotation import (
     eq34,
     table7_psi_rad,
 )
+from procedures.integral_precession.procedure import analyse_integral
 from procedures.integral_precession.procedure_error_sources import INTEGRAL, analyse_stability
 from procedures.integral_precession.table_motion import SEED_TABLE5_M, fit_zs1, sampling_delay_error_m
 from station.cli.controller import RunOutcome, StationController
@@ -39,6 +41,8 @@ from station.engine.registry import get_procedure
 from station.engine.runner import State
 from station.store import SessionStore
 from station.twin.config import TwinConfig, default_twin
+from station.twin.plan import seed000_plan
+from station.twin.session_sim import simulate_session
 from station.twin.table_tilt import ARCSEC_RAD
 
 pytestmark = pytest.mark.timeout(120)
@@ -78,9 +82,14 @@ def _within(value: float, truth: float, sigma: float, what: str) -> None:
     assert abs(value - truth) <= K * sigma, f"{what}: {value:.6e} vs {truth:.6e} (sigma {sigma:.2e})"
 
 
-def _integral_accepts(compensation: dict, keys: tuple[str, ...]) -> None:
-    """The compensation block's values are valid parameters of the integral precession procedure."""
-    get_procedure(INTEGRAL).validate({k: compensation[k] for k in keys})
+def _integral_accepts(compensation: dict, group: str) -> None:
+    """The compensation block is valid parameters of the integral precession procedure: the group's values and
+    sigmas (and Zs1's correlation), which its budget then takes as measured (issue 32: at their sigma, not at
+    seed 000's size)."""
+    get_procedure(INTEGRAL).validate(compensation)
+    values, sigmas = MEASURED_BY[group]
+    assert set(compensation) == {*values, *sigmas} | ({"zs1_z0_z1_corr"} if group == "zs1" else set())
+    assert is_measured(compensation)[group]
 
 
 # ---------------------------------------------------------------- the seed's own tables
@@ -141,7 +150,19 @@ def test_parasitic_translation_reproduces_table5_and_eq32(run) -> None:
         assert row["dA_max_m"] == pytest.approx(float(sampling_delay_error_m(row["freq_hz"], 0.03)))
     comp = result["compensation"]
     assert (comp["zs1_z0_m"], comp["zs1_z1_m_s"]) == (fit["z0_m"], fit["z1_m_s_per_rad"])
-    _integral_accepts(comp, ("zs1_z0_m", "zs1_z1_m_s"))
+    _integral_accepts(comp, "zs1")
+    # the block copied into a calibration's params compensates a session on that table: every coefficient within U
+    # of the compensated identification, whose budget takes Zs1 at the line fit's sigmas (measured, compensated)
+    table = default_twin().with_effect("waveform_fundamental", z0=Z0_M, z1=Z1_M_S)
+    calibration = simulate_session(seed000_plan(), table, seed=7)
+    calibration.meta.update({"params": comp, "procedure": INTEGRAL, "store_uid": "zs1-measured"})
+    doc = analyse_integral(calibration).results["integral_compensated"]
+    truth = table.instrument
+    for name in ("kz", "kzz", "ky", "k3"):
+        c = doc["coefficients"][name]
+        assert abs(c["value"] - getattr(truth, name)) <= c["expanded_uncertainty"], name
+    z0_row = next(b for b in doc["budget"] if b["source"] == "parasitic translation Zs1: z0 (eq. 32)")
+    assert z0_row["standard_uncertainty"] == comp["zs1_z0_sigma_m"] and z0_row["note"].startswith("compensated")
     html = outcome.report_path.read_text()
     assert "Table 5" in html and html.count("<svg") == 1 and "eq. 32" in html
 
@@ -158,6 +179,8 @@ def test_frequency_stability_recovers_the_frequency_error(run) -> None:
         _within(row["delta_f_hz"], -EPS_F * f, row["sigma_fbar_hz"], f"Delta f = f - fbar at {f} Hz")
         assert row["stability"] < 5e-4 and row["pass"]
     _within(result["eps_f"]["value"], EPS_F, result["eps_f"]["sigma"], "eps_f")
+    assert result["compensation"] == {"eps_f": result["eps_f"]["value"], "eps_f_sigma": result["eps_f"]["sigma"]}
+    _integral_accepts(result["compensation"], "eps_f")
     # the verdict can fail: the same data against an impossible specification
     session = store.load_session(outcome.session_uid)
     session.meta["params"] = session.meta["params"] | {"stability_max": 0.0}
@@ -189,7 +212,7 @@ def test_parasitic_rotation_reproduces_table7(run) -> None:
         assert abs(result["eq34_on_slot_means"]["x"][f"a{k}"] - lsq) <= a1 * late_rad + K * sigma
     comp = result["compensation"]
     assert comp["axs1_rad"] == pytest.approx(h["x"]["axs1_arcsec"] * ARCSEC_RAD, rel=1e-12)
-    _integral_accepts(comp, ("axs1_rad",))
+    _integral_accepts(comp, "axs1")
     html = outcome.report_path.read_text()
     assert "Table 7" in html and "<svg" in html
 
