@@ -16,7 +16,8 @@ window (stated as instrument_repeatability_radps, or not), white, or mixed (half
 stated) x unequal windows (50 revolutions each) or equal ones (every nominal Tm 200 s); each cell's sessions
 drawn from its own seed (rng [32, cell]), so runs before and after a change see the same sessions; --corpus keeps
 them (DIR/cellNN/sK, generated once, extended when N grows) for re-scoring; --type-a scores the fit's own
-uncertainty (z = err / sigma, t at the fit dof) without the budget's refits.
+uncertainty (z = err / sigma, t at the fit dof) without the budget's refits. Each cell prints coverage / sd z (sd
+of z's normal scores, Phi^-1(F_t(z; nu)): 1 for a right u at any dof, where sd z itself is sqrt(nu / (nu - 2))).
 
 Simulation path: neither the engine nor session_sim: tests/indep's independent generator.
 """
@@ -64,8 +65,10 @@ QUICK_PER_CELL = 20
 
 
 def score(path: Path, k_true: np.ndarray, type_a: bool = False):
-    """Read back, identify and budget one session: (z, covered, fit dof), or None if refused as singular.
-    `type_a`: the fit's own uncertainty only (z = err / sigma, U = t(fit dof) sigma), no budget."""
+    """Read back, identify and budget one session: (z, covered, fit dof, the normal score of each z), or None if
+    refused as singular. `type_a`: the fit's own uncertainty only (z = err / sigma, U = t(fit dof) sigma), no budget.
+    The normal score Phi^-1(F_t(z; nu)) at each coefficient's dof (nu_eff of the budget) has sd 1 whatever nu
+    when u is right: z itself is Student's t, whose sd is sqrt(nu / (nu - 2)) (1.08 at 14 dof)."""
     session = read_session(path)
     try:
         r = identify(session)
@@ -73,9 +76,16 @@ def score(path: Path, k_true: np.ndarray, type_a: bool = False):
         return None  # a drawn design that cannot separate the coefficients (refused by name)
     err = r.values - k_true
     if type_a:
-        return err / r.sigmas, np.abs(err) <= stats.t.ppf(0.975, r.dof) * r.sigmas, r.dof
+        z = err / r.sigmas
+        return z, np.abs(err) <= stats.t.ppf(0.975, r.dof) * r.sigmas, r.dof, normal_score(z, np.full(z.size, r.dof))
     b = seed000_budget(session, r, found_none_params(), timer_rows=False)
-    return err / b.standard_uncertainty(), np.abs(err) <= b.expanded_uncertainty(), r.dof
+    z = err / b.standard_uncertainty()
+    return z, np.abs(err) <= b.expanded_uncertainty(), r.dof, normal_score(z, b.effective_dof())
+
+
+def normal_score(z: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """Phi^-1(F_t(z; dof)): a Student's t variable made standard normal (infinite dof: z itself)."""
+    return stats.norm.ppf(stats.t.cdf(z, np.minimum(dof, 1e6)))
 
 
 def main(n: int) -> None:
@@ -139,49 +149,55 @@ def matrix_cells() -> list[tuple[int, int, str, str, bool, str, float | None]]:
     return cells
 
 
-def cell_row(corpus: Path, per_cell: int, type_a: bool, cell: tuple) -> tuple[str, np.ndarray, np.ndarray]:
-    """One cell scored: its table row, and z and covered per session and coefficient."""
+def cell_row(corpus: Path, per_cell: int, type_a: bool, cell: tuple) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    """One cell scored: its table row, and z, covered and z's normal score per session and coefficient."""
     number, n_pos, label, form, stated, windows, window_s = cell
-    z, cover, dofs = [], [], []
+    z, cover, dofs, scores = [], [], [], []
     for path, k_true in cell_corpus(corpus, number, n_pos, form, stated, window_s, per_cell):
         out = score(path, k_true, type_a)
         if out is not None:
             z.append(out[0])
             cover.append(out[1])
             dofs.append(out[2])
-    cov_j, sd_j = np.mean(cover, axis=0), np.std(z, axis=0, ddof=1)
-    cells = " | ".join(f"{c:.3f} / {s:.2f}" for c, s in zip(cov_j, sd_j, strict=True))
+            scores.append(out[3])
+    cov_j, sd_j, sd_n = np.mean(cover, axis=0), np.std(z, axis=0, ddof=1), np.std(scores, axis=0, ddof=1)
+    cells = " | ".join(f"{c:.3f} / {s:.2f} ({n:.2f})" for c, s, n in zip(cov_j, sd_j, sd_n, strict=True))
     row = (
         f"| {n_pos} | {label} | {'yes' if stated else 'no'} | {windows} | {len(z)} | {int(np.median(dofs))} | {cells} |"
     )
-    return row, np.array(z), np.array(cover)
+    return row, np.array(z), np.array(cover), np.array(scores)
 
 
 def matrix(per_cell: int, corpus: Path, jobs: int, type_a: bool) -> None:
     """Coverage of U and spread of z per coefficient in every cell of designs x noise forms x windows, the cells'
     sessions generated once under `corpus` and scored in `jobs` processes (`type_a`: of the fit's own uncertainty)."""
     t0 = time.perf_counter()
-    heads = " | ".join(f"{c} cov / sd z" for c in NAMES)
+    heads = " | ".join(f"{c} cov / sd z (sd score)" for c in NAMES)
     print(f"| positions | rate noise | stated | windows | n | dof | {heads} |")
     print("|---:|---|---|---|---:|---:|" + "---:|" * len(NAMES))
-    cov, sd, n, z_all, cover_all = [], [], [], [], []
+    cov, sd, sd_n, n, z_all, cover_all = [], [], [], [], [], []
     with ProcessPoolExecutor(jobs) as pool:
-        for row, z, cover in pool.map(partial(cell_row, corpus, per_cell, type_a), matrix_cells()):
+        for row, z, cover, scores in pool.map(partial(cell_row, corpus, per_cell, type_a), matrix_cells()):
             print(row, flush=True)
             cov.append(cover.mean(axis=0))
             sd.append(z.std(axis=0, ddof=1))
+            sd_n.append(scores.std(axis=0, ddof=1))
             n.append(len(z))
             z_all.append(z)
             cover_all.append(cover)
-    cov, sd = np.array(cov), np.array(sd)
-    # a cell's coverage beyond the binomial 95 % band about 0.95 at its n: more than sampling explains
+    cov, sd, sd_n = np.array(cov), np.array(sd), np.array(sd_n)
+    # a cell's coverage beyond the binomial 95 % band about 0.95 at its n, a normal score's sd beyond the band about 1
+    # (sd of a sample sd of N(0, 1): 1 / sqrt(2 (n - 1))): more than sampling explains
     beyond = np.abs(cov - 0.95) > 1.96 * np.sqrt(0.0475 / np.array(n))[:, None]
+    beyond_sd = np.abs(sd_n - 1.0) > 1.96 / np.sqrt(2.0 * (np.array(n) - 1))[:, None]
     z_all, cover_all = np.vstack(z_all), np.vstack(cover_all)
     pooled = ", ".join(f"{c} {cover_all[:, j].mean():.3f} / {z_all[:, j].std(ddof=1):.2f}" for j, c in enumerate(NAMES))
     print(f"\nall {len(z_all)} sessions pooled (coverage / sd z): {pooled}")
     print(f"cells x coefficients outside coverage 0.93-0.97: {int(np.sum((cov < 0.93) | (cov > 0.97)))} of {cov.size}, "
           f"beyond the binomial 95 % band about 0.95: {int(beyond.sum())}; sd z outside 0.9-1.1: "
-          f"{int(np.sum((sd < 0.9) | (sd > 1.1)))}")  # fmt: skip
+          f"{int(np.sum((sd < 0.9) | (sd > 1.1)))}; sd of the normal scores outside 0.9-1.1: "
+          f"{int(np.sum((sd_n < 0.9) | (sd_n > 1.1)))}, beyond its 95 % band about 1: "
+          f"{int(beyond_sd.sum())}")  # fmt: skip
     half = 1.96 * math.sqrt(0.0475 / per_cell)
     cpu = 0.0
     for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN):
