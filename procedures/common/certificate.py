@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -361,9 +362,14 @@ _PDF_TEXT = str.maketrans(
 )
 
 
+# A number and the unit after it are one word to a line break (GUM 7.2.6's "no number broken across lines").
+_NUMBER_UNIT = re.compile(r"(\d) (?=(?:um|µm|mm|m|Hz|ns|us|µs|ms|s|h|deg|arcsec|rad|g|V|uV|kg|ppm|%)(?![\w/^]))")
+
+
 def pdf_chars(x: object) -> str:
-    """Text in the PDF's standard fonts (WinAnsi): Greek letters and math signs spelled out."""
-    return str(x).translate(_PDF_TEXT)
+    """Text in the PDF's standard fonts (WinAnsi): Greek letters and math signs spelled out, a number bound to its
+    unit by a no-break space."""
+    return _NUMBER_UNIT.sub("\\1\u00a0", str(x)).translate(_PDF_TEXT)
 
 
 def pdf_text(x: object) -> str:

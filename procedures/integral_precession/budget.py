@@ -131,8 +131,8 @@ def measured_inputs(params: Mapping, refs: Mapping[str, Reference], compensated:
     Measured (the params state it): u is the params' sigma, else the references' (the measuring instrument's
     accuracy); an identification that did not compensate it (`compensated` False) takes the value 0 and folds a
     measured v into its uncertainty, u = sqrt(u^2 + v^2). Not measured: value 0, budgeted at what seed 000 found
-    on its table: axs1 rectangular within +-0.92 arcsec (eq. 34), Zs1 by `zs1_unmeasured` (eq. 32), eps_f at
-    Table 6's (the references' default).
+    on its table, one standard uncertainty its size there: axs1 0.92 arcsec (eq. 34), Zs1 by `zs1_unmeasured`
+    (eq. 32), eps_f at Table 6's (the references' default).
     """
     measured = is_measured(params)
 

@@ -8,10 +8,13 @@ compensated, which not and why, and cites as traceability only the experiments t
 
 from __future__ import annotations
 
+import io
+import re
 from dataclasses import replace
 from html import unescape
 
 import numpy as np
+import pypdf
 import pytest
 
 from procedures.common.references import default_references
@@ -124,3 +127,8 @@ def test_the_certificate_says_what_was_compensated_and_cites_only_what_was_measu
     assert (grating in html) == measured and (gradiometer in html) == measured
     assert refs["eps_f"].traceability not in html  # never measured here
     assert ("was not run" in html) and (("integral_precession.parasitic_translation was not run" in html) != measured)
+    # a number and its unit stay on one line of the PDF (issue 32 d5): the rows' "71 um at 10 Hz" wrapped there
+    pages = pypdf.PdfReader(io.BytesIO(a.files[f"certificate-te-{measured}.pdf"])).pages
+    pdf = "\n".join(page.extract_text() for page in pages)
+    assert "Table errors: compensated or not" in pdf
+    assert re.search(r"\d\s*\n\s*(um|Hz|arcsec)\b", pdf) is None
