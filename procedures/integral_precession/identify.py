@@ -86,10 +86,10 @@ def point_weights(
 
 
 def _weights_and_choice(
-    session: Session, weighting: Weighting, method: Method, compensation: Compensation | None
+    session: Session, weighting: Weighting, method: Method, compensation: Compensation | None, rows: tuple | None = None
 ) -> tuple[np.ndarray, str, np.ndarray | None]:
     """point_weights and, when the form was chosen from the data, the covariance its choice adds
-    (station.noise_form.choice_covariance), else None."""
+    (station.noise_form.choice_covariance), else None; `rows`: the session's `design`, when the caller has it."""
     pts = session.points
     if weighting == "equal":
         return np.ones(len(pts)), "equal weights (asked for)", None
@@ -106,7 +106,7 @@ def _weights_and_choice(
         how = "equal weights: instrument_repeatability_radps is stated, the same for every window"
         return np.ones(len(pts)), how, None
     tm = np.array([p.Tm_s for p in pts], dtype=float)
-    rates, index, L, names, _vib = design(session, method, compensation)
+    rates, index, L, names, _vib = rows if rows is not None else design(session, method, compensation)
     ref_s = float(np.median(tm))
     fits = form_fits(rates, index, L, names, tm, ref_s)
     f = most_likely(fits)
@@ -302,7 +302,7 @@ def identify(
     rates, index, L, names, vib = design(session, method, compensation)
     if not vib.any():
         raise FitError("the session has no vibration points: the nonlinear coefficients need vibration")
-    weights, how, choice = _weights_and_choice(session, weighting, method, compensation)
+    weights, how, choice = _weights_and_choice(session, weighting, method, compensation, (rates, index, L, names, vib))
     fit: JointFit = fit_joint(rates, index, L, names, weights=weights)
     cov = fit.cov if choice is None else fit.cov + choice
     mu, mu_c = reliability(fit.residuals * np.sqrt(weights), fit.sigma_residual)
