@@ -9,15 +9,17 @@ so their params say the error-source experiments found none: found_none_params).
 spread of (k_hat - k) / u_c and the coverage of U (target 0.93-0.97).
 
     .venv/bin/python bench/bench_mc_indep.py [N]                      # N sessions of the four random families
-    .venv/bin/python bench/bench_mc_indep.py --matrix [N] [--quick] [--corpus DIR] [--jobs 2] [--type-a]
+    .venv/bin/python bench/bench_mc_indep.py --matrix [N] [--quick] [--corpus DIR] [--jobs 2] [--type-a | --true-form]
 
 --matrix (issue 32): equal-angle designs of 6, 10 and 16 positions at 8, 9, 10 Hz x rate noise constant per
 window (stated as instrument_repeatability_radps, or not), white, or mixed (half each at 300 s; neither is ever
 stated) x unequal windows (50 revolutions each) or equal ones (every nominal Tm 200 s); each cell's sessions
 drawn from its own seed (rng [32, cell]), so runs before and after a change see the same sessions; --corpus keeps
 them (DIR/cellNN/sK, generated once, extended when N grows) for re-scoring; --type-a scores the fit's own
-uncertainty (z = err / sigma, t at the fit dof) without the budget's refits. Each cell prints coverage / sd z (sd
-of z's normal scores, Phi^-1(F_t(z; nu)): 1 for a right u at any dof, where sd z itself is sqrt(nu / (nu - 2))).
+uncertainty (z = err / sigma, t at the fit dof) without the budget's refits; --true-form scores, Type A, the fit
+with the generator's own form's weights (what knowing the form gives, the reference for a chosen form). Each cell
+prints coverage / sd z (sd of z's normal scores, Phi^-1(F_t(z; nu)): 1 for a right u at any dof, where sd z itself
+is sqrt(nu / (nu - 2))).
 
 Simulation path: neither the engine nor session_sim: tests/indep's independent generator.
 """
@@ -43,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from indep.generator import (
     FAMILIES,
+    Noise,
     Truth,
     equal_angle_design,
     random_coefficients,
@@ -52,9 +55,9 @@ from indep.generator import (
 )
 
 from procedures.integral_precession.budget import found_none_params, seed000_budget
-from procedures.integral_precession.identify import identify
+from procedures.integral_precession.identify import design, identify
 from station.interchange import read_session
-from station.least_squares import FitError
+from station.least_squares import FitError, fit_joint
 
 NAMES = ("kz", "kzz", "ky", "k3")
 MATRIX_POSITIONS = (6, 10, 16)
@@ -64,9 +67,10 @@ MATRIX_WINDOWS = (("unequal", None), ("equal", 200.0))
 QUICK_PER_CELL = 20
 
 
-def score(path: Path, k_true: np.ndarray, type_a: bool = False):
+def score(path: Path, k_true: np.ndarray, type_a: bool = False, true_form: str | None = None):
     """Read back, identify and budget one session: (z, covered, fit dof, the normal score of each z), or None if
-    refused as singular. `type_a`: the fit's own uncertainty only (z = err / sigma, U = t(fit dof) sigma), no budget.
+    refused as singular. `type_a`: the fit's own uncertainty only (z = err / sigma, U = t(fit dof) sigma), no budget;
+    `true_form` (the generator's rate_form): Type A of the fit with that form's weights, what knowing the form gives.
     The normal score Phi^-1(F_t(z; nu)) at each coefficient's dof (nu_eff of the budget) has sd 1 whatever nu
     when u is right: z itself is Student's t, whose sd is sqrt(nu / (nu - 2)) (1.08 at 14 dof)."""
     session = read_session(path)
@@ -75,12 +79,22 @@ def score(path: Path, k_true: np.ndarray, type_a: bool = False):
     except FitError:
         return None  # a drawn design that cannot separate the coefficients (refused by name)
     err = r.values - k_true
+    if true_form is not None:
+        var = np.array([Noise(1.0, true_form, 0.0, 0.0).rate_sd(p.Tm_s) ** 2 for p in session.points])
+        rates, index, L, names, _vib = design(session)
+        fit = fit_joint(rates, index, L, names, weights=1.0 / var)
+        return type_a_score(fit.values - k_true, fit.sigmas, fit.dof)
     if type_a:
-        z = err / r.sigmas
-        return z, np.abs(err) <= stats.t.ppf(0.975, r.dof) * r.sigmas, r.dof, normal_score(z, np.full(z.size, r.dof))
+        return type_a_score(err, r.sigmas, r.dof)
     b = seed000_budget(session, r, found_none_params(), timer_rows=False)
     z = err / b.standard_uncertainty()
     return z, np.abs(err) <= b.expanded_uncertainty(), r.dof, normal_score(z, b.effective_dof())
+
+
+def type_a_score(err: np.ndarray, sigmas: np.ndarray, dof: int):
+    """score's tuple for a fit's own uncertainty: z = err / sigma, U = t(dof) sigma."""
+    z = err / sigmas
+    return z, np.abs(err) <= stats.t.ppf(0.975, dof) * sigmas, dof, normal_score(z, np.full(z.size, dof))
 
 
 def normal_score(z: np.ndarray, dof: np.ndarray) -> np.ndarray:
@@ -149,12 +163,14 @@ def matrix_cells() -> list[tuple[int, int, str, str, bool, str, float | None]]:
     return cells
 
 
-def cell_row(corpus: Path, per_cell: int, type_a: bool, cell: tuple) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+def cell_row(
+    corpus: Path, per_cell: int, type_a: bool, true_form: bool, cell: tuple
+) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
     """One cell scored: its table row, and z, covered and z's normal score per session and coefficient."""
     number, n_pos, label, form, stated, windows, window_s = cell
     z, cover, dofs, scores = [], [], [], []
     for path, k_true in cell_corpus(corpus, number, n_pos, form, stated, window_s, per_cell):
-        out = score(path, k_true, type_a)
+        out = score(path, k_true, type_a, form if true_form else None)
         if out is not None:
             z.append(out[0])
             cover.append(out[1])
@@ -168,16 +184,17 @@ def cell_row(corpus: Path, per_cell: int, type_a: bool, cell: tuple) -> tuple[st
     return row, np.array(z), np.array(cover), np.array(scores)
 
 
-def matrix(per_cell: int, corpus: Path, jobs: int, type_a: bool) -> None:
+def matrix(per_cell: int, corpus: Path, jobs: int, type_a: bool, true_form: bool = False) -> None:
     """Coverage of U and spread of z per coefficient in every cell of designs x noise forms x windows, the cells'
-    sessions generated once under `corpus` and scored in `jobs` processes (`type_a`: of the fit's own uncertainty)."""
+    sessions generated once under `corpus` and scored in `jobs` processes (`type_a`: of the fit's own uncertainty;
+    `true_form`: of the fit with the true form's weights)."""
     t0 = time.perf_counter()
     heads = " | ".join(f"{c} cov / sd z (sd score)" for c in NAMES)
     print(f"| positions | rate noise | stated | windows | n | dof | {heads} |")
     print("|---:|---|---|---|---:|---:|" + "---:|" * len(NAMES))
     cov, sd, sd_n, n, z_all, cover_all = [], [], [], [], [], []
     with ProcessPoolExecutor(jobs) as pool:
-        for row, z, cover, scores in pool.map(partial(cell_row, corpus, per_cell, type_a), matrix_cells()):
+        for row, z, cover, scores in pool.map(partial(cell_row, corpus, per_cell, type_a, true_form), matrix_cells()):
             print(row, flush=True)
             cov.append(cover.mean(axis=0))
             sd.append(z.std(axis=0, ddof=1))
@@ -215,14 +232,17 @@ if __name__ == "__main__":
     parser.add_argument("--quick", action="store_true", help=f"--matrix with {QUICK_PER_CELL} sessions per cell")
     parser.add_argument("--corpus", type=Path, help="--matrix: the folder of the cells' sessions (default: a temp)")
     parser.add_argument("--type-a", action="store_true", help="--matrix: Type A only (the fit's sigma, t at its dof)")
+    parser.add_argument(
+        "--true-form", action="store_true", help="--matrix: Type A with the true form's weights (knowing the form)"
+    )
     parser.add_argument("--jobs", type=int, default=1, help="--matrix: processes scoring cells (default 1)")
     a = parser.parse_args()
     if a.matrix:
         per_cell = QUICK_PER_CELL if a.quick else a.n or 200
         if a.corpus is None:
             with tempfile.TemporaryDirectory() as tmp:
-                matrix(per_cell, Path(tmp), a.jobs, a.type_a)
+                matrix(per_cell, Path(tmp), a.jobs, a.type_a, a.true_form)
         else:
-            matrix(per_cell, a.corpus, a.jobs, a.type_a)
+            matrix(per_cell, a.corpus, a.jobs, a.type_a, a.true_form)
     else:
         main(a.n or 200)

@@ -40,6 +40,9 @@ class JointFit:
     residuals: np.ndarray  # every measured rate, in the input order
     static_levels: np.ndarray
     dof: int
+    # the coefficient rows of the fit's linear map from the rates: values = estimator @ rates, so the values'
+    # covariance under any rate variances v is estimator diag(v) estimator^T (station.noise_form)
+    estimator: np.ndarray
 
     @property
     def sigmas(self) -> np.ndarray:
@@ -79,6 +82,7 @@ def fit_joint(
     sigma = math.sqrt(float(np.sum((resid * w) ** 2)) / dof)
     Rinv = scipy.linalg.solve_triangular(R, np.eye(p))
     cov_all = (Rinv @ Rinv.T) / np.outer(scale, scale) * sigma**2
+    estimator = (Rinv @ Q.T)[n_pos:] * w[None, :] / scale[n_pos:, None]
     return JointFit(
         names=names,
         values=beta[n_pos:],
@@ -87,6 +91,7 @@ def fit_joint(
         residuals=resid,
         static_levels=beta[:n_pos],
         dof=dof,
+        estimator=estimator,
     )
 
 

@@ -12,10 +12,19 @@ likelihood of the joint fit (station.least_squares) refitted with each form's we
 
 over RATE_FORM_GRID (ties go to the smaller f: with equal windows every f is the same fit).
 
-The choice's own uncertainty (`choice_covariance`): the estimate of the chosen f differs from the estimate of the
-f that holds by b_f - b_chosen; weighting every f by its likelihood, pi_f proportional to exp l(f) (white noise
-given prior odds, the identification's rule for keeping it), the covariance of the chosen estimate is the fit's at
-that f plus sum_f pi_f (b_f - b_chosen)(b_f - b_chosen)^T (zero with equal windows, where every f is one fit).
+The choice's own uncertainty (`form_covariance`), in two parts:
+
+- The variance: the fit's covariance at the chosen f holds only if that f holds. Every f within the one-sigma
+  likelihood interval, l(f) >= l_max - 1/2 (LIKELIHOOD_INTERVAL), is one the data do not tell from the best; the
+  chosen estimate b = M y has, if f holds, the covariance M diag(s_f^2 shape_f) M^T (s_f^2 that fit's own scale),
+  which at the chosen f is the fit's. Each coefficient takes the largest of these variances, the excess over the
+  fit's added on the diagonal. With unequal windows the forms weigh long and short windows differently: ky
+  rests on the slow positions' long windows, and where white noise is kept on data whose noise is constant per
+  window its true u is a median 1.35 times what white noise gives it (tests/indep, 10 positions, issue 32).
+- The values: the estimate of the chosen f differs from the estimate of the f that holds by b_f - b_chosen;
+  weighting every f by its likelihood, pi_f proportional to exp l(f) (white noise given prior odds, the
+  identification's rule for keeping it), the choice adds sum_f pi_f (b_f - b_chosen)(b_f - b_chosen)^T
+  (`choice_covariance`; zero with equal windows, where every f is one fit).
 
 A pure function of rates, windows and design, in the core: both the identification (procedures) and the gap
 diagnosis (station.gap, which may import only the core and the twin) call it.
@@ -31,6 +40,8 @@ import numpy as np
 from station.least_squares import JointFit, fit_joint
 
 RATE_FORM_GRID = (0.0, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)  # constant fraction f of the rate variance
+# the forms the data do not tell from the best: l(f) >= l_max - 1/2, the one-sigma likelihood interval
+LIKELIHOOD_INTERVAL = 0.5
 
 
 def rate_variance_shape(tm_s: np.ndarray, ref_s: float, constant_fraction: float) -> np.ndarray:
@@ -41,10 +52,12 @@ def rate_variance_shape(tm_s: np.ndarray, ref_s: float, constant_fraction: float
 
 @dataclass(frozen=True)
 class FormFit:
-    """The joint fit with one form's weights and its profile likelihood l(f)."""
+    """The joint fit with one form's weights, its profile likelihood l(f) and the form's shape f + (1 - f) T_ref / Tm
+    (the rate variances up to the scale, fit.sigma_residual^2)."""
 
     fit: JointFit
     likelihood: float
+    shape: np.ndarray
 
 
 def form_fits(
@@ -61,11 +74,27 @@ def form_fits(
     n = len(rates_radps)
     out = {}
     for f in RATE_FORM_GRID:
-        w = 1.0 / rate_variance_shape(tm_s, ref_s, f)
+        shape = rate_variance_shape(tm_s, ref_s, f)
+        w = 1.0 / shape
         fit = fit_joint(rates_radps, level_index, regressors, names, w)
         rss = float(np.sum(w * fit.residuals**2))
-        out[f] = FormFit(fit, -0.5 * n * math.log(max(rss, 1e-300) / n) + 0.5 * float(np.sum(np.log(w))))
+        out[f] = FormFit(fit, -0.5 * n * math.log(max(rss, 1e-300) / n) + 0.5 * float(np.sum(np.log(w))), shape)
     return out
+
+
+def form_covariance(fits: dict[float, FormFit], chosen: float, white_prior_odds: float) -> np.ndarray:
+    """The covariance of the chosen f's estimates, the choice's uncertainty in it (module docstring): each
+    coefficient's variance the largest of M diag(s_f^2 shape_f) M^T over the f with l(f) >= l_max - 1/2 (the excess
+    over the chosen fit's added on the diagonal, so no combination of the coefficients has a smaller variance than
+    the chosen fit gives it), plus choice_covariance."""
+    fit = fits[chosen].fit
+    ll_max = max(ff.likelihood for ff in fits.values())
+    var = np.diag(fit.cov).copy()
+    for ff in fits.values():
+        if ff.likelihood >= ll_max - LIKELIHOOD_INTERVAL:
+            rate_var = ff.fit.sigma_residual**2 * ff.shape
+            var = np.maximum(var, np.einsum("ij,j,ij->i", fit.estimator, rate_var, fit.estimator))
+    return fit.cov + np.diag(var - np.diag(fit.cov)) + choice_covariance(fits, chosen, white_prior_odds)
 
 
 def choice_covariance(fits: dict[float, FormFit], chosen: float, white_prior_odds: float) -> np.ndarray:

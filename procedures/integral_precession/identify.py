@@ -26,7 +26,7 @@ import numpy as np
 
 from procedures.common.uncertainty import Budget
 from station.least_squares import FitError, JointFit, fit_joint, reliability
-from station.noise_form import choice_covariance, form_fits, most_likely, rate_variance_shape
+from station.noise_form import form_covariance, form_fits, most_likely
 from station.session import Session
 from station.twin.regressors import (
     BASELINE_COEFFICIENTS,
@@ -88,8 +88,9 @@ def point_weights(
 def _weights_and_choice(
     session: Session, weighting: Weighting, method: Method, compensation: Compensation | None, rows: tuple | None = None
 ) -> tuple[np.ndarray, str, np.ndarray | None]:
-    """point_weights and, when the form was chosen from the data, the covariance its choice adds
-    (station.noise_form.choice_covariance), else None; `rows`: the session's `design`, when the caller has it."""
+    """point_weights and, when the form was chosen from the data, the covariance of the estimates with the
+    choice's uncertainty in it (station.noise_form.form_covariance), else None; `rows`: the session's `design`,
+    when the caller has it."""
     pts = session.points
     if weighting == "equal":
         return np.ones(len(pts)), "equal weights (asked for)", None
@@ -112,14 +113,15 @@ def _weights_and_choice(
     f = most_likely(fits)
     if fits[0.0].likelihood >= fits[f].likelihood - WHITE_REJECTED:
         f = 0.0
-    w = 1.0 / rate_variance_shape(tm, ref_s, f)
+    w = 1.0 / fits[f].shape
     how = (
         f"w = 1 / (f + (1 - f) T_ref / Tm), f = {f:g} by profile likelihood (station.noise_form; white noise, "
         f"f = 0, unless the likelihood ratio rejects it at 5 %), T_ref = {ref_s:.4g} s: the rate noise is not "
-        "stated; f = 0 is white noise (variance as 1/Tm), f = 1 a constant per window; covariance: the fit's at "
-        "this f plus the likelihood-weighted spread of every f's estimates about it (the choice's uncertainty)"
+        "stated; f = 0 is white noise (variance as 1/Tm), f = 1 a constant per window; covariance: each "
+        "coefficient's variance the largest under the forms within the one-sigma likelihood interval of f, plus "
+        "the likelihood-weighted spread of every f's estimates about this f's (the choice's uncertainty)"
     )
-    return w / w.mean(), how, choice_covariance(fits, f, math.exp(WHITE_REJECTED))
+    return w / w.mean(), how, form_covariance(fits, f, math.exp(WHITE_REJECTED))
 
 
 @dataclass
@@ -302,9 +304,11 @@ def identify(
     rates, index, L, names, vib = design(session, method, compensation)
     if not vib.any():
         raise FitError("the session has no vibration points: the nonlinear coefficients need vibration")
-    weights, how, choice = _weights_and_choice(session, weighting, method, compensation, (rates, index, L, names, vib))
+    weights, how, form_cov = _weights_and_choice(
+        session, weighting, method, compensation, (rates, index, L, names, vib)
+    )
     fit: JointFit = fit_joint(rates, index, L, names, weights=weights)
-    cov = fit.cov if choice is None else fit.cov + choice
+    cov = fit.cov if form_cov is None else form_cov
     mu, mu_c = reliability(fit.residuals * np.sqrt(weights), fit.sigma_residual)
     pts = session.points
     Y = rates[vib] - fit.static_levels[index[vib]]

@@ -18,7 +18,15 @@ from procedures.integral_precession.identify import design as identify_design
 from procedures.integral_precession.identify import identify, point_weights
 from station.interchange import read_session
 from station.least_squares import FitError, fit_joint
-from station.noise_form import RATE_FORM_GRID, form_fits, most_likely, rate_variance_shape
+from station.noise_form import (
+    LIKELIHOOD_INTERVAL,
+    RATE_FORM_GRID,
+    choice_covariance,
+    form_covariance,
+    form_fits,
+    most_likely,
+    rate_variance_shape,
+)
 
 generator = pytest.importorskip("indep.generator")  # tests/indep, the project's second generator
 
@@ -95,9 +103,9 @@ def test_stated_noise_keeps_its_weights_and_equal_windows_keep_equal_ones(tmp_pa
 
 
 def test_an_unstated_form_adds_its_choice_to_the_covariance(tmp_path) -> None:
-    """The covariance of a form chosen from the data is the chosen fit's plus the likelihood-weighted spread of
-    every form's estimates about it (station.noise_form.choice_covariance): larger where the forms disagree
-    (unequal windows), the conditional one where every form is one fit (equal windows)."""
+    """The covariance of a form chosen from the data holds under every form the data do not tell from it
+    (station.noise_form.form_covariance): larger than the chosen fit's where the forms disagree (unequal windows),
+    the chosen fit's where every form is nearly one fit (equal nominal windows)."""
     rng = np.random.default_rng(3202)
     for window_s, label in ((None, "unequal"), (200.0, "equal")):
         design = generator.equal_angle_design(10, (8.0, 9.0, 10.0), window_revs=50, window_s=window_s)
@@ -110,8 +118,42 @@ def test_an_unstated_form_adds_its_choice_to_the_covariance(tmp_path) -> None:
         conditional = fit_joint(*identify_design(session)[:4], weights=w)
         np.testing.assert_allclose(r.values, conditional.values, rtol=1e-12)
         extra = np.diag(r.cov) / np.diag(conditional.cov) - 1.0
+        # no combination of the coefficients is given less variance than the chosen fit gives it
+        assert np.all(np.linalg.eigvalsh(r.cov - conditional.cov) > -1e-12 * np.abs(r.cov).max())
         if label == "unequal":
             assert np.all(extra > 1e-5), extra  # old: the conditional covariance, extra = 0
-            assert np.all(np.linalg.eigvalsh(r.cov - conditional.cov) > -1e-12 * np.abs(r.cov).max())
         else:
-            assert np.all(np.abs(extra) < 1e-6), extra
+            # the windows are equal only nominally: the forms' rate variances differ by at most Tm's spread
+            tm = np.array([p.Tm_s for p in session.points])
+            assert np.all(extra <= tm.max() / tm.min() - 1.0), (extra, tm.max() / tm.min())
+
+
+def test_the_covariance_takes_the_largest_variance_of_the_forms_in_the_likelihood_interval() -> None:
+    """form_covariance against a direct computation: the chosen estimate b = pinv(W^1/2 X) W^1/2 y has variance
+    M diag(s_f^2 shape_f) M^T if form f holds; each coefficient's variance is the largest over the f with
+    l(f) >= l_max - 1/2, and over no other f (synthetic windows of 20-2000 s, constant noise)."""
+    rng = np.random.default_rng(3203)
+    n_pos, per = 8, 6
+    index = np.repeat(np.arange(n_pos), per)
+    L = rng.normal(size=(n_pos * per, 2))
+    L[::per] = 0.0
+    tm_s = np.exp(rng.uniform(math.log(20.0), math.log(2000.0), size=index.size))
+    rates = 0.3 * index + L @ np.array([1.0, -2.0]) + 1e-3 * rng.normal(size=index.size)
+    fits = form_fits(rates, index, L, ("a", "b"), tm_s, 200.0)
+    ll_max = max(ff.likelihood for ff in fits.values())
+    X = np.hstack([np.eye(n_pos)[index], L])
+    discriminates = []
+    for chosen in (0.0, 1.0):
+        w = 1.0 / rate_variance_shape(tm_s, 200.0, chosen)
+        M = (np.linalg.pinv(X * np.sqrt(w)[:, None]) * np.sqrt(w))[n_pos:]
+        var = {
+            f: np.diag(M @ np.diag(ff.fit.sigma_residual**2 * rate_variance_shape(tm_s, 200.0, f)) @ M.T)
+            for f, ff in fits.items()
+        }
+        inside = [f for f, ff in fits.items() if ff.likelihood >= ll_max - LIKELIHOOD_INTERVAL]
+        np.testing.assert_allclose(var[chosen], np.diag(fits[chosen].fit.cov), rtol=1e-9)
+        largest = np.max([var[f] for f in [*inside, chosen]], axis=0)
+        cov = form_covariance(fits, chosen, white_prior_odds=1.0)
+        np.testing.assert_allclose(np.diag(cov - choice_covariance(fits, chosen, 1.0)), largest, rtol=1e-9)
+        discriminates.append(not np.allclose(np.max(list(var.values()), axis=0), largest, rtol=1e-3))
+    assert any(discriminates), "a form outside the interval would change the answer: the test tells inside from all"
