@@ -82,7 +82,7 @@ def fit_joint(
     sigma = math.sqrt(float(np.sum((resid * w) ** 2)) / dof)
     Rinv = scipy.linalg.solve_triangular(R, np.eye(p))
     cov_all = (Rinv @ Rinv.T) / np.outer(scale, scale) * sigma**2
-    estimator = (Rinv @ Q.T)[n_pos:] * w[None, :] / scale[n_pos:, None]
+    estimator = (Rinv[n_pos:] @ Q.T) * w[None, :] / scale[n_pos:, None]
     return JointFit(
         names=names,
         values=beta[n_pos:],
