@@ -7,11 +7,11 @@ import argparse
 import json
 import math
 import os
+import queue
 import re
 import shlex
 import signal
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
@@ -199,9 +199,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     token_file = out / TOKEN_FILE  # tells a waiting panel that the station is there
     if token is None:  # authenticated by default: a token made on first start, readable by this user only
         token = ensure_token(token_file)
-    stop = threading.Event()
+    stopped: queue.SimpleQueue[int] = queue.SimpleQueue()  # reentrant put: an Event's lock may be held by the wait
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda signum, _: stopped.put(signum))
     with (
         SessionStore(args.db or out / "station.sqlite") as store,
         open_station(config, _load_twin(args.twin), seed=args.seed, speed=args.speed) as hw,
@@ -214,7 +214,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         print(f"station {args.name} ({config.path}): control {server.endpoint} ({auth}), telemetry {telemetry}, "
               f"store {store.path}", flush=True)  # fmt: skip
         try:
-            stop.wait()
+            stopped.get()
         finally:
             if controller.busy:
                 controller.abort()

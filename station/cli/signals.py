@@ -7,14 +7,19 @@
   aborted and the table ramps to rest.
 - SIGTERM aborts at once, the same way.
 
-Nothing is raised into the main thread (no KeyboardInterrupt, no traceback): the
-handlers only call the controller, whose supervisor bounds how long the abort may
-take (station.engine.supervisor.ABORT_GRACE_S), and the run ends `aborted` with every
+Nothing is raised into the main thread (no KeyboardInterrupt, no traceback). The
+handlers only queue the signal (queue.SimpleQueue.put is reentrant): a handler runs
+between two bytecodes of whatever the main thread was doing, even another handler
+still inside the engine's lock, so taking a lock there can deadlock the run (a second
+Ctrl-C 50 ms after the first once did). A thread of their own calls the controller,
+whose supervisor bounds how long the abort may take
+(station.engine.supervisor.ABORT_GRACE_S), and the run ends `aborted` with every
 finished point kept, resumable with `station resume`.
 """
 
 from __future__ import annotations
 
+import queue
 import signal
 import sys
 import threading
@@ -42,17 +47,36 @@ class RunSignals:
         self.aborted_by: str | None = None
         self._previous: dict[int, object] = {}
         self._prompt: threading.Thread | None = None
+        self._received: queue.SimpleQueue[int | None] = queue.SimpleQueue()
+        self._handler: threading.Thread | None = None
 
     def __enter__(self) -> RunSignals:
         if threading.current_thread() is threading.main_thread():
-            for sig, handler in ((signal.SIGINT, self._on_sigint), (signal.SIGTERM, self._on_sigterm)):
-                self._previous[sig] = signal.signal(sig, handler)
+            self._handler = threading.Thread(target=self._handle, name="run-signals", daemon=True)
+            self._handler.start()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._queue)
         return self
 
     def __exit__(self, *exc: object) -> None:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)  # type: ignore[arg-type]
         self._previous.clear()
+        if self._handler is not None:
+            self._received.put(None)
+            self._handler.join()
+            self._handler = None
+
+    def _queue(self, signum: int, frame: FrameType | None) -> None:
+        self._received.put(signum)
+
+    def _handle(self) -> None:
+        """The signals in the order they came, until the run's end (None)."""
+        while (signum := self._received.get()) is not None:
+            if signum == signal.SIGINT:
+                self._on_sigint()
+            else:
+                self._abort("SIGTERM")
 
     def _ask_on_err(self, prompt: str) -> str:
         """input(), but the prompt on stderr with the progress (input() writes it to stdout, into the facts)."""
@@ -70,7 +94,7 @@ class RunSignals:
         self._say(f"{why}: aborting (the window is aborted, the table ramps to rest; the session stays resumable)")
         self.controller.abort()
 
-    def _on_sigint(self, signum: int, frame: FrameType | None) -> None:
+    def _on_sigint(self) -> None:
         self.interrupts += 1
         if self.interrupts > 1:
             self._abort("second Ctrl-C")
@@ -80,11 +104,8 @@ class RunSignals:
         self._prompt = threading.Thread(target=self._ask_when_paused, name="pause-prompt", daemon=True)
         self._prompt.start()
 
-    def _on_sigterm(self, signum: int, frame: FrameType | None) -> None:
-        self._abort("SIGTERM")
-
     def _ask_when_paused(self) -> None:
-        """Once paused, ask resume or abort (in its own thread: a second Ctrl-C still reaches the main thread)."""
+        """Once paused, ask resume or abort (in its own thread: a second Ctrl-C is still handled)."""
         while (state := self.controller.engine.progress.state) not in (State.PAUSED, *FINAL_STATES):
             if self.aborted_by is not None:
                 return

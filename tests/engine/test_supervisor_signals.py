@@ -105,6 +105,48 @@ def test_ctrl_c_pauses_and_asks_an_answer_resumes_a_second_ctrl_c_aborts(tmp_pat
     assert [s for (s,) in _query(db, "SELECT sequence FROM points ORDER BY sequence")] == list(range(10))
 
 
+NESTED_CTRL_C = """
+import io, os, signal, threading, time
+from types import SimpleNamespace
+from station.cli.signals import RunSignals
+from station.engine.runner import State
+
+held = threading.Lock()  # the engine's lock, as pause and abort take it
+calls = []
+
+class Controller:
+    engine = SimpleNamespace(progress=SimpleNamespace(state=State.RUNNING))
+
+    def pause(self):
+        with held:
+            calls.append("pause")
+            os.kill(os.getpid(), signal.SIGINT)  # the second Ctrl-C comes while the first is in here
+            time.sleep(0.3)
+
+    def abort(self):
+        got = held.acquire(timeout=2.0)  # in a handler nested in the first one's pause: never got
+        calls.append("abort" if got else "deadlock")
+        if got:
+            held.release()
+
+with RunSignals(Controller(), ask=lambda prompt: "a", out=io.StringIO()):
+    os.kill(os.getpid(), signal.SIGINT)
+    t0 = time.monotonic()
+    while len(calls) < 2 and time.monotonic() - t0 < 10.0:
+        time.sleep(0.01)
+print(calls)
+"""
+
+
+def test_a_second_ctrl_c_while_the_first_is_being_handled_aborts_without_deadlock() -> None:
+    """A signal handler runs between two bytecodes of the main thread, inside another handler too: one that takes
+    the engine's lock can wait forever on its own thread. The handlers only queue; a thread of their own calls the
+    controller, one signal after the other (in a child: signal handlers belong to a main thread)."""
+    done = subprocess.run([sys.executable, "-c", NESTED_CTRL_C], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "['pause', 'abort']", done.stdout + done.stderr
+
+
 def test_sigterm_aborts_cleanly_and_a_second_process_is_refused(tmp_path) -> None:
     child, db = _start(tmp_path, speed=20.0)  # 36 s of wall time: long enough for a second process to start
     try:
