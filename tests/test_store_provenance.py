@@ -87,7 +87,7 @@ def _control_rig(tmp_path, seed: int):
     return sim, db, controller, server, client
 
 
-QUICK = {"positions_deg": [0, 180], "freqs_hz": [10], "window_s": 5, "settle_s": 0}
+QUICK = {"positions_deg": [0, 60, 180, 240], "freqs_hz": [10], "window_s": 5, "settle_s": 0}  # the fewest that identify
 
 
 def test_a_real_station_refuses_a_start_from_the_panel_without_a_serial(tmp_path):

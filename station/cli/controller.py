@@ -179,14 +179,19 @@ class StationController:
         instrument_serial: str = "",
         resume_uid: str | None = None,
         stops_seen: StopCount | None = None,
+        checked: bool = True,
     ) -> tuple[str, Plan]:
-        """Plan, then start the run in a worker thread; (session uid, plan) once the session exists.
+        """Plan (a new session's design checked first: RefusedDesignError before anything moves; `checked=False` runs
+        a design identification cannot use, as the engine's own tests do), then start the run in a worker thread;
+        (session uid, plan) once the session exists.
 
         An abort or emergency stop requested after `stops_seen` (the engine's stop_count() when the request was
         received; default: when this call began) is the run's own: it ends the run before its first step, with
         the outcome recorded, however early it came (while planning, while the session was being created)."""
         seen = self.engine.stop_count() if stops_seen is None else stops_seen
-        spec, plan = self.plan(procedure, params)
+        # a new design is checked however it came (a bare `start` on the control channel too); a resumed session
+        # was checked when it started
+        spec, plan = self.plan(procedure, params, checked=checked and resume_uid is None)
         if resume_uid is None:
             self.engine.provenance(instrument_serial)  # a real station refuses to start without a serial number
         with self._lock:

@@ -30,7 +30,7 @@ def test_a_session_is_the_same_to_the_bit_beside_two_busy_loops(make_rig, tmp_pa
 
     def once(db_name: str) -> tuple[str, list, list, list]:
         rig = make_rig(seed=11, db=tmp_path / db_name, speed=None, deterministic=True)
-        out = rig.controller.run(procedure, params)
+        out = rig.controller.run(procedure, params, checked=False)  # a design too small to identify
         assert out.state == State.FINISHED, out.faults
         session = rig.store.load_session(out.session_uid)
         assert session.points, "the session measured nothing"

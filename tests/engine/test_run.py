@@ -10,6 +10,7 @@ import pytest
 
 from drivers.pty_link import Fault
 from drivers.servo.emulator import ServoEmulator
+from station.engine.design_checks import RefusedDesignError
 from station.engine.runner import State
 from station.twin.config import default_twin
 
@@ -229,3 +230,14 @@ def test_a_stop_between_the_start_request_and_the_first_step_ends_the_run_before
     wait_until(lambda: any(m[0] == "move_index" for m in moves), 30)
     controller.abort()
     assert controller.wait(30).state == State.ABORTED
+
+
+def test_a_bare_start_of_a_design_that_cannot_work_is_refused_before_anything_moves(make_rig) -> None:
+    """The panel dry-runs a design before its Start; a lab script's `start` on the control channel reaches the
+    controller with no dry run, and is checked there: no session, no motion."""
+    rig = make_rig()
+    refused = r"refused: positions_deg = \[-360, 360, 0\][\s\S]*the design is singular"
+    with pytest.raises(RefusedDesignError, match=refused):
+        rig.controller.start(PROCEDURE, QUICK | {"positions_deg": [-360, 360, 0]})
+    assert rig.store.sessions() == [] and not rig.controller.busy
+    assert rig.controller.status()["freq_hz"] == 0.0 and rig.controller.status()["index_deg"] is None

@@ -108,7 +108,8 @@ def test_the_actor_is_the_authenticated_identity(server) -> None:
     ctl = server.controller
     try:
         started = client.request("start", {"procedure": "integral_precession",
-                                           "params": {"positions_deg": [0, 90], "freqs_hz": [10], "window_s": 30}},
+                                           "params": {"positions_deg": [0, 60, 180, 240], "freqs_hz": [10],
+                                                      "window_s": 30}},
                                  user="alice")  # fmt: skip
         assert started["ok"], started
         uid = started["result"]["session_uid"]
