@@ -10,6 +10,7 @@ spread of (k_hat - k) / u_c and the coverage of U (target 0.93-0.97).
 
     .venv/bin/python bench/bench_mc_indep.py [N]                      # N sessions of the four random families
     .venv/bin/python bench/bench_mc_indep.py --matrix [N] [--quick] [--corpus DIR] [--jobs 2] [--type-a | --true-form]
+        [--cells 3,19]
 
 --matrix (issue 32): equal-angle designs of 6, 10 and 16 positions at 8, 9, 10 Hz x rate noise constant per
 window (stated as instrument_repeatability_radps, or not), white, or mixed (half each at 300 s; neither is ever
@@ -184,17 +185,20 @@ def cell_row(
     return row, np.array(z), np.array(cover), np.array(scores)
 
 
-def matrix(per_cell: int, corpus: Path, jobs: int, type_a: bool, true_form: bool = False) -> None:
-    """Coverage of U and spread of z per coefficient in every cell of designs x noise forms x windows, the cells'
-    sessions generated once under `corpus` and scored in `jobs` processes (`type_a`: of the fit's own uncertainty;
-    `true_form`: of the fit with the true form's weights)."""
+def matrix(
+    per_cell: int, corpus: Path, jobs: int, type_a: bool, true_form: bool = False, only: set[int] | None = None
+) -> None:
+    """Coverage of U and spread of z per coefficient in every cell of designs x noise forms x windows (`only`: the
+    cells of these numbers), the cells' sessions generated once under `corpus` and scored in `jobs` processes
+    (`type_a`: of the fit's own uncertainty; `true_form`: of the fit with the true form's weights)."""
     t0 = time.perf_counter()
     heads = " | ".join(f"{c} cov / sd z (sd score)" for c in NAMES)
     print(f"| positions | rate noise | stated | windows | n | dof | {heads} |")
     print("|---:|---|---|---|---:|---:|" + "---:|" * len(NAMES))
     cov, sd, sd_n, n, z_all, cover_all = [], [], [], [], [], []
+    cells = [c for c in matrix_cells() if only is None or c[0] in only]
     with ProcessPoolExecutor(jobs) as pool:
-        for row, z, cover, scores in pool.map(partial(cell_row, corpus, per_cell, type_a, true_form), matrix_cells()):
+        for row, z, cover, scores in pool.map(partial(cell_row, corpus, per_cell, type_a, true_form), cells):
             print(row, flush=True)
             cov.append(cover.mean(axis=0))
             sd.append(z.std(axis=0, ddof=1))
@@ -236,13 +240,17 @@ if __name__ == "__main__":
         "--true-form", action="store_true", help="--matrix: Type A with the true form's weights (knowing the form)"
     )
     parser.add_argument("--jobs", type=int, default=1, help="--matrix: processes scoring cells (default 1)")
+    parser.add_argument(
+        "--cells", help="--matrix: only these cells, numbered 1-24 in the table's order, comma-separated (default all)"
+    )
     a = parser.parse_args()
+    only = None if a.cells is None else {int(c) for c in a.cells.split(",")}
     if a.matrix:
         per_cell = QUICK_PER_CELL if a.quick else a.n or 200
         if a.corpus is None:
             with tempfile.TemporaryDirectory() as tmp:
-                matrix(per_cell, Path(tmp), a.jobs, a.type_a, a.true_form)
+                matrix(per_cell, Path(tmp), a.jobs, a.type_a, a.true_form, only)
         else:
-            matrix(per_cell, a.corpus, a.jobs, a.type_a, a.true_form)
+            matrix(per_cell, a.corpus, a.jobs, a.type_a, a.true_form, only)
     else:
         main(a.n or 200)
