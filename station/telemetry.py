@@ -10,9 +10,10 @@ gap (the slow-joiner loss at connect, or a high-water-mark drop). Topics:
 
     state        {"state", "session_uid", "procedure"}
     progress     Progress.to_json(): key, done, total, fraction, elapsed_s, estimate_*_s, faults
-    window       {"key", "event", "elapsed_s", "expected_s", "preset_pulses", "pulses_est", ["rate_radps"]}
+    window       {"session_uid", "key", "event", "elapsed_s", "expected_s", "preset_pulses", "pulses_est",
+                 ["rate_radps"]}
     motion       {"freq_hz", "commanded_hz", "index_deg"}
-    trace        {"t_s": [...], "z_m": [...], "freq_hz"}  table displacement from the grating, decimated
+    trace        {"session_uid", "t_s": [...], "z_m": [...], "freq_hz"}  table displacement from the grating, decimated
                  honestly (`envelope`: the min and the max of each time bucket, in time order)
     point        a PointRecord as JSON
     measurement  {"key", "kind", "values"}

@@ -288,8 +288,9 @@ class Engine:
             last_wall[0] = now
             elapsed = ev.t_s - opened_s[0] if opened_s and math.isfinite(ev.t_s) else 0.0
             fraction = min(elapsed / expected_s, 1.0) if expected_s > 0 else 0.0
-            msg = {"key": key, "event": ev.kind, "elapsed_s": elapsed, "expected_s": expected_s,
-                   "preset_pulses": preset_pulses, "pulses_est": round(fraction * preset_pulses)}  # fmt: skip
+            msg = {"session_uid": self._session_uid, "key": key, "event": ev.kind, "elapsed_s": elapsed,
+                   "expected_s": expected_s, "preset_pulses": preset_pulses,
+                   "pulses_est": round(fraction * preset_pulses)}  # fmt: skip
             if ev.kind == "close" and elapsed > 0:
                 msg["rate_radps"] = 2 * math.pi * ev.value / (self.hw.station.pulses_per_rev * elapsed)
             self.publish("window", msg)
@@ -317,7 +318,7 @@ class Engine:
             t_parts.clear()
             z_parts.clear()
             t, z = envelope(t, z, TRACE_POINTS // 2)  # min and max per bucket: the motion's true envelope
-            self.publish("trace", {"t_s": t, "z_m": z, "freq_hz": self.freq_hz})
+            self.publish("trace", {"session_uid": self._session_uid, "t_s": t, "z_m": z, "freq_hz": self.freq_hz})
 
         return on_trace
 

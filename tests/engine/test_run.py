@@ -60,6 +60,8 @@ def test_a_session_runs_to_the_end_and_reports(make_rig) -> None:
     assert [m["state"] for t, m in rig.messages if t == "state"][-1] == "finished"
     assert sum(t == "point" for t, _ in rig.messages) == 10
     assert any(t == "trace" and len(m["z_m"]) for t, m in rig.messages)
+    # a listener who joins mid-run knows whose window and trace these are
+    assert {m["session_uid"] for t, m in rig.messages if t in ("window", "trace")} == {out.session_uid}
     assert crank_hz(rig) == 0.0
 
 
