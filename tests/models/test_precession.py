@@ -54,17 +54,14 @@ def brute_force_first_passage(theta, f, gamma0, cfg, target):
     t_safe, phi_safe = n_safe * T, n_safe * per_period
     step = T / 64
 
-    def phi(t):
-        n = int((t - t_safe) // step)
-        total = phi_safe + sum(integral(t_safe + i * step, t_safe + (i + 1) * step) for i in range(n))
-        return total + integral(t_safe + n * step, t)
-
     acc, prev = phi_safe, t_safe
     for i in range(1, 200 * 64):
         t = t_safe + i * step
+        before = acc  # phi(prev): the passage's step is solved from there, not summed again from t_safe
         acc += integral(prev, t)
         if sign * acc - target >= 0:
-            return brentq(lambda x: sign * phi(x) - target, prev, t, xtol=1e-13, rtol=1e-15)
+            return brentq(lambda x, a=prev, p=before: sign * (p + integral(a, x)) - target, prev, t, xtol=1e-13,
+                          rtol=1e-15)  # fmt: skip
         prev = t
     raise AssertionError("no passage found")
 
