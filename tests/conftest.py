@@ -16,3 +16,11 @@ def transport(request: pytest.FixtureRequest) -> str:
 def interface(request: pytest.FixtureRequest) -> str:
     """The python-can interface of the servo's bus: `virtual` or `station_sim`."""
     return str(request.param)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The modules with a `slow` test first, each kept whole (its module fixtures set up once), the rest in their
+    order: under xdist the long tests then run while the short ones fill in around them, instead of one of them
+    running alone at the end (the same order in every worker, as xdist requires)."""
+    slow = {item.module for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.module not in slow)

@@ -18,7 +18,7 @@ from station.interchange import content_hash
 from station.jsonsafe import json_safe
 from station.store import SessionStore
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
 
 def _once(name: str, db: Path) -> tuple[str, list, dict, str]:

@@ -124,6 +124,7 @@ def test_seed001_report_shows_the_budget() -> None:
     assert html.count("Uncertainty budget at") == 2 and "voltmeter offset" in html
 
 
+@pytest.mark.slow
 def test_seed001_monte_carlo_coverage() -> None:
     n = 150
     tally = mc.seed001(n, 11, REFS)
@@ -226,6 +227,7 @@ def test_seed002_report_json_carries_the_budget(imu_runs) -> None:
     assert "Uncertainty budget" in analysis.report_html
 
 
+@pytest.mark.slow
 def test_seed002_monte_carlo_coverage() -> None:
     n = 16
     tally = mc.seed002(n, 12, REFS, align_s=30.0, vibrate_s=15.0)
@@ -324,6 +326,7 @@ def test_seed003_json_carries_both_budgets() -> None:
     assert "budget" in doc["compensated"]  # eq. 49 as the seed has it (Type A only) is kept beside
 
 
+@pytest.mark.slow
 def test_seed003_monte_carlo_coverage() -> None:
     n = 300
     tallies = mc.seed003(n, 13, REFS)
@@ -393,6 +396,7 @@ def test_seed004_gum_json_carries_the_budget(seed004_case) -> None:
     assert doc["coefficients"]["removed_mass"]["sigma"] == pytest.approx(s.correction.sigma_mass_mg)
 
 
+@pytest.mark.slow
 def test_seed004_monte_carlo_coverage() -> None:
     n = 30
     tally = mc.seed004(n, 14, REFS)

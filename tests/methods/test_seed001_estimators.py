@@ -41,6 +41,7 @@ def test_eq6_behaves_as_the_seed_says_under_a_setting_angle() -> None:
     assert est["Mo"] == pytest.approx(-k["K1"] * d0, abs=10 * third_order + k["K3"] * d0)
 
 
+@pytest.mark.slow
 def test_stated_uncertainties_match_the_scatter_of_simulated_sessions() -> None:
     """Normalised errors (estimate - truth) / sigma of N sessions (procedures.tumble.tumble_session: the procedure's
     readings from the model, returning to T0) are N(0, 1) if the sigmas are honest: their mean within 4 / sqrt(N)

@@ -27,7 +27,7 @@ from station.twin.chamber_thermal import time_to_band_s
 from station.twin.config import default_twin
 from station.twin.pendulous_accelerometer import CF_NAMES, cf_coefficients
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(120)]
 CONFIG_DIR = Path(__file__).parents[2] / "config"
 TUMBLE = load_station_config(CONFIG_DIR / "stations/tumble-sim.toml")
 # A product that follows the chamber within a minute keeps the soaks short.

@@ -31,7 +31,7 @@ from station.twin.strapdown_imu import StrapdownImuTwin
 
 from .test_seed002_analysis import a_priori_sigmas, flexure_covariance
 
-pytestmark = pytest.mark.timeout(180)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180)]
 
 CONFIG_DIR = Path(__file__).parents[2] / "config"
 STATION = load_station_config(CONFIG_DIR / "stations/shaker-sim.toml")

@@ -36,7 +36,7 @@ from station.twin.config import TwinConfig
 from station.twin.fixture import mounted_twin, pose_rad
 from station.twin.inputs import instrument_rate_radps
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 ROOT = Path(__file__).parents[2]
 CONFIG = load_station_config(ROOT / "config" / "stations/dual-sim.toml")

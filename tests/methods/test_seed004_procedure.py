@@ -66,6 +66,7 @@ def test_bad_input_is_refused_before_anything_moves() -> None:
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.slow
 def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
     """The default procedure file, end to end on the simulated station (seed 5). Every figure is checked
     against the twin's float within 4 sigma of the session's own uncertainties. At 500 x real time: on a

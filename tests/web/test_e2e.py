@@ -97,6 +97,7 @@ def wait_until(predicate, timeout_s: float, what: str) -> None:
         time.sleep(0.05)
 
 
+@pytest.mark.slow
 def test_operator_runs_a_session_from_the_browser(browser, panel_url, passwords, quick):
     context = browser.new_context(viewport={"width": 1400, "height": 1000})
     page = context.new_page()
