@@ -647,7 +647,7 @@ class StartForm {
       const plan = kind === "start" ? r.result.plan : r;
       const what = kind === "start" ? `started session ${r.result.session_uid}: ` : "dry run: ";
       this.result.textContent = `${what}${plan.n_measurements} measurements, ${duration(plan.total_s)} of station time`;
-      this.warn(plan.warnings);
+      if (kind !== "start") this.warn(plan.warnings);  // a start's warnings were confirmed before it (409 first)
     } catch (err) {
       if (err.status === 409 && err.detail?.warnings) this.warn(err.detail.warnings, true);
       else showError(this.error, err);
