@@ -14,7 +14,7 @@ with e the window's rate-noise offset and d the bias drift (window opened at
 session time t0). Tm is the first t > 0 with |phi(t)| = target (physics.md):
 |phi| departs from the mean line by at most B = sum_k (|alpha_k| + |beta_k|) 2 / (k w),
 so the root lies where the mean line is within B of the target; that band
-(a few periods) is scanned on a grid of T/64 for the first sign change, each
+(a few periods) is scanned, half a period at a time, on a grid of T/64 for the first sign change, each
 grid cell in which the rate turns from rising to falling is checked at its
 exact local maximum (so a crossing that touches the target between two grid
 points is not missed), and the bracket is solved by Brent's method to 4 ulp
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.optimize import brentq
@@ -35,6 +36,7 @@ from station.twin.inputs import instrument_rate_radps
 
 N_PHASES = 256
 _CELLS_PER_PERIOD = 64
+_CHUNK_CELLS = _CELLS_PER_PERIOD // 2  # grid cells evaluated at once (crossings_s)
 _RTOL = 4.0 * np.finfo(float).eps  # the smallest relative tolerance brentq accepts
 
 
@@ -109,17 +111,21 @@ class PrecessionWindow:
     def _mean_angle(self, t):
         return self.mean_rate_radps * t + 0.5 * self.drift_radps2 * t * t
 
+    @cached_property
+    def _harmonics(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """k (as float), k w, sin k gamma0, cos k gamma0: what phi and the rate reuse at every t of the window."""
+        kk = self.rate.k.astype(float)
+        kg = kk * self.gamma0_rad
+        return kk, kk * self.w_radps, np.sin(kg), np.cos(kg)
+
     def phi_rad(self, t):
         """Precession angle since the window opened (vectorised over t)."""
         t = np.asarray(t, dtype=float)
         out = self._mean_angle(t)
         if self.w_radps and self.rate.k.size:
-            kk = self.rate.k.astype(float)
+            kk, kw, sin_kg, cos_kg = self._harmonics
             kpsi = np.multiply.outer(self.w_radps * t + self.gamma0_rad, kk)
-            kg = kk * self.gamma0_rad
-            per = (self.rate.alpha * (np.sin(kpsi) - np.sin(kg)) + self.rate.beta * (np.cos(kg) - np.cos(kpsi))) / (
-                kk * self.w_radps
-            )
+            per = (self.rate.alpha * (np.sin(kpsi) - sin_kg) + self.rate.beta * (cos_kg - np.cos(kpsi))) / kw
             out = out + per.sum(axis=-1)
         return out
 
@@ -128,7 +134,7 @@ class PrecessionWindow:
         t = np.asarray(t, dtype=float)
         out = self.mean_rate_radps + self.drift_radps2 * t
         if self.w_radps and self.rate.k.size:
-            kpsi = np.multiply.outer(self.w_radps * t + self.gamma0_rad, self.rate.k.astype(float))
+            kpsi = np.multiply.outer(self.w_radps * t + self.gamma0_rad, self._harmonics[0])
             out = out + (self.rate.alpha * np.cos(kpsi) + self.rate.beta * np.sin(kpsi)).sum(axis=-1)
         return out
 
@@ -172,26 +178,30 @@ class PrecessionWindow:
         period = 2.0 * math.pi / abs(self.w_radps)
         n_cells = max(math.ceil((t_hi - t_lo) / period * _CELLS_PER_PERIOD), 8)
         grid = np.linspace(max(t_lo - period / _CELLS_PER_PERIOD, 0.0), t_hi + period / _CELLS_PER_PERIOD, n_cells + 3)
-        fv = sign * self.phi_rad(grid) - target_rad
-        rv = sign * self.rate_radps(grid)
         roots: list[float] = []
-        for i in range(grid.size - 1):
-            a, b, fa, fb = grid[i], grid[i + 1], fv[i], fv[i + 1]
-            brackets = []
-            if rv[i] > 0 >= rv[i + 1] or rv[i] < 0 <= rv[i + 1]:
-                # An extremum inside the cell: split there so both roots are found.
-                tm = brentq(lambda t: sign * float(self.rate_radps(t)), a, b, xtol=1e-15)
-                fm = f(tm)
-                brackets = [(a, tm, fa, fm), (tm, b, fm, fb)]
-            else:
-                brackets = [(a, b, fa, fb)]
-            for ba, bb, fba, fbb in brackets:
-                if fba == 0.0 and ba > 0 and (not roots or roots[-1] != ba):
-                    roots.append(float(ba))
-                elif (fba < 0.0 < fbb) or (fba > 0.0 > fbb):
-                    roots.append(self._polish(brentq(f, ba, bb, xtol=1e-14, rtol=_RTOL, maxiter=200), f))
-                if first_only and roots:
-                    return roots[:1]
+        # _CHUNK_CELLS at a time, not the whole band (often several periods) at once: the first passage mostly lies in
+        # its first chunks, and a grid point is the same elementwise computation in a chunk as in the whole grid
+        for start in range(0, grid.size - 1, _CHUNK_CELLS):
+            cells = grid[start : start + _CHUNK_CELLS + 1]
+            fv = sign * self.phi_rad(cells) - target_rad
+            rv = sign * self.rate_radps(cells)
+            for i in range(cells.size - 1):
+                a, b, fa, fb = cells[i], cells[i + 1], fv[i], fv[i + 1]
+                brackets = []
+                if rv[i] > 0 >= rv[i + 1] or rv[i] < 0 <= rv[i + 1]:
+                    # An extremum inside the cell: split there so both roots are found.
+                    tm = brentq(lambda t: sign * float(self.rate_radps(t)), a, b, xtol=1e-15)
+                    fm = f(tm)
+                    brackets = [(a, tm, fa, fm), (tm, b, fm, fb)]
+                else:
+                    brackets = [(a, b, fa, fb)]
+                for ba, bb, fba, fbb in brackets:
+                    if fba == 0.0 and ba > 0 and (not roots or roots[-1] != ba):
+                        roots.append(float(ba))
+                    elif (fba < 0.0 < fbb) or (fba > 0.0 > fbb):
+                        roots.append(self._polish(brentq(f, ba, bb, xtol=1e-14, rtol=_RTOL, maxiter=200), f))
+                    if first_only and roots:
+                        return roots[:1]
         if not roots:
             raise WindowNeverClosesError(f"no passage of |phi| = {target_rad:.6g} rad found in [{t_lo}, {t_hi}] s")
         return roots
