@@ -37,6 +37,7 @@ import os
 import select
 import threading
 import tty
+from collections.abc import Callable
 
 from drivers import sim_serial
 from station.clock import Clock
@@ -167,6 +168,7 @@ class PtyEmulator:
         self._disconnect_now = threading.Event()
         self._thread: threading.Thread | None = None
         self._finished = self._link_clock.event()
+        self._wake_line: Callable[[], None] = _nothing
         self.connected = False
         self.error: BaseException | None = None  # an exception that killed the worker
 
@@ -205,6 +207,7 @@ class PtyEmulator:
     def close(self, timeout_s: float = 2.0) -> None:
         """Stop the worker and close the pty (idempotent)."""
         self._stop.set()
+        self._wake_line()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._finished.wait(timeout_s=timeout_s)
         self._close_fds()
@@ -221,13 +224,12 @@ class PtyEmulator:
     def disconnect(self) -> None:
         """Pull the cable: close the master side now (the driver sees EIO)."""
         self._disconnect_now.set()
+        self._wake_line()
 
     def inject(self, fault: enum.Enum, count: int | None = 1) -> None:
         """Arm a fault for `count` occurrences (None: until `clear_fault`)."""
-        if fault is Fault.DISCONNECT:
-            self.faults.inject(fault, 1)
-            return
-        self.faults.inject(fault, count)
+        self.faults.inject(fault, 1 if fault is Fault.DISCONNECT else count)
+        self._wake_line()
 
     def clear_fault(self, fault: enum.Enum | None = None) -> None:
         self.faults.clear(fault)
@@ -284,6 +286,11 @@ class PtyEmulator:
         return self._disconnect_now.is_set() or self.faults.take(Fault.DISCONNECT)
 
     # ---- sim:// line
+
+    def attach_line(self, wake: Callable[[], None]) -> None:
+        """`wake` ends a sim:// reader's wait: called when a fault is injected, the cable pulled or the
+        emulator closed, so that an emulator whose `next_due_s` lies far ahead is seen to fail at once."""
+        self._wake_line = wake
 
     def sim_link_error(self) -> str | None:
         """Why a sim:// port can no longer talk to the emulator (None while it can); a pending
@@ -357,11 +364,15 @@ class PtyEmulator:
         """The link was closed by a DISCONNECT fault."""
 
     def next_due_s(self, now_s: float) -> float:
-        """When a sim:// line should next call on_poll, if nothing else wakes it: by default a poll every
-        SIM_POLL_S; an emulator that knows when its output is due can say so."""
+        """When a sim:// line should next call on_poll, if nothing else wakes it (a command, a fault, a pulled
+        cable): by default a poll every SIM_POLL_S; an emulator that knows when its output is due can say so."""
         return now_s + SIM_POLL_S
 
     @staticmethod
     def stream_due_s(next_sample_s: float, now_s: float) -> float:
         """next_due_s of a stream whose next sample falls due at next_sample_s: its batch (SIM_STREAM_BATCH_S)."""
         return max(next_sample_s + SIM_STREAM_BATCH_S, now_s + SIM_POLL_S)
+
+
+def _nothing() -> None:
+    """No sim:// line to wake (a pty, or not started)."""

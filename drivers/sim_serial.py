@@ -15,7 +15,8 @@ The line (`SimLine`), in the station time of the emulator's clock:
   (baud/10 bytes per station second) has carried by now; while that is too
   little it waits on the clock until the adapter hands over the next bytes
   (on a 1 ms USB frame grid) or the emulator is next due, at most the port's
-  timeout, counted in the same seconds;
+  timeout, counted in the same seconds; a fault injected or the cable pulled
+  meanwhile wakes it at once;
 - a pulled cable (`disconnect()`, a DISCONNECT fault) or a closed emulator
   makes every call raise SerialException, as a vanished pty does.
 
@@ -64,6 +65,8 @@ class SimEmulator(Protocol):
 
     def sim_link_error(self) -> str | None: ...
 
+    def attach_line(self, wake: Callable[[], None]) -> None: ...
+
 
 class SimLine:
     """The simulated serial line between the ports opened on `sim://<name>` and one emulator."""
@@ -80,6 +83,7 @@ class SimLine:
         self._poll_due_s = self._carried_s
         self._exclusive = False
         self._changed = self.clock.event()
+        emulator.attach_line(self._changed.set)  # a fault or a pulled cable ends a wait at once
 
     # ---- opening
 

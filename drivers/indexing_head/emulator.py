@@ -12,6 +12,7 @@ CRC_ERROR (the next reply), DISCONNECT.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from drivers.indexing_head.protocol import WARNING_ORDER, decode_command, encode_reply
@@ -44,6 +45,10 @@ class IndexingEmulator(PtyEmulator):
     def on_bytes(self, data: bytes) -> None:
         for line in self.command_lines(data):
             self._handle(line)
+
+    def next_due_s(self, now_s: float) -> float:
+        """Never: the controller only answers commands (motion is the world's, read when asked)."""
+        return math.inf
 
     def _reply(self, axis: int, mid: int | None, ok: bool, data: str) -> None:
         now = self.clock.now_s()

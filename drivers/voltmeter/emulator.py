@@ -126,6 +126,10 @@ class VoltmeterEmulator(PtyEmulator):
             self._reply(self._readings(now_s))
         self._run_queue()
 
+    def next_due_s(self, now_s: float) -> float:
+        """A READ? under way is due when its integration ends; an idle meter only answers commands."""
+        return math.inf if self._busy_until_s is None else self._busy_until_s
+
     def _run_queue(self) -> None:
         while self._queue and self._busy_until_s is None:
             self._handle(self._queue.popleft())

@@ -21,6 +21,7 @@ from drivers.errors import Disconnected, DriverError
 from drivers.pty_link import Fault, PtyEmulator
 from drivers.serial_port import SerialLink
 from station.clock import VirtualClock
+from station.event_clock import EventClock
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -144,6 +145,33 @@ def test_a_pulled_cable_or_closed_emulator_fails_every_call(echo, how) -> None:
     link.close()
     with pytest.raises(Disconnected, match="cannot open"):
         SerialLink("echo", url, BAUD)
+
+
+class QuietEmulator(EchoEmulator):
+    """Never due by itself (as a meter between readings, a head between commands): only a write polls it."""
+
+    def next_due_s(self, now_s: float) -> float:
+        return float("inf")
+
+
+@pytest.mark.parametrize("how", ["disconnect", "fault", "close"])
+def test_a_reader_waiting_on_an_emulator_never_due_sees_the_failure_at_once(how) -> None:
+    """On the discrete-event clock nothing wakes such a reader before its 10 s timeout but the failure itself:
+    it must raise at the station time the cable is pulled (0.5 s), not at the timeout."""
+    clock = EventClock()
+    emu = QuietEmulator(clock)  # type: ignore[arg-type]
+    url = emu.start_sim()
+    failures = {"disconnect": emu.disconnect, "fault": lambda: emu.inject(Fault.DISCONNECT), "close": emu.close}
+    try:
+        with clock.party("reader"):
+            link = SerialLink("echo", url, BAUD, clock=clock)
+            clock.call_at(0.5, failures[how])
+            with pytest.raises(Disconnected):
+                link.read_some(10.0)
+            assert clock.now_s() == 0.5
+            link.close()
+    finally:
+        emu.close()
 
 
 def test_unknown_lines_and_names() -> None:
