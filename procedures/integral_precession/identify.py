@@ -43,6 +43,9 @@ METHODS: tuple[Method, ...] = ("integral", "baseline")
 # form is weakly identified and a free choice under-covers white noise (kzz's z spread 1.54 against 1.24, issue 32).
 # The same rule as prior odds weighs white among the forms whose spread is the choice's uncertainty.
 WHITE_REJECTED = 1.92
+# A coefficient whose u the noise form's choice makes this many times the chosen form's or more is named in how the
+# weights were chosen: smaller factors are lost in the spread of u itself (its relative sd 1/sqrt(2 dof), 19 % at 14).
+FORM_NOTE_RATIO = 1.05
 
 
 @dataclass(frozen=True)
@@ -114,14 +117,29 @@ def _weights_and_choice(
     if fits[0.0].likelihood >= fits[f].likelihood - WHITE_REJECTED:
         f = 0.0
     w = 1.0 / fits[f].shape
+    cov = form_covariance(fits, f, math.exp(WHITE_REJECTED))
     how = (
         f"w = 1 / (f + (1 - f) T_ref / Tm), f = {f:g} by profile likelihood (station.noise_form; white noise, "
         f"f = 0, unless the likelihood ratio rejects it at 5 %), T_ref = {ref_s:.4g} s: the rate noise is not "
         "stated; f = 0 is white noise (variance as 1/Tm), f = 1 a constant per window; covariance: each "
         "coefficient's variance the largest under the forms within the one-sigma likelihood interval of f, plus "
         "the likelihood-weighted spread of every f's estimates about this f's (the choice's uncertainty)"
+        + _form_note(names, np.sqrt(np.diag(cov) / np.diag(fits[f].fit.cov)))
     )
-    return w / w.mean(), how, form_covariance(fits, f, math.exp(WHITE_REJECTED))
+    return w / w.mean(), how, cov
+
+
+def _form_note(names: tuple[str, ...], ratios: np.ndarray) -> str:
+    """What not knowing the noise form costs: the coefficients whose u it makes FORM_NOTE_RATIO times the chosen
+    form's or more, and how a lab avoids it ('' if none)."""
+    named = [f"{n} {r:.2f}" for n, r in zip(names, ratios, strict=True) if r >= FORM_NOTE_RATIO]
+    if not named:
+        return ""
+    return (
+        f"; the data do not tell the forms apart: u is larger than the chosen form's by the factor {', '.join(named)} "
+        "(right whichever of the forms holds, on the safe side if the chosen one does; a stated repeatability, "
+        "equal windows or more positions remove this)"
+    )
 
 
 @dataclass

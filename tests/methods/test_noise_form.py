@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from procedures.integral_precession.identify import FORM_NOTE_RATIO, identify, point_weights
 from procedures.integral_precession.identify import design as identify_design
-from procedures.integral_precession.identify import identify, point_weights
 from station.interchange import read_session
 from station.least_squares import FitError, fit_joint
 from station.noise_form import (
@@ -120,8 +120,15 @@ def test_an_unstated_form_adds_its_choice_to_the_covariance(tmp_path) -> None:
         extra = np.diag(r.cov) / np.diag(conditional.cov) - 1.0
         # no combination of the coefficients is given less variance than the chosen fit gives it
         assert np.all(np.linalg.eigvalsh(r.cov - conditional.cov) > -1e-12 * np.abs(r.cov).max())
+        # how the weights were chosen names every coefficient whose u the choice makes 5 % larger or more
+        ratios = np.sqrt(1.0 + extra)
+        named = {n for n, ratio in zip(r.names, ratios, strict=True) if ratio >= FORM_NOTE_RATIO}
+        for n, ratio in zip(r.names, ratios, strict=True):
+            assert (f"{n} {ratio:.2f}" in r.weighting) == (n in named), (n, ratio, r.weighting)
+        assert ("do not tell the forms apart" in r.weighting) == bool(named), r.weighting
         if label == "unequal":
             assert np.all(extra > 1e-5), extra  # old: the conditional covariance, extra = 0
+            assert named, ratios  # this session's kzz: 1.057 (kz 1.046, k3 1.049 below the note's 1.05)
         else:
             # the windows are equal only nominally: the forms' rate variances differ by at most Tm's spread
             tm = np.array([p.Tm_s for p in session.points])
