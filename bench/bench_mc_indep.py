@@ -9,8 +9,8 @@ so their params say the error-source experiments found none: found_none_params).
 spread of (k_hat - k) / u_c and the coverage of U (target 0.93-0.97).
 
     .venv/bin/python bench/bench_mc_indep.py [N]                      # N sessions of the four random families
-    .venv/bin/python bench/bench_mc_indep.py --matrix [N] [--quick] [--corpus DIR] [--jobs 2] [--type-a | --true-form]
-        [--cells 3,19]
+    .venv/bin/python bench/bench_mc_indep.py --matrix [N] [--quick] [--corpus DIR] [--jobs 2]
+        [--type-a | --true-form | --form-note] [--cells 3,19]
 
 --matrix (issue 32): equal-angle designs of 6, 10 and 16 positions at 8, 9, 10 Hz x rate noise constant per
 window (stated as instrument_repeatability_radps, or not), white, or mixed (half each at 300 s; neither is ever
@@ -20,7 +20,9 @@ them (DIR/cellNN/sK, generated once, extended when N grows) for re-scoring; --ty
 uncertainty (z = err / sigma, t at the fit dof) without the budget's refits; --true-form scores, Type A, the fit
 with the generator's own form's weights (what knowing the form gives, the reference for a chosen form). Each cell
 prints coverage / sd z (sd of z's normal scores, Phi^-1(F_t(z; nu)): 1 for a right u at any dof, where sd z itself
-is sqrt(nu / (nu - 2))).
+is sqrt(nu / (nu - 2))). --form-note: per cell and coefficient, the share of sessions whose identification names
+the coefficient in its note on the noise form's choice (u FORM_NOTE_RATIO times the chosen form's or more), and the
+Type A coverage of U in those sessions / in the others.
 
 Simulation path: neither the engine nor session_sim: tests/indep's independent generator.
 """
@@ -56,7 +58,7 @@ from indep.generator import (
 )
 
 from procedures.integral_precession.budget import found_none_params, seed000_budget
-from procedures.integral_precession.identify import design, identify
+from procedures.integral_precession.identify import FORM_NOTE_RATIO, design, identify, point_weights
 from station.interchange import read_session
 from station.least_squares import FitError, fit_joint
 
@@ -90,6 +92,39 @@ def score(path: Path, k_true: np.ndarray, type_a: bool = False, true_form: str |
     b = seed000_budget(session, r, found_none_params(), timer_rows=False)
     z = err / b.standard_uncertainty()
     return z, np.abs(err) <= b.expanded_uncertainty(), r.dof, normal_score(z, b.effective_dof())
+
+
+def form_note_score(path: Path, k_true: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Whether identify's note on the noise form names each coefficient (its u FORM_NOTE_RATIO times the chosen
+    fit's or more) and whether U (Type A) covers it; None if refused as singular."""
+    session = read_session(path)
+    try:
+        r = identify(session)
+    except FitError:
+        return None
+    weights, _ = point_weights(session)
+    chosen = fit_joint(*design(session)[:4], weights=weights)
+    named = np.sqrt(np.diag(r.cov) / np.diag(chosen.cov)) >= FORM_NOTE_RATIO
+    return named, type_a_score(r.values - k_true, r.sigmas, r.dof)[1]
+
+
+def form_note_row(corpus: Path, per_cell: int, cell: tuple) -> str:
+    """One cell's --form-note row: per coefficient, share named: coverage named / not named."""
+    number, n_pos, label, form, stated, windows, window_s = cell
+    scored = [
+        form_note_score(path, k) for path, k in cell_corpus(corpus, number, n_pos, form, stated, window_s, per_cell)
+    ]
+    named, cover = (np.array(x) for x in zip(*[s for s in scored if s is not None], strict=True))
+
+    def part(j: int) -> str:
+        rates = [f"{cover[m, j].mean():.3f}" if m.any() else "-" for m in (named[:, j], ~named[:, j])]
+        return f"{named[:, j].mean():.2f}: {rates[0]} / {rates[1]}"
+
+    return (
+        f"| {n_pos} | {label} | {'yes' if stated else 'no'} | {windows} | {len(named)} | "
+        + " | ".join(part(j) for j in range(len(NAMES)))
+        + " |"
+    )
 
 
 def type_a_score(err: np.ndarray, sigmas: np.ndarray, dof: int):
@@ -241,11 +276,22 @@ if __name__ == "__main__":
     )
     parser.add_argument("--jobs", type=int, default=1, help="--matrix: processes scoring cells (default 1)")
     parser.add_argument(
+        "--form-note", action="store_true", help="--matrix: who the noise form's note names, and U's coverage there"
+    )
+    parser.add_argument(
         "--cells", help="--matrix: only these cells, numbered 1-24 in the table's order, comma-separated (default all)"
     )
     a = parser.parse_args()
     only = None if a.cells is None else {int(c) for c in a.cells.split(",")}
-    if a.matrix:
+    if a.matrix and a.form_note:
+        per_cell = QUICK_PER_CELL if a.quick else a.n or 200
+        print("| positions | rate noise | stated | windows | n | " + " | ".join(NAMES) + " |")
+        print("|---:|---|---|---|---:|" + "---|" * len(NAMES))
+        with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(a.jobs) as pool:
+            cells = [c for c in matrix_cells() if only is None or c[0] in only]
+            for row in pool.map(partial(form_note_row, a.corpus or Path(tmp), per_cell), cells):
+                print(row, flush=True)
+    elif a.matrix:
         per_cell = QUICK_PER_CELL if a.quick else a.n or 200
         if a.corpus is None:
             with tempfile.TemporaryDirectory() as tmp:

@@ -136,9 +136,8 @@ def _form_note(names: tuple[str, ...], ratios: np.ndarray) -> str:
     if not named:
         return ""
     return (
-        f"; the data do not tell the forms apart: u is larger than the chosen form's by the factor {', '.join(named)} "
-        "(right whichever of the forms holds, on the safe side if the chosen one does; a stated repeatability, "
-        "equal windows or more positions remove this)"
+        f"; the forms the data do not tell apart make u larger than the chosen form's by the factor "
+        f"{', '.join(named)} (a stated repeatability or equal windows remove this)"
     )
 
 

@@ -125,7 +125,7 @@ def test_an_unstated_form_adds_its_choice_to_the_covariance(tmp_path) -> None:
         named = {n for n, ratio in zip(r.names, ratios, strict=True) if ratio >= FORM_NOTE_RATIO}
         for n, ratio in zip(r.names, ratios, strict=True):
             assert (f"{n} {ratio:.2f}" in r.weighting) == (n in named), (n, ratio, r.weighting)
-        assert ("do not tell the forms apart" in r.weighting) == bool(named), r.weighting
+        assert ("the forms the data do not tell apart" in r.weighting) == bool(named), r.weighting
         if label == "unequal":
             assert np.all(extra > 1e-5), extra  # old: the conditional covariance, extra = 0
             assert named, ratios  # this session's kzz: 1.057 (kz 1.046, k3 1.049 below the note's 1.05)
