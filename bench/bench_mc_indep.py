@@ -199,6 +199,21 @@ def matrix_cells() -> list[tuple[int, int, str, str, bool, str, float | None]]:
     return cells
 
 
+def selected_cells(only: set[int] | None) -> list[tuple[int, int, str, str, bool, str, float | None]]:
+    """The matrix's cells whose numbers are in `only` (None: every cell)."""
+    return [c for c in matrix_cells() if only is None or c[0] in only]
+
+
+def form_note_matrix(per_cell: int, corpus: Path, jobs: int, only: set[int] | None = None) -> None:
+    """--form-note: per cell and coefficient, the share of sessions the note names it in, and U's coverage there
+    and elsewhere (`form_note_row`)."""
+    print("| positions | rate noise | stated | windows | n | " + " | ".join(NAMES) + " |")
+    print("|---:|---|---|---|---:|" + "---|" * len(NAMES))
+    with ProcessPoolExecutor(jobs) as pool:
+        for row in pool.map(partial(form_note_row, corpus, per_cell), selected_cells(only)):
+            print(row, flush=True)
+
+
 def cell_row(
     corpus: Path, per_cell: int, type_a: bool, true_form: bool, cell: tuple
 ) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
@@ -231,9 +246,10 @@ def matrix(
     print(f"| positions | rate noise | stated | windows | n | dof | {heads} |")
     print("|---:|---|---|---|---:|---:|" + "---:|" * len(NAMES))
     cov, sd, sd_n, n, z_all, cover_all = [], [], [], [], [], []
-    cells = [c for c in matrix_cells() if only is None or c[0] in only]
     with ProcessPoolExecutor(jobs) as pool:
-        for row, z, cover, scores in pool.map(partial(cell_row, corpus, per_cell, type_a, true_form), cells):
+        for row, z, cover, scores in pool.map(
+            partial(cell_row, corpus, per_cell, type_a, true_form), selected_cells(only)
+        ):
             print(row, flush=True)
             cov.append(cover.mean(axis=0))
             sd.append(z.std(axis=0, ddof=1))
@@ -283,20 +299,13 @@ if __name__ == "__main__":
     )
     a = parser.parse_args()
     only = None if a.cells is None else {int(c) for c in a.cells.split(",")}
-    if a.matrix and a.form_note:
+    if a.matrix:
         per_cell = QUICK_PER_CELL if a.quick else a.n or 200
-        print("| positions | rate noise | stated | windows | n | " + " | ".join(NAMES) + " |")
-        print("|---:|---|---|---|---:|" + "---|" * len(NAMES))
-        with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(a.jobs) as pool:
-            cells = [c for c in matrix_cells() if only is None or c[0] in only]
-            for row in pool.map(partial(form_note_row, a.corpus or Path(tmp), per_cell), cells):
-                print(row, flush=True)
-    elif a.matrix:
-        per_cell = QUICK_PER_CELL if a.quick else a.n or 200
-        if a.corpus is None:
-            with tempfile.TemporaryDirectory() as tmp:
-                matrix(per_cell, Path(tmp), a.jobs, a.type_a, a.true_form, only)
-        else:
-            matrix(per_cell, a.corpus, a.jobs, a.type_a, a.true_form, only)
+        with tempfile.TemporaryDirectory() as tmp:
+            corpus = a.corpus or Path(tmp)
+            if a.form_note:
+                form_note_matrix(per_cell, corpus, a.jobs, only)
+            else:
+                matrix(per_cell, corpus, a.jobs, a.type_a, a.true_form, only)
     else:
         main(a.n or 200)
