@@ -51,12 +51,21 @@ def attitude_history(dtheta: np.ndarray) -> np.ndarray:
     """
     phi = dtheta.copy()
     phi[1:] += np.cross(dtheta[:-1], dtheta[1:]) / 12.0
-    r = Rotation.concatenate([Rotation.identity(), Rotation.from_rotvec(phi)])
+    q = np.vstack([[0.0, 0.0, 0.0, 1.0], Rotation.from_rotvec(phi).as_quat()])
     step = 1
-    while step < len(r):
-        r = Rotation.concatenate([r[:step], r[:-step] * r[step:]])
+    while step < len(q):
+        q[step:] = quaternion_product(q[:-step], q[step:])
         step *= 2
-    return r.as_matrix()
+    return Rotation.from_quat(q).as_matrix()
+
+
+def quaternion_product(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton products p q of (N, 4) scalar-last quaternions (scipy's order): the rotation q, then p.
+
+    On plain arrays: scipy's Rotation composes each pair through its own objects, ten times slower here."""
+    pv, pw = p[:, :3], p[:, 3:]
+    qv, qw = q[:, :3], q[:, 3:]
+    return np.hstack([pw * qv + qw * pv + np.cross(pv, qv), pw * qw - np.sum(pv * qv, axis=1, keepdims=True)])
 
 
 def earth_rotation(duration_s: np.ndarray | float, site: Site) -> np.ndarray:
