@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from station.gap import candidates as cl
 from station.gap.attribute import ALPHA, AMBIGUOUS_DBIC, MAX_EFFECTS, Scored, Selection, forward_select
@@ -466,6 +467,10 @@ def _settings(max_effects: int, suggest: bool) -> dict:
     }
 
 
+# One BLAS thread: the diagnosis's matrices (points x tens of columns) gain no time from more, and their
+# spin-waits cost CPU (a 640-point session: 1.5 s of 10, BENCHMARKS.md "Speed"; the 29 cases of the shared
+# development set: 123 s -> 71 s of CPU, the same reports to the bit).
+@threadpool_limits.wrap(limits=1)
 def diagnose(
     session: Session,
     twin: TwinConfig,
@@ -565,23 +570,17 @@ def load_session(path_or_uid: str, db: str | None = None) -> Session:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`station gap`: 0 on success (whatever the verdict), 2 on bad input.
-
-    One BLAS thread: the diagnosis's matrices (points x tens of columns) gain no time from more, and their
-    spin-waits cost CPU (a 640-point session: 1.5 s of 10, BENCHMARKS.md "Speed")."""
+    """`station gap`: 0 on success (whatever the verdict), 2 on bad input."""
     args = build_parser().parse_args(argv)
-    from threadpoolctl import threadpool_limits
-
     from station.interchange import SessionFormatError
     from station.store import StoreError
 
     try:
         twin = TwinConfig.from_toml(args.twin) if args.twin else default_twin()
         session = load_session(args.session, args.db)
-        with threadpool_limits(limits=1):
-            report = diagnose(
-                session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
-            )
+        report = diagnose(
+            session, twin, exclude=args.exclude, max_effects=args.max_effects, suggest=not args.no_suggest
+        )
     except (GapInputError, SessionFormatError, TwinConfigError, StoreError, ValueError, FileNotFoundError) as exc:
         print(f"station gap: error: {exc}", file=sys.stderr)
         return 2
