@@ -148,7 +148,7 @@ LATERAL_FR_HZ = tuple(float(x) for x in np.geomspace(0.5, 100.0, 41))
 LATERAL_Q = (0.7, 1.5, 3.0, 6.0, 12.0, 25.0, 50.0)
 
 
-def _gain2(f_hz: np.ndarray, fr_hz: float, q: float) -> np.ndarray:
+def _gain2(f_hz: np.ndarray, fr_hz: float | np.ndarray, q: float | np.ndarray) -> np.ndarray:
     """(L(f) / L0)^2 = 1 / ((1 - (f / fr)^2)^2 + (f / (Q fr))^2) (physics.md, lateral_resonance)."""
     r = f_hz / fr_hz
     return 1.0 / ((1.0 - r * r) ** 2 + (r / q) ** 2)
@@ -169,15 +169,17 @@ def _lateral_gains(
     J = current.J[:, np.linalg.norm(current.J, axis=0) > 0]
     Q, _ = np.linalg.qr(J / np.linalg.norm(J, axis=0))
     r = current.r_white
+    grid = [(float(fr), float(q)) for fr in frs for q in qs]
+    fr_hz, q = (np.array(x)[:, None] for x in zip(*grid, strict=True))
+    # The kx column at every grid point, one row each (elementwise, the same floats as one point at a time).
+    cols = col0 * np.where(f > 0, _gain2(f, fr_hz, q) / _gain2(f, fr0, q0), 0.0)
     out = []
-    for fr in frs:
-        for q in qs:
-            c = col0 * np.where(f > 0, _gain2(f, fr, q) / _gain2(f, fr0, q0), 0.0)
-            c = c - Q @ (Q.T @ c)
-            cc = float(c @ c)
-            if cc <= 0 or (bounded and abs(float(c @ r) / cc) > bound):  # kx beyond its plausible bound
-                continue
-            out.append((float(c @ r) ** 2 / cc, float(fr), float(q)))
+    for c, at in zip(cols, grid, strict=True):
+        c = c - Q @ (Q.T @ c)
+        cc = float(c @ c)
+        if cc <= 0 or (bounded and abs(float(c @ r) / cc) > bound):  # kx beyond its plausible bound
+            continue
+        out.append((float(c @ r) ** 2 / cc, *at))
     return out
 
 

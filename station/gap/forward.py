@@ -72,17 +72,22 @@ def period_identity_s(design: PointDesign, cfg: TwinConfig) -> np.ndarray:
     return tau
 
 
+def base_rate_radps(cfg: TwinConfig, a_i: np.ndarray, a_p: np.ndarray, a_o: np.ndarray, w_i: np.ndarray) -> np.ndarray:
+    """instrument_rate_radps of base_config(cfg) from its inputs (instrument_inputs, which k0 and K do not enter):
+    with k0 = K = 0 its polynomial is zero, leaving the effects' terms less the earth rate (physics.md, PIGA rate
+    model), the same floats without computing the inputs twice."""
+    return terms.rate_radps(cfg.effects, np.zeros_like(a_i), a_i, a_p, a_o) - w_i
+
+
 def predict(design: PointDesign, cfg: TwinConfig) -> Prediction:
     """Base and unit columns of the window-mean rate of every point, and the period identity.
 
     The unit columns are the window means of aI, aI^2, aP^2, aI^3 (kz, kzz, ky, k3 = 1; physics.md
     regressors) under cfg's geometry; the base is the rate with k0 and K zero (earth rate, effect terms)."""
-    base_cfg = base_config(cfg)
 
     def samples(theta: float, psi: np.ndarray, w: float) -> list[np.ndarray]:
-        a_i, a_p, _, _ = instrument_inputs(theta, psi, w, cfg)
-        base = np.asarray(instrument_rate_radps(theta, psi, w, base_cfg), dtype=float)
-        return [base, a_i, a_i**2, a_p**2, a_i**3]
+        a_i, a_p, a_o, w_i = instrument_inputs(theta, psi, w, cfg)
+        return [base_rate_radps(cfg, a_i, a_p, a_o, w_i), a_i, a_i**2, a_p**2, a_i**3]
 
     means = _window_means(design, cfg, samples, 1 + len(CALIBRATED))
     base = means[:, 0] + drift_mean_radps(terms.bias_slope_radps2(cfg.effects), design.start_s, design.Tm_s)
@@ -134,7 +139,8 @@ def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> 
     """
     out = np.empty((design.n_points, n_out))
     zero = np.zeros(1)
-    for j, theta in enumerate(design.position_rad):
+    position_rad = design.position_rad
+    for j, theta in enumerate(position_rad):
         rows = samples(float(theta), zero, 0.0)
         at = (design.pos_index == j) & ~design.vib
         out[at] = [float(np.ravel(r)[0]) for r in rows]
@@ -147,9 +153,8 @@ def _window_means(design: PointDesign, cfg: TwinConfig, samples, n_out: int) -> 
     keys, key = np.unique(np.column_stack([design.pos_index[vib], f_true]), axis=0, return_inverse=True)
     stacked = np.empty((len(keys), n_out, N_PHASES))
     for m, (j, f) in enumerate(keys):
-        rows = samples(float(design.position_rad[int(j)]), psi, 2.0 * math.pi * float(f))
-        for c, r in enumerate(rows):
-            stacked[m, c] = np.broadcast_to(np.asarray(r, dtype=float), psi.shape)
+        for c, r in enumerate(samples(float(position_rad[int(j)]), psi, 2.0 * math.pi * float(f))):
+            stacked[m, c] = r  # broadcast over the phases where r is constant
     w = 2.0 * math.pi * f_true
     gamma0 = -w * (design.t1_s[vib] - latency_s)
     out[vib] = _vibration_means(fourier_series(stacked), np.ravel(key), w, gamma0, design.Tm_s[vib])
