@@ -5,6 +5,9 @@ is required, typed and range-checked. Bad input raises ConfigError naming the fi
 and what is allowed. Paths (the servo EDS) are relative to the config file's
 directory. A simulated station (`simulated = true` at the top level) may leave
 serial ports out: the emulators create them at run time (`with_serial_ports`).
+A station without a vibration table (a tumble or a shaker station) leaves out the
+table's four sections together (TABLE_SECTIONS); its procedures may then use no
+vibration, window or grating step (planning refuses them: station.engine.context).
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from station.session import StationInfo
 from station.validation import defects, field_allowed, field_optional, in_range, settings, settings_fields, spec
 
 SERIAL_SECTIONS = ("grating", "reference", "counter", "indexing_head")
+# The vibration table's devices: a station file has all four sections or none (a tumble or shaker station
+# without a crank table has the indexing head and its further devices only).
+TABLE_SECTIONS = ("servo", "grating", "reference", "counter")
 
 
 class ConfigError(InputError):
@@ -96,10 +102,10 @@ class StationConfig:
     simulated: bool
     station: StationSection
     limits: LimitsSection
-    servo: ServoSection
-    grating: SerialSection
-    reference: SerialSection
-    counter: SerialSection
+    servo: ServoSection | None  # the vibration table's four (TABLE_SECTIONS): all present or all None
+    grating: SerialSection | None
+    reference: SerialSection | None
+    counter: SerialSection | None
     indexing_head: IndexingHeadSection
     payload: PayloadSection
     extras: dict[str, Any] = field(default_factory=dict)  # sections of further devices (drivers.registry)
@@ -110,19 +116,24 @@ class StationConfig:
         changes: dict[str, Any] = {}
         extras = dict(self.extras)
         for name, port in ports.items():
-            if name in SERIAL_SECTIONS:
+            if name in SERIAL_SECTIONS and getattr(self, name) is not None:
                 changes[name] = dataclasses.replace(getattr(self, name), port=port)
             elif name in extras:
                 extras[name] = dataclasses.replace(extras[name], port=port)
             else:
-                raise ConfigError(self.path, name, port, f"one of {', '.join((*SERIAL_SECTIONS, *extras))}")
+                present = [n for n in SERIAL_SECTIONS if getattr(self, n) is not None]
+                raise ConfigError(self.path, name, port, f"one of {', '.join((*present, *extras))}")
         return dataclasses.replace(self, **changes, extras=extras)
+
+    def core_devices(self) -> tuple[str, ...]:
+        """The vibration table's devices and the indexing head that this station has, in the order they open."""
+        return tuple(name for name in _core_kinds() if getattr(self, name) is not None)
 
     def station_model(self) -> StationModel:
         """What planning knows of this station: its geometry, limits, motion speeds and devices."""
         s, lim, h = self.station, self.limits, self.indexing_head
         return StationModel(
-            devices=StationModel.devices | frozenset(self.extras),
+            devices=frozenset(self.core_devices()) | frozenset(self.extras),
             sections=dict(self.extras),
             station=StationInfo(s.A0_m, s.latitude_deg, s.g_mps2, s.earth_rate_radps, s.pulses_per_rev),
             freq_min_hz=lim.freq_min_hz,
@@ -135,11 +146,17 @@ class StationConfig:
         )
 
 
+def _core_kinds() -> dict[str, type]:
+    """The sections of the vibration table's devices and the indexing head (drivers.registry kinds with
+    core=True), the drive first, the serial devices after it: the order they open."""
+    kinds = {name: kind.section for name, kind in device_kinds().items() if kind.core}
+    return {name: kinds[name] for name in (*TABLE_SECTIONS, *(n for n in kinds if n not in TABLE_SECTIONS))}
+
+
 def _required_sections() -> dict[str, type]:
-    """Every section a station file must have, by name: the station's own and those of the vibration table's
-    five devices (drivers.registry kinds with core=True)."""
-    core = {name: kind.section for name, kind in device_kinds().items() if kind.core}
-    return {"station": StationSection, "limits": LimitsSection, **core, "payload": PayloadSection}
+    """Every section a station file may have besides further devices, by name: the station's own, the vibration
+    table's (TABLE_SECTIONS, all or none) and the indexing head's."""
+    return {"station": StationSection, "limits": LimitsSection, **_core_kinds(), "payload": PayloadSection}
 
 
 def _section(path: Path, name: str, table: Any, simulated: bool, cls: type) -> Any:
@@ -198,7 +215,7 @@ def _cross_check(cfg: StationConfig) -> None:
     if any(s > m for s, m in zip(cfg.payload.size_mm, lim.payload_size_mm, strict=True)):
         allowed = f"each <= [limits] payload_size_mm = {list(lim.payload_size_mm)}"
         raise ConfigError(p, "[payload] size_mm", list(cfg.payload.size_mm), allowed)
-    if cfg.simulated and cfg.servo.interface != "virtual":
+    if cfg.simulated and cfg.servo is not None and cfg.servo.interface != "virtual":
         allowed = "'virtual' when simulated = true"
         raise ConfigError(p, "[servo] interface", cfg.servo.interface, allowed)
 
@@ -225,10 +242,14 @@ def load_station_config(path: str | Path) -> StationConfig:
         if key not in required and key not in kinds:
             allowed = f"sections {', '.join(required)}, optional devices {', '.join(kinds) or 'none'}, and simulated"
             raise ConfigError(path, key, doc[key], allowed)
+    table = [name for name in TABLE_SECTIONS if name in doc]
     for name in required:
-        if name not in doc:
-            raise ConfigError(path, f"[{name}]", None, "a required section")
-    sections = {name: _section(path, name, doc[name], simulated, cls) for name, cls in required.items()}
+        if name not in doc and (name not in TABLE_SECTIONS or table):
+            why = f" (the vibration table's sections come together: {', '.join(TABLE_SECTIONS)})" if table else ""
+            raise ConfigError(path, f"[{name}]", None, f"a required section{why}")
+    sections: dict[str, Any] = {
+        name: _section(path, name, doc[name], simulated, cls) if name in doc else None for name, cls in required.items()
+    }
     extras = {name: _section(path, name, doc[name], simulated, kinds[name].section) for name in doc if name in kinds}
     cfg = StationConfig(path=path, simulated=simulated, **sections, extras=extras, station_id=station_id.strip())
     _cross_check(cfg)

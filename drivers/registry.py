@@ -18,10 +18,11 @@ follows from the engine's protocols it implements (station.engine.protocols: a
 `Stoppable` device is stopped by the station's safe and emergency stops).
 
 The five devices of the vibration table (servo, grating, reference, counter,
-indexing_head) are found the same way, with `core=True`: their sections are
-required, they are fields of drivers.config.StationConfig, and drivers.station
-opens them with the wiring only a station knows as keyword arguments of `open`
-(the servo's limits, the head's motion interlock).
+indexing_head) are found the same way, with `core=True`: they are fields of
+drivers.config.StationConfig (the head's section required; the table's four,
+drivers.config.TABLE_SECTIONS, all present or all left out by a station without a
+crank table), and drivers.station opens them with the wiring only a station knows
+as keyword arguments of `open` (the servo's limits, the head's motion interlock).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class DeviceKind:
     section: type  # the section's @settings dataclass (station.validation)
     open: Callable[..., Any]  # (section, clock, **wiring of a core device) -> opened driver with close()
     emulate: Callable[[Any, Any], Any]  # (section, SimStation) -> started emulator with .port and close()
-    core: bool = False  # one of the five devices every station has: a required section, a StationConfig field
+    core: bool = False  # the vibration table's four and the head: a StationConfig field (drivers.config)
 
 
 def serial_kind(

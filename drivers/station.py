@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from drivers import sim_can
-from drivers.config import SERIAL_SECTIONS, StationConfig
+from drivers.config import SERIAL_SECTIONS, TABLE_SECTIONS, StationConfig
 from drivers.counter_timer.driver import CounterTimer
 from drivers.errors import DeviceFault, DeviceTimeout, Disconnected, DriverError, InterlockError, LostSamples
 from drivers.grating.driver import GratingReadHead
@@ -56,9 +56,6 @@ TRACE_DRAIN_WALL_S = 0.05  # the window's events come far more often than this
 # A drain waits this long for bytes: a window at 1000x may last 36 ms of wall time, and its only drain, at
 # the OPEN event, comes just after the stream starts (what the serial link's 20 ms poll used to grant).
 TRACE_WAIT_WALL_S = 0.02
-# The vibration table's devices (drivers.registry kinds with core=True), in the order they open: the drive
-# first, the serial devices after it.
-CORE_DEVICES = ("servo", "grating", "reference", "counter", "indexing_head")
 
 
 @dataclass
@@ -67,10 +64,10 @@ class StationDevices:
 
     config: StationConfig
     clock: Clock
-    servo: VibrationTableServo
-    grating: GratingReadHead
-    reference: ReferenceMarks
-    counter: CounterTimer
+    servo: VibrationTableServo | None  # the vibration table's devices: all four, or None on a station without one
+    grating: GratingReadHead | None
+    reference: ReferenceMarks | None
+    counter: CounterTimer | None
     head: IndexingHead
     extra: dict[str, Any] = field(default_factory=dict)  # further devices (drivers.registry), by name
     operator: Any = None  # who performs OperatorAction steps; None: a person, through the panel or console
@@ -90,7 +87,7 @@ class StationDevices:
     def open(cls, config: StationConfig, clock: Clock | None = None) -> StationDevices:
         """Open every device of `config` (ports must be filled in); DriverError names the one that failed."""
         clock = clock or WallClock()
-        missing = [n for n in SERIAL_SECTIONS if getattr(config, n).port is None]
+        missing = [n for n in SERIAL_SECTIONS if getattr(config, n) is not None and getattr(config, n).port is None]
         if missing:
             raise InterlockError("station", f"no serial port configured for {', '.join(missing)}")
         opened: list[Callable[[], None]] = []
@@ -100,12 +97,13 @@ class StationDevices:
             "servo": {"limits": ServoLimits.from_config(config)},
             "indexing_head": {"motion_permitted": lambda: devices is not None and devices.table_at_rest()},
         }
-        core: dict[str, Any] = {}
+        core: dict[str, Any] = dict.fromkeys(TABLE_SECTIONS)
         try:
-            for name in CORE_DEVICES:
+            for name in config.core_devices():
                 core[name] = kinds[name].open(getattr(config, name), clock, **wiring.get(name, {}))
                 opened.append(core[name].close)
-            servo, grating, reference, counter, head = (core[name] for name in CORE_DEVICES)
+            servo, grating, reference, counter = (core[name] for name in TABLE_SECTIONS)
+            head = core["indexing_head"]
             extra = {}
             for name, section in config.extras.items():
                 extra[name] = kinds[name].open(section, clock)
@@ -144,11 +142,20 @@ class StationDevices:
             raise InterlockError("station", f"no device {name!r} in {self.config.path} (further devices: {have})")
         return self.extra[name]
 
+    def table(self) -> tuple[VibrationTableServo, GratingReadHead, ReferenceMarks, CounterTimer]:
+        """The vibration table's drive, grating, reference marks and counter; InterlockError on a station
+        without a table (its planning refuses such steps first: station.engine.context)."""
+        if self.servo is None or self.grating is None or self.reference is None or self.counter is None:
+            sections = ", ".join(f"[{name}]" for name in TABLE_SECTIONS)
+            raise InterlockError("station", f"{self.config.path} has no vibration table (no {sections})")
+        return self.servo, self.grating, self.reference, self.counter
+
     def table_at_rest(self) -> bool:
-        """The crank is not powered, or the drive reads zero speed (the head's motion interlock).
+        """The crank is not powered, or the drive reads zero speed (the head's motion interlock); always, on a
+        station without a table.
 
         A drive whose state is unknown (no link) or in a quick stop is not at rest until it reads zero."""
-        if self.servo.state not in ("OPERATION ENABLED", "QUICK STOP ACTIVE", "UNKNOWN"):
+        if self.servo is None or self.servo.state not in ("OPERATION ENABLED", "QUICK STOP ACTIVE", "UNKNOWN"):
             return True
         try:
             return self.servo.read().freq_hz == 0.0
@@ -164,17 +171,18 @@ class StationDevices:
 
     def set_vibration(self, freq_hz: float) -> ServoReading:
         """Ramp the crank to freq_hz (0: to rest, then disable); the drive's reading at speed."""
+        servo = self.table()[0]
         if freq_hz == 0.0:
-            if self.servo.state == "OPERATION ENABLED":
-                reading = self.servo.stop()
-                self.servo.disable()
+            if servo.state == "OPERATION ENABLED":
+                reading = servo.stop()
+                servo.disable()
             else:
-                reading = self.servo.read()
+                reading = servo.read()
             self._freq_hz = 0.0
             return reading
-        self.servo.enable()
+        servo.enable()
         self._freq_hz = freq_hz
-        at_speed = self.servo.set_frequency(freq_hz)
+        at_speed = servo.set_frequency(freq_hz)
         assert at_speed is not None  # set_frequency waits
         return at_speed
 
@@ -194,24 +202,25 @@ class StationDevices:
         the grating streams a thinned display trace for the rest of the window,
         handed over on each board event.
         """
+        servo, grating_head, _, counter = self.table()
         trace = None
         try:
-            self.counter.arm(preset_pulses, stream_edges=stream_edges)  # in the try: a lost reply may leave it armed
+            counter.arm(preset_pulses, stream_edges=stream_edges)  # in the try: a lost reply may leave it armed
             grating = self.capture_grating(grating_s) if grating_s > 0 else (np.empty(0), np.empty(0))
             if on_trace is not None:
-                trace = _DisplayTrace(self.grating, self.clock, on_trace)
+                trace = _DisplayTrace(grating_head, self.clock, on_trace)
 
             def supervised(ev: Event) -> None:
-                self.servo.check()
+                servo.check()
                 if trace is not None:
                     trace.drain()
                 if on_event is not None:
                     on_event(ev)
 
-            result = self.counter.wait_window(on_event=supervised)
+            result = counter.wait_window(on_event=supervised)
         except BaseException:
             with contextlib.suppress(DriverError):
-                self.counter.abort()
+                counter.abort()
             raise
         finally:
             if trace is not None:
@@ -219,7 +228,8 @@ class StationDevices:
         return result, grating
 
     def abort_window(self) -> None:
-        self.counter.abort()
+        if self.counter is not None:
+            self.counter.abort()
 
     def capture_grating(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
         """duration_s of the 5 kHz grating record: (t_s, z_m) with no sample lost."""
@@ -231,28 +241,30 @@ class StationDevices:
         The crossings fix the crank phase of every sample, so that the harmonics of z(t)
         come out relative to psi as physics.md defines them (seed 000 eq. 30).
         """
-        self.reference.start()
+        reference = self.table()[2]
+        reference.start()
         try:
             t_s, z_m = self._grating_stretch(duration_s)
             crossings: list[float] = []
             while not crossings or crossings[-1] <= t_s[-1]:
-                crossings.append(self.reference.next_crossing().t_s)
+                crossings.append(reference.next_crossing().t_s)
         finally:
             with contextlib.suppress(DriverError):
-                self.reference.stop()
+                reference.stop()
         ref = np.asarray(crossings)
         return MotionRecord(t_s, z_m, ref[(ref >= t_s[0]) & (ref <= t_s[-1])])
 
     def _grating_stretch(self, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
         """A gapless stretch; a stretch with lost samples is recorded again (a read: safe to repeat)."""
+        grating = self.table()[1]
         n = max(math.ceil(duration_s * GRATING_RATE_HZ), 1)
         for _ in range(GRATING_ATTEMPTS):
-            self.grating.start_streaming()
+            grating.start_streaming()
             try:
-                block = self.grating.read_for(n)
+                block = grating.read_for(n)
             finally:
                 with contextlib.suppress(DriverError):
-                    self.grating.stop_streaming()
+                    grating.stop_streaming()
             if not block.lost:
                 return block.t_s, block.z_m
             log.warning("grating: %d samples lost in a %g s stretch; recording it again", block.lost, duration_s)
@@ -264,17 +276,19 @@ class StationDevices:
 
     def measure_frequency(self, periods: int) -> FrequencyEstimate:
         """Frequency and stability from `periods` consecutive reference-mark periods (seed 000 6.1.2)."""
-        self.reference.start()
+        reference = self.table()[2]
+        reference.start()
         try:
-            return self.reference.measure_frequency(periods)
+            return reference.measure_frequency(periods)
         finally:
             with contextlib.suppress(DriverError):
-                self.reference.stop()
+                reference.stop()
 
     def safe_stop(self) -> None:
         """Abort any window, ramp the crank to rest and disable it; the first error is raised after all."""
         errors: list[DriverError] = []
-        for action in (self.counter.abort, lambda: self.set_vibration(0.0), *self._extra_actions("safe_stop")):
+        table = (self.abort_window, lambda: self.set_vibration(0.0)) if self.servo is not None else ()
+        for action in (*table, *self._extra_actions("safe_stop")):
             try:
                 action()
             except DriverError as exc:
@@ -285,7 +299,8 @@ class StationDevices:
     def emergency_stop(self) -> None:
         """Quick stop of the crank, head stopped and held: each tried whatever the others do (any thread)."""
         # Motion only: the counter's port belongs to the thread that reads its window, which aborts it.
-        actions = (self.servo.quick_stop, self.head.hold, *self._extra_actions("emergency_stop"))
+        drive = (self.servo.quick_stop,) if self.servo is not None else ()
+        actions = (*drive, self.head.hold, *self._extra_actions("emergency_stop"))
         for action in actions:
             try:
                 action()
@@ -296,20 +311,28 @@ class StationDevices:
     def reset(self) -> None:
         """After an emergency stop or a fault, once its cause is removed: the drive's link reopened if it was
         lost, its fault reset (confirmed by the statusword), the head released. The table stays at rest."""
-        try:
-            self.servo.check()
-        except (Disconnected, DeviceTimeout):  # a lost bus or heartbeat: only a new connection clears it
-            self.servo.close()
-            self.servo.open()
-        except DeviceFault:
-            self.servo.reset_fault()
-        if self.servo.state == "FAULT":
-            self.servo.reset_fault()
+        if self.servo is not None:
+            self._reset_drive(self.servo)
         self.head.release()
         self._freq_hz = 0.0
 
+    @staticmethod
+    def _reset_drive(servo: VibrationTableServo) -> None:
+        try:
+            servo.check()
+        except (Disconnected, DeviceTimeout):  # a lost bus or heartbeat: only a new connection clears it
+            servo.close()
+            servo.open()
+        except DeviceFault:
+            servo.reset_fault()
+        if servo.state == "FAULT":
+            servo.reset_fault()
+
     def status(self) -> dict:
-        """What the panel shows of the devices, from what the drivers already hold (no I/O)."""
+        """What the panel shows of the devices, from what the drivers already hold (no I/O); no drive state on a
+        station without a table."""
+        if self.servo is None:
+            return {"drive_state": None, "drive_fault": None, "head_held": self.head.held}
         try:
             self.servo.check()
             fault = None
@@ -319,11 +342,15 @@ class StationDevices:
 
     def tie_heartbeat(self, alive: Callable[[], bool]) -> None:
         """The drive hears the master heartbeat only while alive() holds (station.engine.supervisor)."""
-        self.servo.master_alive = alive
+        if self.servo is not None:
+            self.servo.master_alive = alive
 
     def safe_stop_bound_s(self) -> float:
         """Seconds of the clock's link a safe stop may take: the crank's ramp from the highest frequency (station
-        time) plus the drive's confirmations (3 SDO writes, 2 state transitions) and the counter abort."""
+        time) plus the drive's confirmations (3 SDO writes, 2 state transitions) and the counter abort; on a
+        station without a table, the further devices' stops (a second each, as the table's confirmations)."""
+        if self.config.servo is None:
+            return 1.0 + 1.0 * len(self._extra_actions("safe_stop"))
         lim = self.config.limits
         return (
             self.clock.link_s(lim.freq_max_hz / lim.ramp_max_hz_per_s) + 3 * self.config.servo.timeout_s + 2 * 1.0 + 1.0
@@ -408,7 +435,8 @@ class SimulatedStation:
     def close(self) -> None:
         self.devices.close()
         _stop_emulators(self.emulators)
-        sim_can.bind_clock(self.can_channel, None)
+        if self.can_channel:
+            sim_can.bind_clock(self.can_channel, None)
         if self.pacemaker is not None:
             self.pacemaker.stop()
 
@@ -455,16 +483,18 @@ def simulated_station(
     world = SimStation(
         twin, clock, seed=seed, index_speed_deg_s=config.indexing_head.speed_deg_s, sim_lines=deterministic
     )
-    channel = f"{config.servo.channel}-{uuid.uuid4().hex[:8]}"
-    servo_cfg = dataclasses.replace(config.servo, channel=channel)
-    if deterministic:
-        servo_cfg = dataclasses.replace(servo_cfg, interface=sim_can.INTERFACE)
-        sim_can.bind_clock(channel, clock)
-    config = dataclasses.replace(config, servo=servo_cfg)
+    channel = ""
+    if config.servo is not None:
+        channel = f"{config.servo.channel}-{uuid.uuid4().hex[:8]}"
+        servo_cfg = dataclasses.replace(config.servo, channel=channel)
+        if deterministic:
+            servo_cfg = dataclasses.replace(servo_cfg, interface=sim_can.INTERFACE)
+            sim_can.bind_clock(channel, clock)
+        config = dataclasses.replace(config, servo=servo_cfg)
     emulators: dict[str, Any] = {}
     kinds = device_kinds()
     try:
-        for name in CORE_DEVICES:
+        for name in config.core_devices():
             emulators[name] = kinds[name].emulate(getattr(config, name), world)
         for name, section in config.extras.items():
             emulators[name] = kinds[name].emulate(section, world)
@@ -474,7 +504,8 @@ def simulated_station(
         devices.seed = seed
     except BaseException:
         _stop_emulators(emulators)
-        sim_can.bind_clock(channel, None)
+        if channel:
+            sim_can.bind_clock(channel, None)
         raise
     pacemaker = Pacemaker(clock) if isinstance(clock, EventClock) and clock.ceiling is not None else None
     sim = SimulatedStation(world, emulators, devices, channel, pacemaker)

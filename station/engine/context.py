@@ -111,6 +111,7 @@ class PlanContext:
         m = self.model
         if freq_hz == 0:
             return
+        self.require("servo")  # a station without a vibration table (drivers.config TABLE_SECTIONS)
         if not (math.isfinite(freq_hz) and m.freq_min_hz <= freq_hz <= m.freq_max_hz):
             raise self.fail("freq_hz", freq_hz, f"0 (static) or {m.freq_min_hz:g} .. {m.freq_max_hz:g} Hz")
         a = m.accel_g(freq_hz)

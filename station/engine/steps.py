@@ -78,6 +78,7 @@ class MeasurePoint(Step):
         return self.point_id
 
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
+        ctx.require("counter")
         ctx.check_position(self.position_deg)
         ctx.check_freq(self.freq_hz)
         m = ctx.model
@@ -194,6 +195,7 @@ class CaptureGrating(Step):
         return self.name
 
     def plan(self, ctx: PlanContext) -> tuple[float, Any]:
+        ctx.require("grating")
         if not 0 < self.duration_s <= 600:
             raise ctx.fail("duration_s", self.duration_s, "0 .. 600 s")
         f = ctx.state.freq_hz
