@@ -1,9 +1,20 @@
-"""Fixtures shared across the suite: the links a device test runs on (tests/links.py)."""
+"""Fixtures shared across the suite: the links a device test runs on (tests/links.py); one BLAS thread a process."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from links import CAN_INTERFACES, TRANSPORTS
+from threadpoolctl import threadpool_limits
+
+# One BLAS thread in every process of the suite: the two xdist workers already keep both cores busy, and
+# OpenBLAS's idle threads spin-wait on the CPU the other worker needs (tests/methods/test_identify.py,
+# test_budget_methods.py, test_uncertainty.py and tests/indep/test_cases.py, `-n 2`: 297 s -> 265 s of CPU).
+# The variable reaches every process the tests start (the CLI, analysis children, servers, Dask workers) before
+# it loads numpy; the limit covers this one, where a plugin may have loaded it first.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+threadpool_limits(limits=1, user_api="blas")
 
 
 @pytest.fixture(params=TRANSPORTS)
