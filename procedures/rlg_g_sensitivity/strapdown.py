@@ -62,7 +62,8 @@ def attitude_history(dtheta: np.ndarray) -> np.ndarray:
 def quaternion_product(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton products p q of (N, 4) scalar-last quaternions (scipy's order): the rotation q, then p.
 
-    On plain arrays: scipy's Rotation composes each pair through its own objects, ten times slower here."""
+    On plain arrays: scipy's Rotation composes each pair through its own objects (`attitude_history` of 120 000
+    increments: 2.4 s with it, 0.4 s without; BENCHMARKS.md)."""
     pv, pw = p[:, :3], p[:, 3:]
     qv, qw = q[:, :3], q[:, 3:]
     return np.hstack([pw * qv + qw * pv + np.cross(pv, qv), pw * qw - np.sum(pv * qv, axis=1, keepdims=True)])
