@@ -32,7 +32,7 @@ import numpy as np
 from station.gap.design import PointDesign
 from station.twin.config import TwinConfig
 from station.twin.effects import terms
-from station.twin.inputs import instrument_inputs, instrument_rate_radps
+from station.twin.inputs import instrument_inputs, instrument_rate_radps, rate_from_inputs
 from station.twin.precession import N_PHASES, fourier_series
 
 CALIBRATED: tuple[str, ...] = ("kz", "kzz", "ky", "k3")
@@ -72,22 +72,18 @@ def period_identity_s(design: PointDesign, cfg: TwinConfig) -> np.ndarray:
     return tau
 
 
-def base_rate_radps(cfg: TwinConfig, a_i: np.ndarray, a_p: np.ndarray, a_o: np.ndarray, w_i: np.ndarray) -> np.ndarray:
-    """instrument_rate_radps of base_config(cfg) from its inputs (instrument_inputs, which k0 and K do not enter):
-    with k0 = K = 0 its polynomial is zero, leaving the effects' terms less the earth rate (physics.md, PIGA rate
-    model), the same floats without computing the inputs twice."""
-    return terms.rate_radps(cfg.effects, np.zeros_like(a_i), a_i, a_p, a_o) - w_i
-
-
 def predict(design: PointDesign, cfg: TwinConfig) -> Prediction:
     """Base and unit columns of the window-mean rate of every point, and the period identity.
 
     The unit columns are the window means of aI, aI^2, aP^2, aI^3 (kz, kzz, ky, k3 = 1; physics.md
-    regressors) under cfg's geometry; the base is the rate with k0 and K zero (earth rate, effect terms)."""
+    regressors) under cfg's geometry; the base is the rate with k0 and K zero (earth rate, effect terms), from the
+    same inputs (the coefficients do not enter them)."""
+    base_cfg = base_config(cfg)
 
     def samples(theta: float, psi: np.ndarray, w: float) -> list[np.ndarray]:
-        a_i, a_p, a_o, w_i = instrument_inputs(theta, psi, w, cfg)
-        return [base_rate_radps(cfg, a_i, a_p, a_o, w_i), a_i, a_i**2, a_p**2, a_i**3]
+        inputs = instrument_inputs(theta, psi, w, cfg)
+        a_i, a_p = inputs[0], inputs[1]
+        return [np.asarray(rate_from_inputs(inputs, base_cfg), dtype=float), a_i, a_i**2, a_p**2, a_i**3]
 
     means = _window_means(design, cfg, samples, 1 + len(CALIBRATED))
     base = means[:, 0] + drift_mean_radps(terms.bias_slope_radps2(cfg.effects), design.start_s, design.Tm_s)

@@ -64,7 +64,13 @@ def instrument_inputs(theta_rad: float, psi: ArrayLike, w_radps: float, cfg: Twi
 
 def instrument_rate_radps(theta_rad: float, psi: ArrayLike, w_radps: float, cfg: TwinConfig):
     """w_out without bias drift and noise (physics.md, PIGA rate model)."""
-    a_i, a_p, a_o, w_i = instrument_inputs(theta_rad, psi, w_radps, cfg)
+    return rate_from_inputs(instrument_inputs(theta_rad, psi, w_radps, cfg), cfg)
+
+
+def rate_from_inputs(inputs: tuple, cfg: TwinConfig):
+    """The PIGA rate model (physics.md) at the inputs (a_I, a_P, a_O, w_I) of instrument_inputs, which the
+    instrument's coefficients do not enter."""
+    a_i, a_p, a_o, w_i = inputs
     k = cfg.instrument
     rate = k.k0 + k.kz * a_i + k.kzz * a_i**2 + k.k3 * a_i**3 + k.ky * a_p**2
     return terms.rate_radps(cfg.effects, rate, a_i, a_p, a_o) - w_i

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from station.gap.design import PointDesign
-from station.gap.forward import CALIBRATED, base_config, base_rate_radps, predict, predict_full
+from station.gap.forward import CALIBRATED, base_config, predict, predict_full
 from station.gap.validate import injected_effects
 from station.twin.config import NoiseModel
 from station.twin.effects import EFFECTS
-from station.twin.inputs import instrument_inputs, instrument_rate_radps
+from station.twin.inputs import instrument_inputs, instrument_rate_radps, rate_from_inputs
 from station.twin.plan import multiposition_plan
 from station.twin.session_sim import simulate_session
 
@@ -52,12 +52,13 @@ def test_the_unit_columns_are_linear_in_the_calibrated_coefficients(twin):
 
 @pytest.mark.parametrize("effect", sorted(injected_effects()))
 def test_the_base_rate_from_the_inputs_is_the_twins_rate_with_k0_and_K_zero(twin, effect):
-    """base_rate_radps (predict's base, from the inputs it computes anyway) is instrument_rate_radps of base_config
-    to the bit, at rest and over the crank phase, each effect at 100x its seed-000 size."""
+    """predict's base (the rate model of base_config at the inputs of cfg, which it computes anyway) is
+    instrument_rate_radps of base_config to the bit: the instrument's coefficients do not enter the inputs. At rest
+    and over the crank phase, each effect at 100x its seed-000 size."""
     declared = EFFECTS[effect]
     cfg = twin.with_effect(effect, **({k: 100 * v for k, v in declared.injection.items()} | dict(declared.nominal)))
     psi = np.linspace(0.0, 2.0 * np.pi, 64, endpoint=False)
     for theta, phases, w in ((0.3, np.zeros(1), 0.0), (2.1, psi, 2.0 * np.pi * 9.0)):
         expected = instrument_rate_radps(theta, phases, w, base_config(cfg))
-        got = base_rate_radps(cfg, *instrument_inputs(theta, phases, w, cfg))
+        got = rate_from_inputs(instrument_inputs(theta, phases, w, cfg), base_config(cfg))
         np.testing.assert_array_equal(got, np.broadcast_to(expected, phases.shape))
