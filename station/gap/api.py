@@ -469,7 +469,7 @@ def _settings(max_effects: int, suggest: bool) -> dict:
 
 # One BLAS thread: the diagnosis's matrices (points x tens of columns) gain no time from more, and their
 # spin-waits cost CPU (a 640-point session: 1.5 s of 10, BENCHMARKS.md "Speed"; the 29 cases of the shared
-# development set: 123 s -> 71 s of CPU, the same reports to the bit).
+# development set: tests/gap/test_devset.py 128-134 s -> 82 s of CPU, BENCHMARKS.md; the same reports to the bit).
 @threadpool_limits.wrap(limits=1)
 def diagnose(
     session: Session,
