@@ -6,7 +6,7 @@ import json
 import pytest
 
 from station.cli.cli import main
-from station.interchange import write_session
+from station.interchange import content_hash, read_session, write_session
 from station.provenance import make_provenance
 from station.store import SessionStore
 from station.twin.config import TwinConfig
@@ -46,8 +46,22 @@ def test_certificate_of_an_imported_session_matches_identify(tmp_path, session_d
 
 
 def test_certificate_of_an_exported_directory(tmp_path, session_dir):
-    assert main(["certificate", str(session_dir), "--out", str(tmp_path / "c")]) == 0
-    assert sorted(p.suffix for p in (tmp_path / "c").iterdir()) == [".html", ".json", ".pdf"]
+    """A directory never stored has no store uid: its certificate is named and numbered by its content hash, the
+    same for the same directory, another for another session (never "CERT-not recorded" for every one)."""
+    uid = f"sha256-{content_hash(read_session(session_dir))[:16]}"
+    for out in (tmp_path / "c", tmp_path / "again"):
+        assert main(["certificate", str(session_dir), "--out", str(out)]) == 0
+        assert {p.name for p in out.iterdir()} == {f"certificate-{uid}.{x}" for x in ("html", "pdf", "json")}
+        html = (out / f"certificate-{uid}.html").read_text()
+        assert f"CERT-{uid}" in html and "not recorded" not in html.split("calibration session", 1)[1][:200]
+        assert json.loads((out / f"certificate-{uid}.json").read_text())["session_uid"] == uid
+    other = simulate_session(multiposition_plan([0.0, 90.0, 180.0, 270.0], [8.0, 10.0], window_s=20.0), TwinConfig(),
+                             seed=5)  # fmt: skip
+    other.provenance = make_provenance(station_id="twin", simulated=True, seed=5)
+    other_dir = write_session(other, tmp_path / "other")
+    assert main(["certificate", str(other_dir), "--out", str(tmp_path / "o")]) == 0
+    (named,) = {p.stem for p in (tmp_path / "o").iterdir()}
+    assert named.startswith("certificate-sha256-") and named != f"certificate-{uid}"
 
 
 def test_a_missing_session_is_one_clear_line(tmp_path, capsys, session_dir):

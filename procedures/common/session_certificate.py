@@ -39,6 +39,7 @@ from procedures.common.certificate import (
 from procedures.common.papers import papers_cited
 from procedures.common.references import traceability
 from procedures.common.uncertainty import COVERAGE_RULE, MIN_RELIABLE_DOF, Budget
+from station.interchange import content_hash
 from station.session import Session
 
 SIMULATED_CUSTOMER = "SIMULATED CUSTOMER (a simulated station calibrates no one's instrument)"
@@ -83,11 +84,20 @@ def provenance_of(session: Session) -> dict:
     return dict(prov)
 
 
+def session_uid(session: Session) -> str:
+    """The session's uid as its results, report and certificate name it: the store's (an export keeps it, and so
+    does its import), else, for a piga-session/1 directory never stored, "sha256-" and the first 16 hex digits of
+    its content hash (station.interchange.content_hash, of what it measured): the same directory is always named
+    the same, and two sessions never share a certificate number."""
+    uid = session.meta.get("store_uid")
+    return str(uid) if uid else f"sha256-{content_hash(session)[:16]}"
+
+
 def result_provenance(session: Session) -> dict:
     """Session identity for the result JSON: uid, instrument serial, station, operator, dates, software, simulated."""
     prov = provenance_of(session)
     keys = ("station_id", "operator", "host", "created_utc", "software_version", "simulated", "seed")
-    out = {"session_uid": or_not_recorded(session.meta.get("store_uid")),
+    out = {"session_uid": session_uid(session),
            "instrument_serial": prov.get("instrument_serial") or session.meta.get("instrument_serial") or NOT_RECORDED,
            "procedure": or_not_recorded(session.meta.get("procedure"))}  # fmt: skip
     out |= {k: NOT_RECORDED if prov.get(k) in (None, "") else prov[k] for k in keys}
@@ -112,7 +122,7 @@ def customer(session: Session, simulated: bool) -> str:
         return str(name)
     if simulated:
         return SIMULATED_CUSTOMER
-    raise CertificateError(f"session {session.meta.get('store_uid') or ''}: provenance.customer is not set: a real "
+    raise CertificateError(f"session {session_uid(session)}: provenance.customer is not set: a real "
                            "station's certificate names the customer (station run --customer NAME)")  # fmt: skip
 
 
@@ -224,7 +234,7 @@ def session_certificate(
     spec = spec or load_instrument_spec(card.instrument_file)
     procedure = f"{session.meta.get('procedure') or card.procedure} {card.procedure_title}"
     prov = provenance_of(session)
-    uid = or_not_recorded(session.meta.get("store_uid"))
+    uid = session_uid(session)
     simulated = is_simulated(session)
     serial = prov.get("instrument_serial") or session.meta.get("instrument_serial")
     laboratory = load_laboratory(simulated)
@@ -272,7 +282,7 @@ def session_certificate(
 def certificate_files(cert: Certificate, uid: str) -> dict[str, bytes]:
     """certificate-<uid>.html and .pdf, as an analysis returns them (station.cli.analysis_job writes them beside the
     report)."""
-    stem = f"certificate-{uid or 'session'}"
+    stem = f"certificate-{uid}"
     return {f"{stem}.html": render_html(cert).encode(), f"{stem}.pdf": render_pdf(cert)}
 
 

@@ -21,7 +21,7 @@ import math
 import matplotlib.pyplot as plt
 import numpy as np
 
-from procedures.common.session_certificate import issue_certificate, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance, session_uid
 from procedures.integral_precession.alignment import multi_position, two_position
 from procedures.integral_precession.budget import identify_with_budget
 from procedures.integral_precession.design_check import check_design
@@ -117,7 +117,7 @@ def _analyse(session: Session, order: tuple[Method, ...], title: str) -> Analysi
         results["integral_compensated"] = identify_with_budget(session, "integral", comp)
     if {"baseline", "integral"} <= set(results):
         state_first_passage_bias(results["baseline"], results["integral"])
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     html = render_report(session, results, title=f"Session {uid}: {title}", config=params)
     primary = "integral_compensated" if comp is not None else order[0]
     files, why_not = issue_certificate(lambda: certificate(session, results, primary, procedure_title=title), uid)

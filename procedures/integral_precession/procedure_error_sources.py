@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.errors import DriverError
+from procedures.common.session_certificate import session_uid
 from procedures.integral_precession.error_source_report import rotation_report, stability_report, translation_report
 from procedures.integral_precession.frequency_stability import mean_eps_f, table6_row
 from procedures.integral_precession.parasitic_rotation import AXES, eq34, fit_rotation, slot_means
@@ -122,7 +123,7 @@ def analyse_translation(session: Session) -> Analysis:
     }  # fmt: skip
     result = {"table5": rows, "zs1_fit": fit, "compensation": comp, "compensation_usage": USAGE,
               "units": "m, Hz, rad/s"}  # fmt: skip
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     html = translation_report(
         f"Session {uid}: parasitic translation (seed 000 6.1.1)",
         [m.values["freq_hz"] for m in motions],
@@ -172,7 +173,7 @@ def analyse_stability(session: Session) -> Analysis:
         "compensation": {"eps_f": eps, "eps_f_sigma": sigma_eps}, "compensation_usage": USAGE,
         "notes": "delta_f_hz = commanded - fbar (seed 000 6.1.2); eps_f = fbar / f - 1 (the twin's frequency_error)",
     }  # fmt: skip
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     html = stability_report(f"Session {uid}: frequency stability (seed 000 6.1.2)", rows, p["stability_max"], eps,
                             sigma_eps)  # fmt: skip
     worst = max(rows, key=lambda r: r.stability)
@@ -297,7 +298,7 @@ def analyse_rotation(session: Session) -> Analysis:
     result = {"harmonics": {axis: f.to_json() for axis, f in fits.items()}, "eq34_on_slot_means": by_eq34,
               "table7": table7, "crank_freq_hz": phase.freq_hz, "compensation": comp, "compensation_usage": USAGE,
               "units": "arc-seconds unless the key says otherwise"}  # fmt: skip
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     html = rotation_report(f"Session {uid}: parasitic rotation (seed 000 6.1.3)", fits, psi, a, table7, by_eq34)
     summary = "; ".join(f"a{k}s1 = {f.as1:+.3f} ± {f.sigma_as1:.3f}\", a{k}c1 = {f.ac1:+.3f} ± {f.sigma_ac1:.3f}\""
                         for k, f in fits.items())  # fmt: skip

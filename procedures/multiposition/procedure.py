@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.errors import DriverError
-from procedures.common.session_certificate import issue_certificate, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance, session_uid
 from procedures.integral_precession.alignment import Alignment
 from procedures.multiposition import gravity_field as gf
 from procedures.multiposition.alignment import ALIGNMENT_ANGLES_DEG, horizontal_axis_alignment
@@ -284,7 +284,7 @@ def analyse_gravity_field(session: Session) -> Analysis:
     certificate."""
     p = session.meta.get("params", {})
     res = gf.analyse_gravity_field(session, MODELS[p.get("model", "seed003")], int(p.get("harmonics", 3)))
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     html = gravity_field_report(res, f"Session {uid}: gravity field on the indexing head (seed 003)", p)
     if res.four_pose is not None:
         fp = res.four_pose

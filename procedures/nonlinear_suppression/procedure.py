@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from procedures.common.session_certificate import issue_certificate, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance, session_uid
 from procedures.nonlinear_suppression import analysis
 from procedures.nonlinear_suppression.budget import with_budget
 from procedures.nonlinear_suppression.certificate import certificate
@@ -260,7 +260,7 @@ def calibration(prefix: str, p: dict, window_s: float):
 def analyse_suppression(session: Session) -> Analysis:
     """The sweep, the correction and the verification from the stored session, its report and certificate."""
     s = with_budget(session, analysis.suppression(session))
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     title = f"Session {uid}: suppression of the quadratic term (seed 004)"
     results = {
         "suppression": {

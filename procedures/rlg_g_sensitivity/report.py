@@ -16,7 +16,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from procedures.common.certificate import budget_rows
-from procedures.common.session_certificate import issue_certificate, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance, session_uid
 from procedures.common.uncertainty import merged_json
 from procedures.rlg_g_sensitivity.analysis import FlexureFit, estimate_flexure, run_weights
 from procedures.rlg_g_sensitivity.budget import SEED002_TYPE_B, flexure_budget
@@ -148,7 +148,7 @@ def analyse_session(session: Session) -> Analysis:
     flexure["gum"] = {"coefficients": gum_coefs, **merged_json(gum_coefs, budget, SEED002_TYPE_B)}
     checks = _verification(verification, fit)
     results = {"flexure": flexure | {"provenance": result_provenance(session)}, "verification": {"runs": checks}}
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     low, high = np.sqrt(fit.dof / chi2.ppf([0.95, 0.05], fit.dof))  # the true sigma over the estimate, 90 %
     fit_facts = {
         "residual σ": f"{fit.sigma_residual / ARCSEC_RAD:.3f} arcsec ({fit.dof} degrees of freedom)",

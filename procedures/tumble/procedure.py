@@ -20,7 +20,7 @@ import numpy as np
 
 from drivers.errors import DeviceTimeout
 from drivers.voltmeter.protocol import MAX_SAMPLES, NPLC_LIMITS, OVERRANGE, RANGES_V, reading_s
-from procedures.common.session_certificate import issue_certificate, result_provenance
+from procedures.common.session_certificate import issue_certificate, result_provenance, session_uid
 from procedures.tumble.analysis import READING, SOAK, STEP_DEG, analyse_tumble, position_deg, stroke_sequence
 from procedures.tumble.certificate import certificate
 from procedures.tumble.report import render_tumble_report, summary
@@ -259,7 +259,7 @@ def analyse(session: Session) -> Analysis:
     certificate."""
     reference_c = float(session.meta.get("params", {}).get("reference_c", 20.0))
     r, points, model = analyse_tumble(session, reference_c)
-    uid = session.meta.get("store_uid", "")
+    uid = session_uid(session)
     html = render_tumble_report(session, r, points, model, title=f"Session {uid}: eight-point tumble (seed 001)")
     results = {"eight_point": {"temperatures": [p.to_json() for p in points], "provenance": result_provenance(session)},
                "temperature_model": model.to_json()}  # fmt: skip

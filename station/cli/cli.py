@@ -22,6 +22,7 @@ from tqdm import tqdm
 from drivers.config import ConfigError
 from drivers.errors import DriverError
 from procedures.common.references import REFERENCES_FILE
+from procedures.common.session_certificate import session_uid
 from procedures.integral_precession.budget import identify_with_budget
 from procedures.integral_precession.identify import METHODS, state_first_passage_bias
 from station.central.cli import SyncAfterRun, add_serve_options, add_sync_command
@@ -271,7 +272,7 @@ def cmd_certificate(args: argparse.Namespace) -> int:
         raise ProcedureError(why_not[0] if why_not else f"procedure {name!r} issues no certificate")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    uid = str(session.meta.get("store_uid") or "session")
+    uid = session_uid(session)
     for file_name, content in analysis.files.items():
         (out / Path(file_name).name).write_bytes(content)
         print(f"certificate: {out / Path(file_name).name}")
@@ -445,7 +446,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", metavar="SESSION_DIR_OR_UID", help="a piga-session/1 directory, or a session's uid "
                    "in the store of --db")  # fmt: skip
     p.add_argument("--db", help="the store of a session given by its uid (`station sessions --db` lists them)")
-    p.add_argument("--out", default="out", help="directory for certificate-UID.html, .pdf and .json (default: out)")
+    p.add_argument("--out", default="out", help="directory for certificate-UID.html, .pdf and .json; a directory "
+                   "never stored is named by its content, UID sha256-<16 hex digits> (default: out)")  # fmt: skip
     p.set_defaults(func=cmd_certificate)
 
     p = sub.add_parser(
