@@ -62,6 +62,10 @@ class Serial(SerialBase):
             return b""
         return line.read(size, self._timeout, lambda: self.is_open)
 
+    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes:
+        line = self._open_line()
+        return line.read_until(expected, size if size is not None else 2**31, self._timeout, lambda: self.is_open)
+
     def write(self, data: Any) -> int:
         payload = to_bytes(data)
         self._open_line().write(payload)

@@ -258,6 +258,10 @@ class PtyEmulator:
         """Bytes in the transmit FIFO."""
         return len(self._tx)
 
+    def peek_tx(self, n: int) -> bytes:
+        """The first n bytes of the transmit FIFO, left in it."""
+        return bytes(self._tx[:n])
+
     def take_tx(self, n: int) -> bytes:
         """Remove and return the first n bytes of the transmit FIFO (what a sim:// line carries)."""
         data = bytes(self._tx[:n])

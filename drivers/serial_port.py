@@ -104,15 +104,18 @@ class SerialLink:
         except (serial.SerialException, OSError, TypeError) as exc:
             raise self._gone(exc) from exc
 
-    def read_some(self, wait_s: float, want_bytes: int = 1) -> bytes:
-        """Whatever has arrived, waiting at most `wait_s` until `want_bytes` have (a reader of a stream that
-        knows how much it needs wakes once, not once per USB frame); b'' if none."""
+    def read_some(self, wait_s: float, want_bytes: int = 1, until: bytes | None = None, size: int = 4096) -> bytes:
+        """Whatever has arrived, waiting at most `wait_s` until `want_bytes` have, or with `until`, until the
+        first `until` (or `size` bytes) has: a reader of a stream that knows how much it needs, or of lines,
+        wakes once, not once per USB frame; b'' if none."""
         try:
             n = self._ser.in_waiting
             if n >= want_bytes:
                 return self._ser.read(n)
             # Setting the timeout reconfigures the port (flock, tcgetattr): only when we must wait.
             self._ser.timeout = max(wait_s, 0.0)
+            if until is not None:
+                return bytes(self._ser.read_until(until, size))
             data = self._ser.read(want_bytes)
             if not data:
                 return b""
@@ -247,7 +250,7 @@ class LineReader:
                         f"truncated reply {partial!r}: no line end within {timeout_s:g} s",
                     )
                 raise DeviceTimeout(self.link.device, f"no reply within {timeout_s:g} s")
-            self._buf += self.link.read_some(left_s)
+            self._buf += self.link.read_some(left_s, until=self.terminator, size=self.max_len + 1 - len(self._buf))
 
 
 # ---------------------------------------------------------------- binary frames

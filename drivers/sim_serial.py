@@ -17,6 +17,9 @@ The line (`SimLine`), in the station time of the emulator's clock:
   (on a 1 ms USB frame grid) or the emulator is next due, at most the port's
   timeout, counted in the same seconds; a fault injected or the cable pulled
   meanwhile wakes it at once;
+- `read_until` (pyserial's API for lines) waits the same way for the first
+  terminator, and wakes once, at the USB frame that brings it: a driver reading
+  lines does not wake once a frame for each byte of its reply;
 - a pulled cable (`disconnect()`, a DISCONNECT fault) or a closed emulator
   makes every call raise SerialException, as a vanished pty does.
 
@@ -60,6 +63,8 @@ class SimEmulator(Protocol):
     def next_due_s(self, now_s: float) -> float: ...
 
     def tx_pending(self) -> int: ...
+
+    def peek_tx(self, n: int) -> bytes: ...
 
     def take_tx(self, n: int) -> bytes: ...
 
@@ -137,6 +142,28 @@ class SimLine:
             self._changed.wait(timeout_s=wake_s - now_s)
             now_s = clock.now_s()
 
+    def read_until(self, terminator: bytes, size: int, timeout_s: float | None, is_open: Callable[[], bool]) -> bytes:
+        """Through the first `terminator`, or `size` bytes: returns once it has them, or with what has come when
+        timeout_s (None: no limit) has passed or the port closed. It wakes once, at the USB frame that brings
+        the terminator (the station time a reader of single bytes returns it too), not once a frame."""
+        clock = self.clock
+        now_s = clock.now_s()
+        deadline_s = math.inf if timeout_s is None else now_s + timeout_s
+        while True:
+            self._changed.clear()
+            with self._lock:
+                self._service(now_s)
+                rx = self._rx
+                end = rx.find(terminator)
+                n = min(size, len(rx) if end < 0 else end + len(terminator))
+                if end >= 0 or n >= size or now_s >= deadline_s or not is_open():
+                    out = bytes(rx[:n])
+                    del rx[:n]
+                    return out
+                wake_s = min(deadline_s, self._next_s(now_s, self._until_bytes(terminator, size)))
+            self._changed.wait(timeout_s=wake_s - now_s)
+            now_s = clock.now_s()
+
     def discard_input(self) -> None:
         with self._lock:
             self._check()
@@ -169,6 +196,15 @@ class SimLine:
             pending -= max(n, 0)
         if not pending:
             self._carried_s = max(self._carried_s, now_s)  # an idle line saves no capacity
+
+    def _until_bytes(self, terminator: bytes, size: int) -> int:
+        """How many more bytes the line must carry to hold the first terminator (or `size` bytes): up to its end
+        where the emulator's FIFO holds it, else all that is asked for."""
+        room = size - len(self._rx)
+        keep = len(terminator) - 1  # a terminator may begin in what was carried already
+        ahead = bytes(self._rx[max(len(self._rx) - keep, 0) :]) if keep else b""
+        end = (ahead + self.emulator.peek_tx(room)).find(terminator)
+        return room if end < 0 else end + len(terminator) - len(ahead)
 
     def _next_s(self, now_s: float, need: int) -> float:
         """When a wait for `need` more bytes should look again: the emulator's next due time, or earlier

@@ -9,6 +9,7 @@ seconds (then the margin is the factor 100, stated).
 from __future__ import annotations
 
 import errno
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -30,7 +31,7 @@ BAUD = 9600  # 960 bytes per station second
 
 
 class EchoEmulator(PtyEmulator):
-    """Answers each command line with `OK <line>`; `blob <n>` answers n bytes."""
+    """Answers each command line with `OK <line>`; `blob <n>` answers n bytes, `crlf <text>` `OK <text>` and CR LF."""
 
     name = "echo"
 
@@ -43,6 +44,8 @@ class EchoEmulator(PtyEmulator):
         for line in self.command_lines(data):
             if line.startswith(b"blob "):
                 self.send(b"x" * int(line[5:]))
+            elif line.startswith(b"crlf "):
+                self.send(b"OK " + line[5:] + b"\r\n")
             else:
                 self.send(b"OK " + line + b"\n")
 
@@ -152,6 +155,75 @@ class QuietEmulator(EchoEmulator):
 
     def next_due_s(self, now_s: float) -> float:
         return float("inf")
+
+
+@pytest.fixture
+def event_port() -> Iterator[tuple[EventClock, serial.SerialBase, list[float]]]:
+    """A port (2 s timeout) on an echo emulator never due by itself, on the
+    discrete-event clock, and the station times at which a reader of its line woke."""
+    clock = EventClock()
+    emu = QuietEmulator(clock)  # type: ignore[arg-type]
+    url = emu.start_sim()
+    line = sim_serial.line(url.removeprefix("sim://"))
+    wakes: list[float] = []
+    wait = line._changed.wait
+
+    def counted(timeout_s: float | None = None) -> bool:
+        woke = wait(timeout_s=timeout_s)
+        wakes.append(clock.now_s())
+        return woke
+
+    line._changed.wait = counted  # type: ignore[method-assign]
+    try:
+        with clock.party("reader"):
+            port = serial.serial_for_url(url, BAUD, timeout=2.0)
+            yield clock, port, wakes
+            port.close()
+    finally:
+        emu.close()
+
+
+def _delivered_s(carried_s: float) -> float:
+    """When the adapter hands over a byte the line has carried at carried_s: the next 1 ms USB frame."""
+    return math.ceil(carried_s / sim_serial.HOST_LATENCY_S) * sim_serial.HOST_LATENCY_S
+
+
+def test_a_line_is_read_with_one_wake_when_its_terminator_has_come(event_port) -> None:
+    """read_until (pyserial's readline API) returns at the USB frame that brings the terminator, as a reader of
+    single bytes would, but wakes once and not once per frame: at 960 bytes/s a frame brings about one byte."""
+    clock, port, wakes = event_port
+    port.write(b"status\n")  # answered with "OK status\n", 10 bytes, at station time 0
+    assert port.read_until(b"\n") == b"OK status\n"
+    assert clock.now_s() == _delivered_s(10 / 960)
+    assert wakes == [clock.now_s()]
+    wakes.clear()
+    port.write(b"again\n")
+    t0_s = clock.now_s()
+    by_bytes = port.read(1)  # the way a byte reader waits: a wake per frame
+    while not by_bytes.endswith(b"\n"):
+        by_bytes += port.read(max(port.in_waiting, 1))
+    assert by_bytes == b"OK again\n"
+    assert clock.now_s() == _delivered_s(t0_s + 9 / 960)  # the same station time as one wake gives
+    assert len(wakes) == 9
+
+
+def test_a_terminator_begun_in_what_was_carried_ends_the_wait_at_its_last_byte(event_port) -> None:
+    clock, port, wakes = event_port
+    port.write(b"crlf a\n")  # "OK a\r\n": 6 bytes; wait until the line has carried the first five
+    clock.sleep_s(5.5 / 960)
+    assert port.in_waiting == 5
+    assert port.read_until(b"\r\n") == b"OK a\r\n"
+    assert clock.now_s() == _delivered_s(6 / 960)
+    assert wakes == [clock.now_s()]
+
+
+def test_read_until_stops_at_its_size_or_its_timeout(event_port) -> None:
+    clock, port, _ = event_port
+    port.write(b"blob 960\n")  # 960 bytes and no line end: the last is carried after one second
+    assert port.read_until(b"\n", 10) == b"x" * 10
+    assert clock.now_s() == _delivered_s(10 / 960)
+    assert port.read_until(b"\n") == b"x" * 950  # all of it, at the port's timeout
+    assert clock.now_s() == pytest.approx(_delivered_s(10 / 960) + 2.0, abs=1e-12)
 
 
 @pytest.mark.parametrize("how", ["disconnect", "fault", "close"])
