@@ -23,10 +23,16 @@ th{background:#eee}td.l,th.l{text-align:left}.ok{color:#070}.bad{color:#b00}h2{b
 """
 
 
+# The SVG's ids from a fixed salt and no creation date: the same figure is the same text, so two reports of one
+# session differ only where their contents do.
+SVG_SALT = "station"
+
+
 def svg(fig) -> str:
     """A matplotlib figure as inline SVG (the figure is closed)."""
     buf = io.StringIO()
-    fig.savefig(buf, format="svg", bbox_inches="tight")
+    with matplotlib.rc_context({"svg.hashsalt": SVG_SALT}):
+        fig.savefig(buf, format="svg", bbox_inches="tight", metadata={"Date": None})
     plt.close(fig)
     text = buf.getvalue()
     return text[text.index("<svg") :]
