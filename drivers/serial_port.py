@@ -58,6 +58,10 @@ from station.clock import Clock, WallClock, host_clock
 
 # ---------------------------------------------------------------- the port
 
+# A line silent this long has finished its message: beyond a USB serial adapter's latency timer (FTDI's default
+# 16 ms: it hands on what it holds at least that often) and 40 characters at 9600 baud.
+QUIET_GAP_S = 0.05
+
 
 class SerialLink:
     """An open serial port with bounded reads and typed errors.
@@ -123,6 +127,13 @@ class SerialLink:
             return data + self._ser.read(n) if n else data
         except (serial.SerialException, OSError, TypeError, termios.error) as exc:  # tcgetattr on a vanished pty
             raise self._gone(exc) from exc
+
+    def discard_until_quiet(self, max_s: float, quiet_s: float = QUIET_GAP_S) -> None:
+        """Drop what arrives until the line has been silent for `quiet_s`, for at most `max_s`: after a reply
+        that could not be parsed, its rest is still on its way and would be read as the start of the next."""
+        deadline_s = self.clock.now_s() + max_s
+        while (left_s := deadline_s - self.clock.now_s()) > 0 and self.read_some(min(quiet_s, left_s)):
+            pass
 
     def discard_input(self) -> None:
         """Drop whatever the device sent and nobody read yet."""

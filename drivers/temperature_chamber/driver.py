@@ -15,7 +15,8 @@ Parameters (two-letter mnemonics):
     AC  write 1: acknowledge latched alarms
     II  instrument identity `>2408`
 
-Errors: no reply -> DeviceTimeout; garbage or a reply cut short -> FrameError; bad BCC ->
+Errors: no reply -> DeviceTimeout; garbage (let pass until the line is quiet, so that the retry reads its own
+reply) or a reply cut short -> FrameError; bad BCC ->
 ChecksumError; EOT to a read, NAK to a write, an active alarm or a broken sensor -> DeviceFault;
 a set point or ramp outside the station's limits -> LimitError (nothing sent); port gone ->
 Disconnected. Every command is retried on timeouts and damaged replies: reads have no
@@ -99,14 +100,21 @@ class TemperatureChamber(SerialDevice):
             link.write(message)
             deadline_s = self._link_clock.now_s() + self.timeout_s
             buf = b""
-            while (n := reply_length(buf)) is None:
+            while True:
+                try:
+                    n = reply_length(buf)
+                except FrameError:
+                    # Not a reply: the rest of it is still on the line and would spoil the retry's reply.
+                    link.discard_until_quiet(deadline_s - self._link_clock.now_s())
+                    raise
+                if n is not None:
+                    return buf[:n]
                 left_s = deadline_s - self._link_clock.now_s()
                 if left_s <= 0:
                     if buf:
                         raise FrameError(DEVICE, f"{what}: truncated reply {buf!r} within {self.timeout_s:g} s")
                     raise DeviceTimeout(DEVICE, f"no reply to {what} within {self.timeout_s:g} s")
                 buf += link.read_some(left_s)
-            return buf[:n]
 
     def read(self, mnemonic: str) -> str:
         """A parameter's data (retried)."""
