@@ -69,10 +69,9 @@ def test_bad_input_is_refused_before_anything_moves() -> None:
 @pytest.mark.slow
 def test_suppression_reproduces_the_seeds_headline(tmp_path, capsys) -> None:
     """The default procedure file, end to end on the simulated station (seed 5). Every figure is checked
-    against the twin's float within 4 sigma of the session's own uncertainties. At 500 x real time: on a
-    loaded machine a reader that lags 107 ms of wall time at 1000 x (half a wrap of the 50 ns time stamps,
-    214.7 s of station time) puts time stamps on the wrong wrap (a TimingFault of exactly 48 364.8 us at
-    10 Hz); 500 x doubles that margin. About 100 s of wall time."""
+    against the twin's float within 4 sigma of the session's own uncertainties. On the deterministic station
+    (`station run` without --speed: as fast as the CPU allows, no reader ever lags its emulator): 6.44 h of
+    station time, 276 points, about 22 s of wall time on an idle machine (2026-12-07)."""
     args = ["run", str(PROCEDURE), "--station", str(STATION), "--out", str(tmp_path), "--seed", "5"]
     assert main(args) == 0
     printed = capsys.readouterr().out
@@ -136,8 +135,10 @@ def _abort_when(controller: StationController, done: int) -> None:
 def test_a_resumed_session_sets_the_offset_again_and_never_removes_mass_twice(tmp_path) -> None:
     """Aborted during the second offset's calibration (and the servo meanwhile set elsewhere), then during the
     last calibration after the mass removal: each resume sets the group's offset again before its remaining
-    points, and the operator is asked for the removal once. At 300 x real time, as the engine's own resume test:
-    at 1000 x a resumed window sometimes fails the grating cross-check (seen without this procedure too)."""
+    points, and the operator is asked for the removal once. At 300 x real time, so that the abort, polled every
+    10 ms of wall time, lands in the point it waits for (3 s of station time against 20 s windows). At 1000 x a
+    resumed window failed the grating cross-check in 2026-12-01's tree; 15 runs of 15 pass at 1000 x since (three
+    at once on 2 cores, 2026-12-07)."""
     config = load_station_config(STATION)
     params = {"offsets_arcsec": [-2.0, -1.0, 0.0, 1.0], "freqs_hz": [8.0, 10.0], "window_s": 20.0,
               "verify_window_s": 20.0}  # fmt: skip
