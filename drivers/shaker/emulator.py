@@ -44,9 +44,10 @@ class ShakerEmulator(PtyEmulator):
         self.commands: list[str] = []  # log of received command texts, for tests
 
     def alarm(self, name: str) -> None:
-        """Trip the drive (device-specific fault): the table stops and the alarm latches."""
-        self.latched = name
+        """Trip the drive (device-specific fault): the table stops, then the alarm latches (whoever reads the alarm
+        finds the table stopping, even in the middle of a ramp-down)."""
         self.motion.stop(self.clock.now_s(), ALARM_STOP_S)
+        self.latched = name
 
     def on_bytes(self, data: bytes) -> None:
         for line in self.command_lines(data):

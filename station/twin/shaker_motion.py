@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -62,22 +62,32 @@ def raised_cosine(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class ShakerRun:
-    """A drive switched on at t_on_s (ramping up over ramp_up_s) and off at t_off_s (ramping down)."""
+    """A drive switched on at t_on_s (ramping up over ramp_up_s) and off by its stops, each (t_off_s, ramp_down_s):
+    the first ramps it down, a later one only if it brings the table to rest sooner (a trip or an ABORT during a
+    ramp-down), the ramps multiplying so that the level stays continuous."""
 
     drive: Drive
     t_on_s: float
     ramp_up_s: float
-    t_off_s: float = math.inf
-    ramp_down_s: float = 0.0
+    stops: tuple[tuple[float, float], ...] = ()
+
+    @property
+    def t_off_s(self) -> float:
+        """When the ramp-down began (inf while none was commanded)."""
+        return self.stops[0][0] if self.stops else math.inf
+
+    def rest_s(self) -> float:
+        """When the table is at rest (inf while no stop was commanded)."""
+        return min((t_off_s + ramp_s for t_off_s, ramp_s in self.stops), default=math.inf)
 
     def envelope(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """e(t) and de/dt."""
-        up, dup = raised_cosine((t_s - self.t_on_s) / self.ramp_up_s)
-        dup = dup / self.ramp_up_s
-        if math.isinf(self.t_off_s):
-            return up, dup
-        down, ddown = raised_cosine((t_s - self.t_off_s) / self.ramp_down_s)
-        return up * (1.0 - down), dup * (1.0 - down) - up * ddown / self.ramp_down_s
+        e, de = raised_cosine((t_s - self.t_on_s) / self.ramp_up_s)
+        de = de / self.ramp_up_s
+        for t_off_s, ramp_s in self.stops:
+            down, ddown = raised_cosine((t_s - t_off_s) / ramp_s)
+            e, de = e * (1.0 - down), de * (1.0 - down) - e * ddown / ramp_s
+        return e, de
 
     def response(
         self, t_base_s: np.ndarray, offsets_s: np.ndarray, gains: Sequence[Gain | None]
@@ -104,7 +114,7 @@ class ShakerRun:
         return [(e * ys[..., i], de * ys[..., i] + e * ys[..., ng + i]) for i in range(ng)]
 
     def done(self, t_s: float) -> bool:
-        return t_s >= self.t_off_s + self.ramp_down_s
+        return t_s >= self.rest_s()
 
 
 class ShakerMotion:
@@ -121,11 +131,12 @@ class ShakerMotion:
             self._run = ShakerRun(drive, t_s, ramp_s)
 
     def stop(self, t_s: float, ramp_s: float) -> None:
-        """Ramp down from t_s (no effect when idle or already ramping down)."""
+        """Ramp down from t_s; while ramping down already, only if that brings the table to rest sooner (no effect
+        when idle)."""
         with self._lock:
             run = self._run
-            if run is not None and math.isinf(run.t_off_s) and t_s >= run.t_on_s:
-                self._run = ShakerRun(run.drive, run.t_on_s, run.ramp_up_s, t_s, ramp_s)
+            if run is not None and t_s >= run.t_on_s and t_s + ramp_s < run.rest_s():
+                self._run = replace(run, stops=(*run.stops, (t_s, ramp_s)))
 
     def phase(self, t_s: float) -> str:
         """idle, ramp_up, run or ramp_down."""

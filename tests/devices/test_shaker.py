@@ -17,9 +17,9 @@ from drivers.config import load_station_config
 from drivers.errors import ChecksumError, DeviceFault, DeviceTimeout, Disconnected, FrameError, LimitError
 from drivers.pty_link import Fault
 from drivers.shaker.driver import ShakerController
-from drivers.shaker.emulator import ShakerEmulator
+from drivers.shaker.emulator import ALARM_STOP_S, ShakerEmulator
 from drivers.shaker.envelope import G_STANDARD_MPS2, check_random, random_sigmas
-from station.twin.shaker_motion import ShakerMotion
+from station.twin.shaker_motion import ShakerMotion, sine_drive
 
 from .conftest import make_world
 
@@ -129,6 +129,47 @@ def test_an_alarm_stops_the_table_latches_and_refuses_a_start(shaker_rig) -> Non
     shaker.clear_alarm()
     shaker.start(0.5)
     assert shaker.check().state == "RAMP_UP"
+
+
+def test_a_trip_or_an_abort_during_a_ramp_down_stops_the_table_at_once() -> None:
+    """The slip table's model: a stop that brings the table to rest sooner than the ramp-down under way takes over
+    (an amplifier trip, ABORT), the level continuous where it does (the ramps multiply: at the second stop's
+    t_off its own factor is 1 to the last bit); a slower one changes nothing. Before, any stop during a ramp-down
+    was ignored: a trip 1 s into a 10 s ramp-down left the table shaking for 9 s more."""
+    motion = ShakerMotion()
+    motion.start(sine_drive(20.0, 1.0, G_STANDARD_MPS2), 0.0, 0.5)
+    motion.stop(5.0, 10.0)
+    t_trip = 6.0
+    before = motion.response([t_trip], [0.0], (None,))
+    motion.stop(t_trip, ALARM_STOP_S)
+    assert motion.response([t_trip], [0.0], (None,))[0][0] == before[0][0]
+    assert motion.phase(t_trip + ALARM_STOP_S / 2) == "ramp_down"
+    assert not motion.moving(t_trip + ALARM_STOP_S)
+    ((a, _),) = motion.response([t_trip + ALARM_STOP_S], [0.0, 1.0], (None,))
+    assert not a.any()
+    motion.start(sine_drive(20.0, 1.0, G_STANDARD_MPS2), 10.0, 0.5)
+    motion.stop(11.0, 1.0)
+    motion.stop(11.5, 2.0)  # would end later: the 1 s ramp stands
+    assert motion.moving(11.999) and not motion.moving(12.0)
+
+
+def test_an_alarm_during_the_drivers_ramp_down_stops_the_table_within_the_trip_time(shaker_rig) -> None:
+    world, emu, shaker = shaker_rig
+    motion = world.shared("shaker", ShakerMotion)
+    shaker.set_sine(20.0, 1.0)
+    shaker.start(0.5)
+    wait_for(shaker, "RUN")
+    shaker.stop(20.0)  # 2 s of wall time at 10x
+    emu.alarm("OVERTRAVEL")
+    time.sleep(0.01)  # 0.1 s of station time: the trip stops the table within ALARM_STOP_S = 20 ms
+    assert not motion.moving(world.clock.now_s())
+    shaker.clear_alarm()
+    shaker.start(0.5)
+    wait_for(shaker, "RUN")
+    shaker.stop(20.0)
+    shaker.abort()
+    time.sleep(0.01)
+    assert not motion.moving(world.clock.now_s())
 
 
 @pytest.mark.parametrize(

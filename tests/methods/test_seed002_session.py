@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from drivers.config import load_station_config
+from drivers.shaker.emulator import ALARM_STOP_S
 from drivers.station import SimulatedStation, simulated_station
 from station.cli.controller import RunOutcome, StationController
 from station.constants import G_MPS2
@@ -195,8 +196,13 @@ def test_a_shaker_alarm_fails_the_run_and_keeps_the_runs_before_it(make_rig) -> 
     wait_until(lambda: len(rig.store.measurements(uid, with_arrays=False)) == 1)
     wait_until(lambda: rig.motion.phase(rig.now_s()) == "run")
     rig.sim.emulators["shaker"].alarm("OVERTRAVEL")
+    t_tripped_s = rig.now_s()  # the trip began before this
     outcome = rig.controller.wait(20)
     assert outcome is not None and outcome.state == State.FAILED
     assert any("alarm OVERTRAVEL" in f for f in outcome.faults)
     assert [m.key for m in rig.store.measurements(uid, with_arrays=False)] == ["cal01-pose1"]
+    # The trip stops the table within ALARM_STOP_S of station time, and the driver's own stop (a 2 s ramp) must not
+    # prolong it. The run's end may come sooner than that (8 ms of station time after the trip was seen, 1 run in
+    # about 10 with three such tests at once on 2 cores): read the table once the trip's time has passed.
+    wait_until(lambda: rig.now_s() >= t_tripped_s + ALARM_STOP_S)
     assert not rig.motion.moving(rig.now_s())
