@@ -125,27 +125,14 @@ class SimLine:
     def read(self, size: int, timeout_s: float | None, is_open: Callable[[], bool]) -> bytes:
         """Up to `size` bytes: returns once it has them, or when timeout_s (None: no limit) has passed
         or the port closed with fewer."""
-        clock = self.clock
-        now_s = clock.now_s()
-        deadline_s = math.inf if timeout_s is None else now_s + timeout_s
-        out = bytearray()
-        while True:
-            self._changed.clear()
-            with self._lock:
-                self._service(now_s)
-                n = min(size - len(out), len(self._rx))
-                out += self._rx[:n]
-                del self._rx[:n]
-                wake_s = min(deadline_s, self._next_s(now_s, size - len(out)))
-            if len(out) >= size or now_s >= deadline_s or not is_open():
-                return bytes(out)
-            self._changed.wait(timeout_s=wake_s - now_s)
-            now_s = clock.now_s()
+        return self.read_until(None, size, timeout_s, is_open)
 
-    def read_until(self, terminator: bytes, size: int, timeout_s: float | None, is_open: Callable[[], bool]) -> bytes:
-        """Through the first `terminator`, or `size` bytes: returns once it has them, or with what has come when
-        timeout_s (None: no limit) has passed or the port closed. It wakes once, at the USB frame that brings
-        the terminator (the station time a reader of single bytes returns it too), not once a frame."""
+    def read_until(
+        self, terminator: bytes | None, size: int, timeout_s: float | None, is_open: Callable[[], bool]
+    ) -> bytes:
+        """Through the first `terminator` (None: none), or `size` bytes: returns once it has them, or with what has
+        come when timeout_s (None: no limit) has passed or the port closed. It wakes once, at the USB frame that
+        brings the terminator (the station time a reader of single bytes returns it too), not once a frame."""
         clock = self.clock
         now_s = clock.now_s()
         deadline_s = math.inf if timeout_s is None else now_s + timeout_s
@@ -154,8 +141,8 @@ class SimLine:
             with self._lock:
                 self._service(now_s)
                 rx = self._rx
-                end = rx.find(terminator)
-                n = min(size, len(rx) if end < 0 else end + len(terminator))
+                end = rx.find(terminator) if terminator else -1
+                n = min(size, len(rx) if end < 0 else end + len(terminator or b""))
                 if end >= 0 or n >= size or now_s >= deadline_s or not is_open():
                     out = bytes(rx[:n])
                     del rx[:n]
@@ -197,10 +184,12 @@ class SimLine:
         if not pending:
             self._carried_s = max(self._carried_s, now_s)  # an idle line saves no capacity
 
-    def _until_bytes(self, terminator: bytes, size: int) -> int:
+    def _until_bytes(self, terminator: bytes | None, size: int) -> int:
         """How many more bytes the line must carry to hold the first terminator (or `size` bytes): up to its end
         where the emulator's FIFO holds it, else all that is asked for."""
         room = size - len(self._rx)
+        if not terminator:
+            return room
         keep = len(terminator) - 1  # a terminator may begin in what was carried already
         ahead = bytes(self._rx[max(len(self._rx) - keep, 0) :]) if keep else b""
         end = (ahead + self.emulator.peek_tx(room)).find(terminator)
