@@ -233,7 +233,10 @@ class StrapdownImu(FramedDevice):
         if bad.size:
             bits = int(raw["status"][bad[0]])
             what = ", ".join(name for bit, name in STATUS_BITS.items() if bits >> bit & 1) or f"status {bits}"
-            raise DeviceFault(DEVICE, f"{what} in sample {int(raw['seq'][bad[0]])}", field="status", value=bits)
+            fault = DeviceFault(DEVICE, f"{what} in sample {int(raw['seq'][bad[0]])}", field="status", value=bits)
+            if not bad[0]:
+                raise fault
+            self._pending, raw = fault, raw[: bad[0]]  # the good samples before it are measurements: kept
         seq = raw["seq"].astype(np.int64)
         ticks = self._unwrap.unwrap_array(raw["ticks"], self._unwrap.clock.now_s())
         period = round(1.0 / (info.rate_hz * TICK_S))

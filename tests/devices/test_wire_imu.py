@@ -90,6 +90,15 @@ def test_status_bits_are_a_device_fault() -> None:
     assert (info.value.field, info.value.value) == ("status", 1)
 
 
+def test_a_status_fault_comes_after_the_good_samples_before_it() -> None:
+    """S0 and a faulted S1 arrive in one read: S0 is a finished measurement and is returned, the fault follows."""
+    with _imu_on([(START, ACK_START + S0 + S1_GYRO_FAULT)]) as imu:
+        imu.start_stream()
+        assert list(imu.read_block().seq) == [0]
+        with pytest.raises(DeviceFault, match="gyro fault in sample 1"):
+            imu.read_block()
+
+
 def test_a_seq_that_disagrees_with_its_stamp_is_a_frame_error() -> None:
     with _imu_on([(START, ACK_START + S1 + S2_STAMPED_AS_1)]) as imu:
         imu.start_stream()
