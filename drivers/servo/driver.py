@@ -36,7 +36,7 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any, NamedTuple, cast
 
 import can
 import canopen
@@ -167,6 +167,15 @@ class ServoLimits:
             )
 
 
+class Reception(NamedTuple):
+    """One TPDO-mapped object as a TPDO brought it, with the rest of that TPDO (`together`): one instant's values."""
+
+    value: int
+    seq: int
+    t_s: float
+    together: dict[int, int]
+
+
 class _TpdoCache:
     """Last value, reception count and station time of every TPDO-mapped object; receptions are awaited
     on the link clock (station.clock)."""
@@ -178,15 +187,18 @@ class _TpdoCache:
         self._values: dict[int, int] = {}
         self._seq: dict[int, int] = {}
         self._t_s: dict[int, float] = {}
+        self._together: dict[int, dict[int, int]] = {}
         self.last_rx_link_s = self._link.now_s()
 
     def on_pdo(self, pdo_map: PdoMap) -> None:
         t_s = self._clock.now_s()
+        together = {var.index: int(var.od.decode_raw(var.data)) for var in pdo_map}  # var.raw formats a debug text
         with self._cond:
-            for var in pdo_map:
-                self._values[var.index] = int(var.od.decode_raw(var.data))  # var.raw also formats a debug text
-                self._seq[var.index] = self._seq.get(var.index, 0) + 1
-                self._t_s[var.index] = t_s
+            self._values.update(together)
+            for index in together:
+                self._seq[index] = self._seq.get(index, 0) + 1
+                self._t_s[index] = t_s
+                self._together[index] = together
             self.last_rx_link_s = self._link.now_s()
             self._cond.notify_all()
 
@@ -194,12 +206,13 @@ class _TpdoCache:
         with self._cond:
             return self._seq.get(index, 0)
 
-    def reception(self, index: int, after_seq: int, *, timeout_s: float) -> tuple[int, int, float] | None:
-        """(value, seq, t_s) of the first reception numbered after after_seq, or None after timeout_s."""
+    def reception(self, index: int, after_seq: int, *, timeout_s: float) -> Reception | None:
+        """The first reception numbered after after_seq (the latest one, when several came meanwhile), or None
+        after timeout_s."""
         with self._cond:
             if not self._cond.wait_for(lambda: self._seq.get(index, 0) > after_seq, timeout_s=timeout_s):
                 return None
-            return self._values[index], self._seq[index], self._t_s[index]
+            return Reception(self._values[index], self._seq[index], self._t_s[index], self._together[index])
 
     def latest(self, index: int) -> int:
         with self._cond:
@@ -576,7 +589,7 @@ class VibrationTableServo:
             remaining_s = deadline_s - self._link.now_s()
             got = self._tpdo.reception(0x6041, seq, timeout_s=max(remaining_s, 0.0))
             if got is not None:
-                sw, seq, _ = got
+                sw, seq = got.value, got.seq
                 if not sw & SW_FAULT:
                     break
             if got is None or remaining_s <= 0:
@@ -597,8 +610,7 @@ class VibrationTableServo:
     def read(self) -> ServoReading:
         """The next TPDO sample of velocity and position (waits at most one TPDO timeout)."""
         self.check()
-        got = self._fresh(0x606C, self._tpdo.seq(0x606C), "velocity TPDO")
-        return self._reading(got[0], got[2])
+        return self._reading(self._fresh(0x606C, self._tpdo.seq(0x606C), "velocity TPDO"))
 
     def read_error_code(self) -> int:
         """0x603F, the drive's last error code (SDO, retried once)."""
@@ -635,9 +647,9 @@ class VibrationTableServo:
             got = self._tpdo.reception(0x6061, seq, timeout_s=deadline_s - self._link.now_s())
             if got is None:
                 break
-            if got[0] == MODE_PROFILE_VELOCITY:
+            if got.value == MODE_PROFILE_VELOCITY:
                 return
-            seq = got[1]
+            seq = got.seq
         display = self._sdo_read(0x6061)  # the drive's word, not a stale TPDO
         if display != MODE_PROFILE_VELOCITY:
             raise DeviceFault(
@@ -695,11 +707,11 @@ class VibrationTableServo:
             if supervised:
                 self.check()
             if got is not None:
-                counts, seq, t_s = got
-                actual_hz = counts * VELOCITY_UNIT_HZ
+                seq = got.seq
+                actual_hz = got.value * VELOCITY_UNIT_HZ
                 near = abs(actual_hz - freq_hz) <= AT_SPEED_TOL_HZ
                 if near and done(self._tpdo.latest(0x6041)):
-                    return self._reading(counts, t_s)
+                    return self._reading(got)
             if got is None or remaining_s <= 0:
                 raise DeviceTimeout(
                     self.DEVICE,
@@ -712,10 +724,13 @@ class VibrationTableServo:
     def _actual_hz(self) -> float:
         return self._tpdo.latest(0x606C) * VELOCITY_UNIT_HZ
 
-    def _reading(self, velocity_counts: int, t_s: float) -> ServoReading:
-        freq_hz = velocity_counts * VELOCITY_UNIT_HZ
-        position_rad = self._tpdo.latest(0x6064) * TWO_PI / POSITION_UNITS_PER_REV
-        return ServoReading(t_s, freq_hz, TWO_PI * freq_hz, position_rad)
+    def _reading(self, velocity: Reception) -> ServoReading:
+        """Velocity and position of one instant: from the velocity's own TPDO where it carries the position (a TPDO
+        that came after would pair one instant's velocity and time stamp with a later position)."""
+        freq_hz = velocity.value * VELOCITY_UNIT_HZ
+        counts = velocity.together.get(0x6064)
+        position_rad = (self._tpdo.latest(0x6064) if counts is None else counts) * TWO_PI / POSITION_UNITS_PER_REV
+        return ServoReading(velocity.t_s, freq_hz, TWO_PI * freq_hz, position_rad)
 
     def _transition(self, cw: int, expected: str) -> None:
         seq = self._tpdo.seq(0x6041)
@@ -726,7 +741,7 @@ class VibrationTableServo:
             got = self._tpdo.reception(0x6041, seq, timeout_s=remaining_s)
             if got is None:
                 break
-            sw, seq, _ = got
+            sw, seq = got.value, got.seq
             state = state_of(sw)
             if state == expected:
                 return
@@ -748,9 +763,9 @@ class VibrationTableServo:
         )
 
     def _fresh_statusword(self) -> int:
-        return self._fresh(0x6041, self._tpdo.seq(0x6041), "statusword TPDO")[0]
+        return self._fresh(0x6041, self._tpdo.seq(0x6041), "statusword TPDO").value
 
-    def _fresh(self, index: int, after_seq: int, what: str) -> tuple[int, int, float]:
+    def _fresh(self, index: int, after_seq: int, what: str) -> Reception:
         """The next reception of a TPDO-mapped object: due within one event period, the reply timeout on top."""
         wait_s = self._cfg.tpdo_event_timer_ms / 1000 + self._cfg.timeout_s
         got = self._tpdo.reception(index, after_seq, timeout_s=wait_s)

@@ -45,6 +45,7 @@ from drivers.errors import (
 )
 from drivers.servo.driver import READ_ATTEMPTS, ServoLimits, VibrationTableServo
 from drivers.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
+from drivers.servo.protocol import POSITION_UNITS_PER_REV
 from drivers.sim_can import bind_clock
 from station.clock import Clock, VirtualClock, WallClock, host_clock
 from station.event_clock import EventClock
@@ -438,3 +439,30 @@ def test_the_station_files_tpdo_event_timer_is_written_to_the_drive() -> None:
         assert servo._tpdo.seq(0x606C) - before == 5000 // period_ms
         first, second = servo.read(), servo.read()
         assert second.t_s - first.t_s == pytest.approx(period_ms / 1000, abs=1e-9)
+
+
+def test_a_reading_pairs_velocity_time_and_position_of_one_tpdo(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A TPDO that lands between the velocity's reception and the reading (a busy host's reader wakes late) must
+    not lend the reading its position. On the discrete-event clock the next TPDO is let in there on purpose; the
+    position is then the crank's at the reading's own time stamp, to one count (2 pi / 65536 rad: the drive rounds
+    its phase to counts), against 2 pi f x 250 ms = 2.4 rad for the next TPDO's (the station file's event timer,
+    1.5 Hz)."""
+    f_hz = 1.5
+    tpdo_period_s = CONFIG.servo.tpdo_event_timer_ms / 1000
+    with _on_the_event_clock() as (clock, emu, servo):
+        servo.enable()
+        servo.set_frequency(f_hz)
+        cache = servo._tpdo
+        receive = cache.reception
+
+        def late_reader(index: int, after_seq: int, *, timeout_s: float) -> Any:
+            got = receive(index, after_seq, timeout_s=timeout_s)
+            clock.sleep_s(tpdo_period_s)  # the next TPDO comes in before the reader goes on
+            assert cache.seq(index) == got[1] + 1  # got: (value, seq, ...)
+            return got
+
+        monkeypatch.setattr(cache, "reception", late_reader)
+        reading = servo.read()
+        crank_rad = emu.crank.phase_rad(reading.t_s) / (1 + emu.crank.eps_f)
+        off_rad = (reading.position_rad - crank_rad + math.pi) % TWO_PI - math.pi
+        assert abs(off_rad) <= TWO_PI / POSITION_UNITS_PER_REV
