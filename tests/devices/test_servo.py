@@ -43,7 +43,7 @@ from drivers.errors import (
     InterlockError,
     LimitError,
 )
-from drivers.servo.driver import READ_ATTEMPTS, ServoLimits, VibrationTableServo
+from drivers.servo.driver import AT_SPEED_TOL_HZ, READ_ATTEMPTS, ServoLimits, VibrationTableServo
 from drivers.servo.emulator import EMCY_HEARTBEAT_ERROR, ServoEmulator
 from drivers.servo.protocol import POSITION_UNITS_PER_REV
 from drivers.sim_can import bind_clock
@@ -153,8 +153,10 @@ def test_ramp_reaches_target_and_velocity_matches(rig: Rig) -> None:
     at_speed = rig.servo.set_frequency(f_hz)  # already commanded: waits for the end of the ramp
     assert at_speed is not None
     ramp_s = at_speed.t_s - t_cmd_s
-    assert f_hz / RAMP_HZ_PER_S <= ramp_s < f_hz / RAMP_HZ_PER_S + SLACK_S
-    assert at_speed.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
+    # "at speed" is a velocity within AT_SPEED_TOL_HZ of the target with target reached (like 0x606D's window): a
+    # TPDO sampled up to AT_SPEED_TOL_HZ / ramp (0.5 ms) before the ramp's end may be the one (seen on a busy host)
+    assert (f_hz - AT_SPEED_TOL_HZ) / RAMP_HZ_PER_S <= ramp_s < f_hz / RAMP_HZ_PER_S + SLACK_S
+    assert at_speed.freq_hz == pytest.approx(f_hz, abs=AT_SPEED_TOL_HZ)
     later = rig.servo.read()
     assert later.freq_hz == pytest.approx(f_hz, abs=VELOCITY_LSB_HZ)
     assert later.velocity_radps == pytest.approx(TWO_PI * f_hz, abs=TWO_PI * VELOCITY_LSB_HZ)
